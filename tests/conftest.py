@@ -1,0 +1,62 @@
+"""Shared fixtures: the default robot, its kinematics and collision checker (built once)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_CONFIG = ROOT / "trees" / "irb1600_default.toml"
+ROBOT_TOML = ROOT / "robots" / "irb1600" / "robot.toml"
+
+
+@pytest.fixture(scope="session")
+def robot():
+    from thinkfast.robot.model import load_robot
+
+    return load_robot(ROBOT_TOML)
+
+
+@pytest.fixture(scope="session")
+def kin(robot):
+    from thinkfast.robot.kinematics import Kinematics
+
+    return Kinematics(robot)
+
+
+@pytest.fixture(scope="session")
+def checker(robot):
+    from thinkfast.robot.collision import CollisionChecker
+
+    return CollisionChecker(robot)
+
+
+def run_cli(
+    *args: str, cwd: Path | None = None, timeout: float = 600
+) -> subprocess.CompletedProcess:
+    """Run a console script of this package as a real process; returns the completed process."""
+    exe = Path(sys.executable).parent / args[0]
+    env = dict(os.environ)
+    env.pop("THINKFAST_DEBUG", None)
+    return subprocess.run(
+        [str(exe), *args[1:]],
+        capture_output=True,
+        text=True,
+        cwd=cwd or ROOT,
+        timeout=timeout,
+        env=env,
+    )
+
+
+def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> None:
+    """A CLI failure: non-zero exit, one line on stderr naming every needle, no traceback."""
+    assert proc.returncode != 0, proc.stdout
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])

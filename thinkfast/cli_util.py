@@ -1,0 +1,57 @@
+"""Shared command-line edge: one clear line on stderr for every error, never a traceback.
+
+Set ``THINKFAST_DEBUG=1`` to see the traceback of an unexpected internal error.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import typer
+
+from thinkfast.errors import ThinkfastError
+
+
+def make_app(help_text: str) -> typer.Typer:
+    """A typer app with plain (non-rich) output, so errors stay one line."""
+    return typer.Typer(
+        help=help_text,
+        add_completion=False,
+        no_args_is_help=True,
+        pretty_exceptions_enable=False,
+        rich_markup_mode=None,
+    )
+
+
+def run_app(app: typer.Typer, prog: str, argv: list[str] | None = None) -> int:
+    """Run ``app`` and turn every failure into ``prog: error: ...`` and an exit status.
+
+    Returns:
+        The exit status (0 success; 1 thinkfast error or a command's own failure; 2 usage error;
+        130 interrupted).
+    """
+    try:
+        result = app(args=argv, prog_name=prog, standalone_mode=False)
+    except typer.Exit as exc:
+        return int(exc.exit_code)
+    except (typer.Abort, KeyboardInterrupt):
+        _error(prog, "interrupted")
+        return 130
+    except ThinkfastError as exc:
+        _error(prog, str(exc))
+        return 1
+    except Exception as exc:
+        if hasattr(exc, "format_message") and hasattr(exc, "exit_code"):
+            # click's (or typer's vendored click's) usage and parameter errors
+            _error(prog, exc.format_message().strip().replace("\n", " "))
+            return int(exc.exit_code)
+        if os.environ.get("THINKFAST_DEBUG"):  # a bug: still one line unless asked for more
+            raise
+        _error(prog, f"internal error: {type(exc).__name__}: {exc} (THINKFAST_DEBUG=1 for details)")
+        return 1
+    return int(result) if isinstance(result, int) else 0
+
+
+def _error(prog: str, message: str) -> None:
+    print(f"{prog}: error: {message}", file=sys.stderr)

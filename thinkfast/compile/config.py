@@ -1,0 +1,79 @@
+"""Compile configuration: one frozen dataclass per stage, loaded from one TOML file."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+from thinkfast.config import from_dict, load_toml, spec
+from thinkfast.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class PlaneConfig:
+    """The intercept plane x = distance in ``base``; the shield faces +x (towards the ball)."""
+
+    distance: float = spec(0.8, lo=0.0, lo_open=True, unit="m", doc="plane distance from base")
+
+
+@dataclass(frozen=True)
+class GoalsConfig:
+    """Rectangular goal grid over the plane (inclusive ranges)."""
+
+    y_min: float = spec(-0.9, unit="m", doc="lowest base y of the grid")
+    y_max: float = spec(0.9, unit="m", doc="highest base y of the grid")
+    z_min: float = spec(0.25, unit="m", doc="lowest base z of the grid")
+    z_max: float = spec(1.75, unit="m", doc="highest base z of the grid")
+    spacing: float = spec(0.15, lo=0.0, lo_open=True, unit="m", doc="grid step in y and z")
+    continuity: float = spec(
+        1.0,
+        lo=0.0,
+        lo_open=True,
+        unit="rad",
+        doc="largest joint 1-3 jump to a solved neighbour before a branch switch is assumed",
+    )
+
+
+@dataclass(frozen=True)
+class CompileConfig:
+    """Everything ``thinkfast-compile`` needs; ``robot`` is relative to the config file."""
+
+    robot: str = spec("../robots/irb1600/robot.toml", doc="robot.toml path")
+    plane: PlaneConfig = spec(PlaneConfig())
+    goals: GoalsConfig = spec(GoalsConfig())
+
+
+@dataclass(frozen=True)
+class LoadedConfig:
+    """A validated config with its provenance."""
+
+    config: CompileConfig
+    path: Path
+    text: str
+    sha256: str
+    robot_path: Path
+
+
+def load_compile_config(path: str | Path) -> LoadedConfig:
+    """Read and validate a compile TOML file.
+
+    Raises:
+        ConfigError: unreadable file, invalid TOML, unknown key, wrong type or impossible value.
+    """
+    path = Path(path)
+    data = load_toml(path)
+    cfg = from_dict(CompileConfig, data, str(path))
+    g = cfg.goals
+    if g.y_max < g.y_min:
+        raise ConfigError(str(path), "goals.y_max", f"must be >= goals.y_min ({g.y_min:g})")
+    if g.z_max < g.z_min:
+        raise ConfigError(str(path), "goals.z_max", f"must be >= goals.z_min ({g.z_min:g})")
+    text = path.read_text(encoding="utf-8")
+    return LoadedConfig(
+        config=cfg,
+        path=path,
+        text=text,
+        sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(),
+        robot_path=(path.parent / cfg.robot).resolve(),
+    )

@@ -1,0 +1,174 @@
+"""TOML configuration into frozen dataclasses, validated at the edge.
+
+Each stage declares one frozen dataclass. Fields carry their constraints in ``field(metadata=...)``
+through :func:`spec`; :func:`from_dict` checks unknown keys, types, shapes and ranges and raises a
+:class:`~thinkfast.errors.ConfigError` naming the dotted key. Past this module nothing reads files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import types
+import typing
+from pathlib import Path
+from typing import Any, TypeVar
+
+from thinkfast.errors import ConfigError
+
+T = TypeVar("T")
+
+
+def spec(
+    default: Any = dataclasses.MISSING,
+    *,
+    doc: str = "",
+    unit: str = "",
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    length: int | None = None,
+    choices: tuple[str, ...] | None = None,
+) -> Any:
+    """A dataclass field with validation metadata.
+
+    Args:
+        default: default value (omit for a required key). Tuples are fine: configs are frozen.
+        doc: one-line meaning, shown in errors and docs.
+        unit: SI unit of the value.
+        lo, hi: inclusive bounds for numbers (each element of a sequence); ``lo_open`` makes the
+            lower bound strict (e.g. a duration that must be > 0).
+        length: exact length for a tuple value.
+        choices: allowed strings.
+    """
+    meta = dict(doc=doc, unit=unit, lo=lo, hi=hi, lo_open=lo_open, length=length, choices=choices)
+    if default is dataclasses.MISSING:
+        return dataclasses.field(metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file, turning every failure into a one-line :class:`ConfigError`."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(str(path), None, "file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(str(path), None, f"cannot read file ({exc})") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(path), None, f"invalid TOML ({exc})") from None
+
+
+def from_dict(cls: type[T], data: Any, source: str, prefix: str = "") -> T:
+    """Build the frozen dataclass ``cls`` from a TOML table, validating every key.
+
+    Args:
+        cls: a dataclass whose fields were declared with :func:`spec` (or plain defaults).
+        data: the table (dict) read from TOML.
+        source: file name, for messages.
+        prefix: dotted key of ``data`` inside the file, for messages.
+
+    Raises:
+        ConfigError: unknown key, missing key, wrong type, wrong length or out-of-range value.
+    """
+    if not isinstance(data, dict):
+        raise ConfigError(source, prefix or None, f"expected a table, got {_kind(data)}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        key = _join(prefix, unknown[0])
+        raise ConfigError(source, key, f"unknown key (valid keys: {', '.join(sorted(fields))})")
+    values = {}
+    for name, f in fields.items():
+        key = _join(prefix, name)
+        if name not in data:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise ConfigError(source, key, "missing required key")
+            continue
+        values[name] = _convert(hints[name], data[name], f.metadata, source, key)
+    return cls(**values)
+
+
+def to_dict(obj: Any) -> dict[str, Any]:
+    """A frozen config back to plain TOML-able data (tuples become lists)."""
+
+    def plain(v: Any) -> Any:
+        if dataclasses.is_dataclass(v):
+            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, tuple | list):
+            return [plain(x) for x in v]
+        return v
+
+    return plain(obj)
+
+
+def _join(prefix: str, name: str) -> str:
+    return f"{prefix}.{name}" if prefix else name
+
+
+def _kind(v: Any) -> str:
+    return {dict: "a table", list: "an array", str: "a string", bool: "a boolean"}.get(
+        type(v), type(v).__name__
+    )
+
+
+def _convert(tp: Any, v: Any, meta: Any, source: str, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if v is None:
+            return None
+        return _convert(args[0], v, meta, source, key)
+    if dataclasses.is_dataclass(tp):
+        return from_dict(tp, v, source, key)
+    if origin is tuple:
+        if not isinstance(v, list):
+            raise ConfigError(source, key, f"expected an array, got {_kind(v)}")
+        args = typing.get_args(tp)
+        want = meta.get("length") if meta else None
+        if want is not None and len(v) != want:
+            raise ConfigError(source, key, f"expected {want} values, got {len(v)}")
+        item_t = args[0]
+        return tuple(_convert(item_t, x, meta, source, f"{key}[{i}]") for i, x in enumerate(v))
+    if tp is bool:
+        if not isinstance(v, bool):
+            raise ConfigError(source, key, f"expected true or false, got {_kind(v)}")
+        return v
+    if tp is int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise ConfigError(source, key, f"expected an integer, got {_kind(v)}")
+        _check_range(float(v), meta, source, key)
+        return v
+    if tp is float:
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise ConfigError(source, key, f"expected a number, got {_kind(v)}")
+        if not math.isfinite(v):
+            raise ConfigError(source, key, f"expected a finite number, got {v}")
+        _check_range(float(v), meta, source, key)
+        return float(v)
+    if tp is str:
+        if not isinstance(v, str):
+            raise ConfigError(source, key, f"expected a string, got {_kind(v)}")
+        choices = meta.get("choices") if meta else None
+        if choices and v not in choices:
+            raise ConfigError(source, key, f"{v!r} is not one of {', '.join(choices)}")
+        return v
+    raise TypeError(f"unsupported config type {tp!r} for {key}")  # programming error
+
+
+def _check_range(v: float, meta: Any, source: str, key: str) -> None:
+    if not meta:
+        return
+    lo, hi = meta.get("lo"), meta.get("hi")
+    if lo is not None:
+        if meta.get("lo_open") and not v > lo:
+            raise ConfigError(source, key, f"must be > {lo:g}, got {v:g}")
+        if not meta.get("lo_open") and not v >= lo:
+            raise ConfigError(source, key, f"must be >= {lo:g}, got {v:g}")
+    if hi is not None and not v <= hi:
+        raise ConfigError(source, key, f"must be <= {hi:g}, got {v:g}")

@@ -1,0 +1,40 @@
+"""One exception tree for the whole project.
+
+The compiler and loaders raise these; command-line edges print ``str(error)`` as one line on
+stderr and exit non-zero. The real-time loop never lets them escape.
+"""
+
+from __future__ import annotations
+
+
+class ThinkfastError(Exception):
+    """Base class of every error thinkfast raises on purpose."""
+
+
+class ConfigError(ThinkfastError):
+    """A configuration file is missing, unreadable or holds an invalid value.
+
+    Args:
+        source: file (or other origin) of the configuration.
+        key: dotted key of the offending value, or None for file-level problems.
+        problem: what is wrong, written for a person.
+    """
+
+    def __init__(self, source: str, key: str | None, problem: str):
+        self.source = str(source)
+        self.key = key
+        self.problem = problem
+        where = f"{self.source}: {key}" if key else self.source
+        super().__init__(f"{where}: {problem}")
+
+
+class RobotModelError(ThinkfastError):
+    """The robot description (URDF or robot.toml) cannot be used."""
+
+
+class NoSolutionError(ThinkfastError):
+    """A numerical problem (IK, steering) has no acceptable solution."""
+
+
+class TreeFileError(ThinkfastError):
+    """A tree file is refused: the message names the path and the reason."""

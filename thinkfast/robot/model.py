@@ -1,0 +1,291 @@
+"""The robot: URDF + robot.toml, loaded and validated once, frozen afterwards.
+
+``load_robot(path)`` reads ``robot.toml`` (which names its URDF), builds the Pinocchio model and
+parses the URDF collision primitives. Every array is resolved against the model's joint order and
+frozen, so downstream code indexes joints 0..5 = joint_1..joint_6.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from thinkfast.config import from_dict, load_toml, spec
+from thinkfast.errors import ConfigError, RobotModelError
+
+
+def frozen(a) -> np.ndarray:
+    """A read-only float64 copy of ``a``."""
+    out = np.array(a, dtype=np.float64)
+    out.setflags(write=False)
+    return out
+
+
+@dataclass(frozen=True)
+class CellObject:
+    """A static collision object of the cell, in the ``base`` frame."""
+
+    name: str = spec(doc="object name, used in collision reports")
+    shape: str = spec(choices=("box", "cylinder", "sphere"), doc="primitive kind")
+    size: tuple[float, ...] = spec(
+        lo=0.0,
+        lo_open=True,
+        unit="m",
+        doc="box: [x, y, z]; cylinder: [radius, length]; sphere: [radius]",
+    )
+    xyz: tuple[float, ...] = spec((0.0, 0.0, 0.0), length=3, unit="m", doc="centre in base")
+    rpy: tuple[float, ...] = spec((0.0, 0.0, 0.0), length=3, unit="rad", doc="orientation in base")
+
+
+@dataclass(frozen=True)
+class RobotToml:
+    """Schema of ``robot.toml`` (see robots/irb1600/README.md for the sources of the numbers)."""
+
+    name: str = spec(doc="robot name")
+    urdf: str = spec(doc="URDF path, relative to robot.toml")
+    joints: tuple[str, ...] = spec(length=6, doc="controlled joints, in EGM order")
+    home: tuple[float, ...] = spec(length=6, unit="rad", doc="home configuration")
+    max_velocity: tuple[float, ...] = spec(length=6, lo=0.0, lo_open=True, unit="rad/s")
+    max_acceleration: tuple[float, ...] = spec(length=6, lo=0.0, lo_open=True, unit="rad/s^2")
+    max_jerk: tuple[float, ...] = spec(length=6, lo=0.0, lo_open=True, unit="rad/s^3")
+    shield_link: str = spec("shield", doc="link whose single cylinder collision is the shield")
+    allowed_collisions: tuple[tuple[str, ...], ...] = spec(
+        (), doc="link pairs never checked against each other (envelopes that always touch)"
+    )
+    cell: tuple[CellObject, ...] = spec((), doc="static collision objects of the cell")
+
+
+@dataclass(frozen=True)
+class CollisionShape:
+    """One collision primitive attached to a link (or to the cell when ``link`` is empty)."""
+
+    link: str
+    shape: str  # "box" | "cylinder" | "sphere" | "mesh"
+    size: tuple[float, ...]  # box (x, y, z); cylinder (radius, length); sphere (radius,)
+    T_link_shape: np.ndarray  # (4, 4) pose of the shape in its link frame
+    mesh_path: str = ""
+
+
+@dataclass(frozen=True)
+class Robot:
+    """Everything static about the arm, resolved once.
+
+    Attributes:
+        model: Pinocchio model (joint order = ``joint_names``).
+        q_lower, q_upper: position limits from the URDF [rad], shape (6,).
+        v_max, a_max, j_max: velocity [rad/s], acceleration [rad/s^2], jerk [rad/s^3], shape (6,).
+        home: home configuration [rad], shape (6,).
+        shapes: link collision primitives parsed from the URDF.
+        cell: static collision objects in ``base``.
+        link_parent: parent link of every link (root maps to "").
+        shield_radius, shield_thickness: shield disk [m].
+    """
+
+    name: str
+    model: pin.Model
+    joint_names: tuple[str, ...]
+    q_lower: np.ndarray
+    q_upper: np.ndarray
+    v_max: np.ndarray
+    a_max: np.ndarray
+    j_max: np.ndarray
+    home: np.ndarray
+    shapes: tuple[CollisionShape, ...]
+    cell: tuple[CollisionShape, ...]
+    link_parent: dict[str, str]
+    allowed_collisions: frozenset[frozenset[str]]
+    shield_link: str
+    shield_radius: float
+    shield_thickness: float
+    urdf_path: Path
+    toml_path: Path
+    urdf_sha256: str
+    toml_sha256: str
+
+
+def default_robot_path() -> Path:
+    """``robots/irb1600/robot.toml`` of this checkout."""
+    return Path(__file__).resolve().parents[2] / "robots" / "irb1600" / "robot.toml"
+
+
+def load_robot(toml_path: str | Path | None = None) -> Robot:
+    """Load ``robot.toml`` and its URDF.
+
+    Raises:
+        ConfigError: robot.toml is missing, malformed or has an invalid key.
+        RobotModelError: the URDF is missing, malformed or inconsistent with robot.toml.
+    """
+    toml_path = Path(toml_path) if toml_path is not None else default_robot_path()
+    cfg = from_dict(RobotToml, load_toml(toml_path), str(toml_path))
+    urdf_path = (toml_path.parent / cfg.urdf).resolve()
+    if not urdf_path.is_file():
+        raise RobotModelError(f"{urdf_path}: URDF file not found (named by {toml_path}: urdf)")
+    urdf_text = urdf_path.read_bytes()
+    try:
+        root = ET.fromstring(urdf_text)
+    except ET.ParseError as exc:
+        raise RobotModelError(f"{urdf_path}: malformed URDF XML ({exc})") from None
+    link_parent = _link_parents(root, urdf_path)
+    shapes = _parse_shapes(root, urdf_path)  # before Pinocchio: our messages are the clearer ones
+    with _captured_stderr() as native_log:
+        try:
+            model = pin.buildModelFromXML(urdf_text.decode("utf-8"))
+        except Exception as exc:  # Pinocchio raises plain ValueError/RuntimeError
+            detail = " ".join(native_log().split()) or str(exc)
+            raise RobotModelError(
+                f"{urdf_path}: Pinocchio cannot build the model ({detail})"
+            ) from None
+
+    names = tuple(model.names[1:])
+    if names != cfg.joints:
+        raise RobotModelError(
+            f"{urdf_path}: movable joints {list(names)} do not match {toml_path}: joints "
+            f"{list(cfg.joints)}"
+        )
+    q_lower, q_upper = frozen(model.lowerPositionLimit), frozen(model.upperPositionLimit)
+    home = frozen(cfg.home)
+    if np.any(home < q_lower) or np.any(home > q_upper):
+        raise RobotModelError(f"{toml_path}: home {list(cfg.home)} is outside the URDF limits")
+
+    links = set(link_parent)
+    for pair in cfg.allowed_collisions:
+        if len(pair) != 2 or not set(pair) <= links:
+            raise RobotModelError(
+                f"{toml_path}: allowed_collisions entry {list(pair)} must name two URDF links"
+            )
+    shield = [s for s in shapes if s.link == cfg.shield_link]
+    if len(shield) != 1 or shield[0].shape != "cylinder":
+        raise RobotModelError(
+            f"{urdf_path}: link {cfg.shield_link!r} must have exactly one cylinder collision"
+        )
+    return Robot(
+        name=cfg.name,
+        model=model,
+        joint_names=names,
+        q_lower=q_lower,
+        q_upper=q_upper,
+        v_max=frozen(cfg.max_velocity),
+        a_max=frozen(cfg.max_acceleration),
+        j_max=frozen(cfg.max_jerk),
+        home=home,
+        shapes=tuple(shapes),
+        cell=tuple(_cell_shape(c, i, toml_path) for i, c in enumerate(cfg.cell)),
+        link_parent=link_parent,
+        allowed_collisions=frozenset(frozenset(p) for p in cfg.allowed_collisions),
+        shield_link=cfg.shield_link,
+        shield_radius=shield[0].size[0],
+        shield_thickness=shield[0].size[1],
+        urdf_path=urdf_path,
+        toml_path=toml_path.resolve(),
+        urdf_sha256=hashlib.sha256(urdf_text).hexdigest(),
+        toml_sha256=hashlib.sha256(toml_path.read_bytes()).hexdigest(),
+    )
+
+
+def with_limits(robot: Robot, **arrays: np.ndarray) -> Robot:
+    """A copy of ``robot`` with some limit arrays replaced (``v_max=...``, ``a_max=...``)."""
+    return dataclasses.replace(robot, **{k: frozen(v) for k, v in arrays.items()})
+
+
+def pose(xyz, rpy) -> np.ndarray:
+    """Homogeneous transform (4, 4) from translation [m] and roll-pitch-yaw [rad]."""
+    T = np.eye(4)
+    T[:3, :3] = pin.rpy.rpyToMatrix(*map(float, rpy))
+    T[:3, 3] = xyz
+    return T
+
+
+@contextlib.contextmanager
+def _captured_stderr():
+    """Capture what native code (urdfdom) writes to file descriptor 2; yields a reader."""
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield lambda: (tmp.seek(0), tmp.read().decode("utf-8", "replace"))[1]
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
+def _link_parents(root: ET.Element, urdf_path: Path) -> dict[str, str]:
+    parents = {link.get("name"): "" for link in root.findall("link")}
+    for joint in root.findall("joint"):
+        parent, child = joint.find("parent"), joint.find("child")
+        if parent is None or child is None:
+            raise RobotModelError(f"{urdf_path}: joint {joint.get('name')!r} lacks parent/child")
+        parents[child.get("link")] = parent.get("link")
+    return parents
+
+
+def _floats(text: str | None, n: int, what: str, urdf_path: Path) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(x) for x in (text or "").split())
+    except ValueError:
+        vals = ()
+    if len(vals) != n or not all(np.isfinite(vals)):
+        raise RobotModelError(f"{urdf_path}: {what} must be {n} finite numbers, got {text!r}")
+    return vals
+
+
+def _parse_shapes(root: ET.Element, urdf_path: Path) -> list[CollisionShape]:
+    shapes = []
+    for link in root.findall("link"):
+        name = link.get("name")
+        for col in link.findall("collision"):
+            origin = col.find("origin")
+            xyz = (
+                _floats(origin.get("xyz", "0 0 0"), 3, f"{name} origin xyz", urdf_path)
+                if (origin is not None)
+                else (0.0, 0.0, 0.0)
+            )
+            rpy = (
+                _floats(origin.get("rpy", "0 0 0"), 3, f"{name} origin rpy", urdf_path)
+                if (origin is not None)
+                else (0.0, 0.0, 0.0)
+            )
+            geom = col.find("geometry")
+            if geom is None or len(geom) != 1:
+                raise RobotModelError(f"{urdf_path}: link {name!r} collision needs one geometry")
+            g = geom[0]
+            if g.tag == "box":
+                size = _floats(g.get("size"), 3, f"{name} box size", urdf_path)
+            elif g.tag == "cylinder":
+                size = (
+                    _floats(g.get("radius"), 1, f"{name} cylinder radius", urdf_path)[0],
+                    _floats(g.get("length"), 1, f"{name} cylinder length", urdf_path)[0],
+                )
+            elif g.tag == "sphere":
+                size = _floats(g.get("radius"), 1, f"{name} sphere radius", urdf_path)
+            elif g.tag == "mesh":
+                mesh = (urdf_path.parent / g.get("filename", "")).resolve()
+                shapes.append(CollisionShape(name, "mesh", (), pose(xyz, rpy), str(mesh)))
+                continue
+            else:
+                raise RobotModelError(f"{urdf_path}: link {name!r}: unsupported geometry {g.tag!r}")
+            if min(size) <= 0:
+                raise RobotModelError(f"{urdf_path}: link {name!r}: {g.tag} sizes must be > 0")
+            T = pose(xyz, rpy)
+            T.setflags(write=False)
+            shapes.append(CollisionShape(name, g.tag, size, T))
+    return shapes
+
+
+def _cell_shape(obj: CellObject, index: int, toml_path: Path) -> CollisionShape:
+    want = {"box": 3, "cylinder": 2, "sphere": 1}[obj.shape]
+    if len(obj.size) != want:
+        raise ConfigError(
+            str(toml_path), f"cell[{index}].size", f"a {obj.shape} needs {want} values"
+        )
+    T = pose(obj.xyz, obj.rpy)
+    T.setflags(write=False)
+    return CollisionShape(obj.name, obj.shape, obj.size, T)
