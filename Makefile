@@ -22,6 +22,7 @@ test: $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/thinkfast-compile goals $(CONFIG)
+	$(VENV)/bin/thinkfast-compile tree $(CONFIG) -o $(TREE) --if-changed
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check thinkfast tests bench

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 import typer
@@ -15,6 +16,32 @@ app = make_app("Compile and inspect thinkfast goal grids and action trees (offli
 @app.callback()
 def _group() -> None:
     """Compile and inspect thinkfast goal grids and action trees (offline)."""
+
+
+class ProgressBar:
+    """A one-line progress bar on stderr (a line per phase when stderr is not a terminal)."""
+
+    def __init__(self) -> None:
+        self.tty = sys.stderr.isatty()
+        self.phase = ""
+        self.start = time.perf_counter()
+        self.last = 0.0
+
+    def __call__(self, phase: str, done: int, total: int) -> None:
+        now = time.perf_counter()
+        final = done >= total
+        if phase != self.phase:
+            self.phase, self.last = phase, 0.0
+        if not self.tty and not final:
+            return
+        if self.tty and not final and now - self.last < 0.1:
+            return
+        self.last = now
+        frac = done / total if total else 1.0
+        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
+        line = f"{phase:>10} [{bar}] {done}/{total} ({now - self.start:5.1f} s)"
+        end = "\n" if final else ""
+        print(("\r" if self.tty else "") + line, end=end, file=sys.stderr, flush=True)
 
 
 @app.command()
@@ -39,6 +66,129 @@ def goals(
     if png is not None:
         goal_png(grid, robot, str(png))
         print(f"wrote {png}")
+
+
+@app.command()
+def tree(
+    config: Path = typer.Argument(..., help="compile configuration (TOML)"),
+    output: Path = typer.Option(..., "-o", "--output", help="tree file to write (HDF5)"),
+    jobs: int = typer.Option(0, "--jobs", "-j", help="worker processes (0: all cores)"),
+    if_changed: bool = typer.Option(
+        False, "--if-changed", help="do nothing when OUTPUT was compiled from the same inputs"
+    ),
+) -> None:
+    """Compile the action tree of CONFIG into OUTPUT (identical datasets for any --jobs)."""
+    from thinkfast.compile.build import compile_tree
+    from thinkfast.compile.config import load_compile_config
+    from thinkfast.compile.grow import default_jobs
+    from thinkfast.compile.inspect import tree_info
+    from thinkfast.compile.treefile import save_tree
+    from thinkfast.errors import ConfigError
+
+    if jobs < 0:
+        raise ConfigError("--jobs", None, f"must be >= 0, got {jobs}")
+    loaded = load_compile_config(config)
+    if if_changed and _up_to_date(output, loaded):
+        print(f"{output}: up to date (same config, robot and thinkfast version)")
+        return
+    tree_ = compile_tree(loaded, jobs=jobs or default_jobs(), progress=ProgressBar())
+    save_tree(tree_, output)
+    print(tree_info(tree_).split("\n\nparameters")[0])
+    print(f"wrote {output} in {tree_.meta['compile_seconds']:.1f} s")
+
+
+def _up_to_date(output: Path, loaded) -> bool:
+    """True when OUTPUT exists, reads, and was compiled from the same config, robot and version."""
+    from thinkfast import __version__
+    from thinkfast.compile.treefile import load_meta
+    from thinkfast.errors import ThinkfastError
+    from thinkfast.robot.model import load_robot
+
+    if not output.is_file():
+        return False
+    try:
+        meta = load_meta(output)
+    except ThinkfastError:
+        return False
+    robot = load_robot(loaded.robot_path)
+    return (
+        meta.get("config_sha256") == loaded.sha256
+        and meta.get("urdf_sha256") == robot.urdf_sha256
+        and meta.get("robot_toml_sha256") == robot.toml_sha256
+        and meta.get("thinkfast_version") == __version__
+    )
+
+
+@app.command()
+def info(path: Path = typer.Argument(..., help="tree file (HDF5)")) -> None:
+    """Counts per depth, goal coverage, arrival times, parameters and provenance of a tree."""
+    from thinkfast.compile.inspect import tree_info
+    from thinkfast.compile.treefile import load_tree
+
+    print(tree_info(load_tree(path)))
+
+
+@app.command()
+def diff(
+    a: Path = typer.Argument(..., help="first tree file"),
+    b: Path = typer.Argument(..., help="second tree file"),
+    png: Path | None = typer.Option(
+        None, "--png", help="earliest arrival over the plane: A, B, B-A"
+    ),
+) -> None:
+    """Compare two trees. Exit status 0 when they are the same, 1 when they differ, 2 on trouble."""
+    from thinkfast.compile.inspect import diff_png, tree_diff
+    from thinkfast.compile.treefile import load_tree
+    from thinkfast.errors import ThinkfastError
+
+    try:
+        ta, tb = load_tree(a), load_tree(b)
+    except ThinkfastError as exc:
+        print(f"thinkfast-compile: error: {exc}", file=sys.stderr)
+        raise typer.Exit(2) from None
+    result = tree_diff(ta, tb)
+    print(result.text)
+    if png is not None:
+        diff_png(ta, tb, str(png))
+        print(f"wrote {png}")
+    raise typer.Exit(0 if result.same else 1)
+
+
+@app.command()
+def verify(
+    path: Path = typer.Argument(..., help="tree file (HDF5)"),
+    jobs: int = typer.Option(0, "--jobs", "-j", help="worker processes (0: all cores)"),
+    factor: float = typer.Option(4.0, "--factor", help="re-check this much finer than compiled"),
+    robot_path: Path | None = typer.Option(
+        None, "--robot", help="robot.toml (default: the one the tree's config names)"
+    ),
+) -> None:
+    """Recompute every edge with Ruckig and re-check limits and collisions; exit 1 on a problem."""
+    import tomllib
+
+    from thinkfast.compile.config import CompileConfig
+    from thinkfast.compile.grow import default_jobs
+    from thinkfast.compile.treefile import load_tree
+    from thinkfast.compile.verify import verify_tree
+    from thinkfast.config import from_dict
+    from thinkfast.robot.model import load_robot
+
+    tree_ = load_tree(path)
+    config = from_dict(CompileConfig, tomllib.loads(tree_.meta["config_text"]), f"{path}:config")
+    if robot_path is None:
+        robot_path = (Path(tree_.meta["config_path"]).parent / config.robot).resolve()
+    robot = load_robot(robot_path)
+    report = verify_tree(tree_, robot, config, factor, jobs or default_jobs(), ProgressBar())
+    print(
+        f"{path}: {report.edges} tree edges and {report.terminals} terminal edges recomputed, "
+        f"{report.checks} collision checks at {factor:g}x resolution"
+    )
+    for p in report.problems[:20]:
+        print(f"  problem: {p}")
+    if len(report.problems) > 20:
+        print(f"  ... and {len(report.problems) - 20} more")
+    print("verify: OK" if report.ok else f"verify: FAILED ({len(report.problems)} problems)")
+    raise typer.Exit(0 if report.ok else 1)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -36,12 +36,49 @@ class GoalsConfig:
 
 
 @dataclass(frozen=True)
+class TreeConfig:
+    """Action tree growth (the paper's Algorithm 1) on joints 1-3."""
+
+    eps: float = spec(0.1, lo=0.0, lo_open=True, unit="s", doc="maximum primitive duration")
+    max_depth: int = spec(3, lo=1, hi=8, doc="depth of the tree of cut primitives")
+    subgoal_spacing: float = spec(
+        0.6,
+        lo=0.0,
+        lo_open=True,
+        unit="m",
+        doc="steering sub-goal grid step, through home (snapped to goals)",
+    )
+    connect_radius: float = spec(
+        0.3, lo=0.0, unit="m", doc="leaves connect to every goal this near (shield on the plane)"
+    )
+    connect_min: int = spec(
+        2, lo=0, doc="every goal also connects to at least this many nearest leaves"
+    )
+    internal_terminals: bool = spec(
+        True, doc="nodes above max_depth also connect to goals within connect_radius"
+    )
+    root_connects_all: bool = spec(
+        True, doc="the root connects to every goal (direct minimum-time moves from home)"
+    )
+    collision_resolution: float = spec(
+        0.02, lo=0.0, lo_open=True, unit="m", doc="largest motion of any robot point between checks"
+    )
+    position_margin: float = spec(
+        0.01, lo=0.0, unit="rad", doc="primitives stay this far inside the URDF position limits"
+    )
+    sample_dt: float = spec(
+        0.002, lo=0.0, lo_open=True, hi=0.01, unit="s", doc="sampling step along a primitive"
+    )
+
+
+@dataclass(frozen=True)
 class CompileConfig:
     """Everything ``thinkfast-compile`` needs; ``robot`` is relative to the config file."""
 
     robot: str = spec("../robots/irb1600/robot.toml", doc="robot.toml path")
     plane: PlaneConfig = spec(PlaneConfig())
     goals: GoalsConfig = spec(GoalsConfig())
+    tree: TreeConfig = spec(TreeConfig())
 
 
 @dataclass(frozen=True)

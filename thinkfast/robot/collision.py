@@ -1,7 +1,8 @@
 """Self and cell collision checking with python-fcl.
 
 Every URDF collision primitive becomes one fcl object posed by forward kinematics. Pairs checked:
-all link pairs except parent/child links and the pairs robot.toml allows, plus every moving link
+all link pairs except parent/child links, links rigidly attached to each other (checked once when
+the model is built: they must not touch) and the pairs robot.toml allows, plus every moving link
 against every cell object. A bounding-sphere test in numpy discards far pairs before fcl is asked.
 Meshes (if a URDF names any) are loaded with trimesh into fcl BVH models.
 """
@@ -89,6 +90,7 @@ class CollisionChecker:
         self._pj = np.array([p[1] for p in self.pairs], dtype=np.int64)
         self._request = fcl.CollisionRequest()
         self._world_centre = self._shape_centre.copy()
+        self._drop_rigid_pairs()
 
     def _add(self, name: str, link: str, geom, T: np.ndarray) -> None:
         self.names.append(name)
@@ -112,6 +114,37 @@ class CollisionChecker:
                     continue
                 pairs.append((i, j))
         return pairs
+
+    def _rigid_group(self) -> dict[str, str]:
+        """Each link mapped to the first link of its group of links joined by fixed joints."""
+        fixed = {j.child: j.parent for j in self.robot.chain if j.index < 0 and not j.axis.any()}
+        group = {}
+        for link in self.robot.link_parent:
+            root = link
+            while root in fixed:
+                root = fixed[root]
+            group[link] = root
+        return group
+
+    def _drop_rigid_pairs(self) -> None:
+        group = self._rigid_group()
+        rigid = [
+            (i, j)
+            for i, j in self.pairs
+            if self.links[i] and self.links[j] and group[self.links[i]] == group[self.links[j]]
+        ]
+        if not rigid:
+            return
+        self._pose(self.robot.home)
+        for i, j in rigid:
+            if fcl.collide(self.objects[i], self.objects[j], self._request, fcl.CollisionResult()):
+                raise RobotModelError(
+                    f"{self.robot.urdf_path}: links {self.names[i]!r} and {self.names[j]!r} are "
+                    "rigidly attached and overlap: list them in robot.toml allowed_collisions"
+                )
+        self.pairs = [p for p in self.pairs if p not in rigid]
+        self._pi = np.array([p[0] for p in self.pairs], dtype=np.int64)
+        self._pj = np.array([p[1] for p in self.pairs], dtype=np.int64)
 
     def _pose(self, q: np.ndarray) -> None:
         self.kin.update(q)

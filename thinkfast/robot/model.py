@@ -76,6 +76,18 @@ class CollisionShape:
 
 
 @dataclass(frozen=True)
+class UrdfJoint:
+    """One URDF joint: parent/child links, origin (4, 4) in the parent link, axis, movable index."""
+
+    name: str
+    parent: str
+    child: str
+    T_parent_joint: np.ndarray
+    axis: np.ndarray  # unit (3,) in the joint frame; zeros for fixed joints
+    index: int  # index into q (0..5) for movable joints, -1 for fixed
+
+
+@dataclass(frozen=True)
 class Robot:
     """Everything static about the arm, resolved once.
 
@@ -102,6 +114,7 @@ class Robot:
     shapes: tuple[CollisionShape, ...]
     cell: tuple[CollisionShape, ...]
     link_parent: dict[str, str]
+    chain: tuple[UrdfJoint, ...]  # URDF joints ordered parents first
     allowed_collisions: frozenset[frozenset[str]]
     shield_link: str
     shield_radius: float
@@ -135,6 +148,7 @@ def load_robot(toml_path: str | Path | None = None) -> Robot:
     except ET.ParseError as exc:
         raise RobotModelError(f"{urdf_path}: malformed URDF XML ({exc})") from None
     link_parent = _link_parents(root, urdf_path)
+    chain = _parse_chain(root, urdf_path)
     shapes = _parse_shapes(root, urdf_path)  # before Pinocchio: our messages are the clearer ones
     with _captured_stderr() as native_log:
         try:
@@ -180,6 +194,7 @@ def load_robot(toml_path: str | Path | None = None) -> Robot:
         shapes=tuple(shapes),
         cell=tuple(_cell_shape(c, i, toml_path) for i, c in enumerate(cfg.cell)),
         link_parent=link_parent,
+        chain=_index_chain(chain, names, urdf_path),
         allowed_collisions=frozenset(frozenset(p) for p in cfg.allowed_collisions),
         shield_link=cfg.shield_link,
         shield_radius=shield[0].size[0],
@@ -225,6 +240,66 @@ def _link_parents(root: ET.Element, urdf_path: Path) -> dict[str, str]:
             raise RobotModelError(f"{urdf_path}: joint {joint.get('name')!r} lacks parent/child")
         parents[child.get("link")] = parent.get("link")
     return parents
+
+
+def _parse_chain(root: ET.Element, urdf_path: Path) -> list[UrdfJoint]:
+    joints = []
+    for j in root.findall("joint"):
+        name, kind = j.get("name"), j.get("type")
+        origin = j.find("origin")
+        xyz = (
+            _floats(origin.get("xyz", "0 0 0"), 3, f"joint {name} origin xyz", urdf_path)
+            if (origin is not None)
+            else (0.0, 0.0, 0.0)
+        )
+        rpy = (
+            _floats(origin.get("rpy", "0 0 0"), 3, f"joint {name} origin rpy", urdf_path)
+            if (origin is not None)
+            else (0.0, 0.0, 0.0)
+        )
+        axis = np.zeros(3)
+        if kind in ("revolute", "continuous"):
+            ax = j.find("axis")
+            axis = np.array(
+                _floats(
+                    ax.get("xyz") if ax is not None else "1 0 0", 3, f"joint {name} axis", urdf_path
+                )
+            )
+            if np.linalg.norm(axis) < 1e-9:
+                raise RobotModelError(f"{urdf_path}: joint {name!r} has a zero axis")
+            axis = axis / np.linalg.norm(axis)
+        elif kind != "fixed":
+            raise RobotModelError(f"{urdf_path}: joint {name!r}: unsupported type {kind!r}")
+        T = pose(xyz, rpy)
+        T.setflags(write=False)
+        axis.setflags(write=False)
+        joints.append(
+            UrdfJoint(name, j.find("parent").get("link"), j.find("child").get("link"), T, axis, -1)
+        )
+    ordered, known = [], {root.find("link").get("name")} if root.find("link") is not None else set()
+    known |= {lk.get("name") for lk in root.findall("link")} - {j.child for j in joints}
+    pending = list(joints)
+    while pending:  # parents before children
+        ready = [j for j in pending if j.parent in known]
+        if not ready:
+            raise RobotModelError(f"{urdf_path}: joints do not form a tree")
+        for j in ready:
+            ordered.append(j)
+            known.add(j.child)
+            pending.remove(j)
+    return ordered
+
+
+def _index_chain(
+    chain: list[UrdfJoint], names: tuple[str, ...], urdf_path: Path
+) -> tuple[UrdfJoint, ...]:
+    out = []
+    for j in chain:
+        idx = names.index(j.name) if j.name in names else -1
+        if idx < 0 and np.any(j.axis):
+            raise RobotModelError(f"{urdf_path}: movable joint {j.name!r} is not controlled")
+        out.append(dataclasses.replace(j, index=idx))
+    return tuple(out)
 
 
 def _floats(text: str | None, n: int, what: str, urdf_path: Path) -> tuple[float, ...]:

@@ -1,0 +1,101 @@
+"""Write the golden tree file of schema version 1 (``tests/data/tree_v1_golden.h5``).
+
+Run once per schema version and commit the output; never regenerate a released version's golden
+file (it is what old files look like). ``tests/test_treefile.py`` checks its known values.
+
+    python tests/data/make_golden_tree.py [OUT] [--force]
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED, ActionTree
+from thinkfast.compile.treefile import save_tree
+
+CONFIG_TEXT = """\
+robot = "../robots/irb1600/robot.toml"
+
+[plane]
+distance = 0.8
+
+[tree]
+max_depth = 2
+eps = 0.1
+"""
+
+
+def golden_tree() -> ActionTree:
+    """Root, two children, one grandchild each; the grandchildren reach three goals."""
+    ttc = np.array([0.0, 0.1, 0.1, 0.2, 0.2])
+    term_node = np.array([3, 3, 4, 4], dtype=np.int32)
+    term_duration = np.array([0.3, 0.25, 0.2, 0.35])
+    grid_yz = np.array([[-0.15, 0.85], [0.0, 1.0], [0.15, 1.0], [0.15, 0.85]])
+    return ActionTree(
+        node_parent=np.array([-1, 0, 0, 1, 2], dtype=np.int32),
+        node_depth=np.array([0, 1, 1, 2, 2], dtype=np.int32),
+        node_ttc=ttc,
+        node_state=np.arange(45, dtype=np.float64).reshape(5, 9) / 100.0,
+        node_q=np.arange(30, dtype=np.float64).reshape(5, 6) / 10.0 - 1.0,
+        edge_kind=np.array([EDGE_REACHED, EDGE_CUT, EDGE_CUT, EDGE_CUT, EDGE_REACHED], np.uint8),
+        edge_duration=np.array([0.0, 0.1, 0.1, 0.1, 0.1]),
+        edge_target=np.array([-1, 0, 1, 1, 0], dtype=np.int32),
+        child_start=np.array([1, 3, 4, 5, 5], dtype=np.int64),
+        child_count=np.array([2, 1, 1, 0, 0], dtype=np.int64),
+        term_start=np.array([0, 0, 0, 0, 2], dtype=np.int64),
+        term_count=np.array([0, 0, 0, 2, 2], dtype=np.int64),
+        term_node=term_node,
+        term_goal=np.array([0, 1, 1, 2], dtype=np.int32),
+        term_duration=term_duration,
+        term_arrival=ttc[term_node] + term_duration,
+        goal_q=np.array(
+            [
+                [0.1, 0.2, 0.3, 0.0, 0.4, 0.0],
+                [0.0, 0.1, 0.2, 0.0, 0.3, 0.0],
+                [-0.1, 0.2, 0.3, 0.0, 0.4, 0.0],
+            ]
+        ),
+        goal_yz=grid_yz[[0, 1, 3]],
+        goal_grid_index=np.array([0, 1, 3], dtype=np.int32),
+        subgoal_goal=np.array([0, 2], dtype=np.int32),
+        grid_yz=grid_yz,
+        grid_reachable=np.array([True, True, False, True]),
+        meta={
+            "created": "2025-01-01T00:00:00Z",
+            "thinkfast_version": "0.1.0",
+            "ruckig_version": "0.19.4",
+            "pinocchio_version": "3.4.0",
+            "config_text": CONFIG_TEXT,
+            "config_sha256": hashlib.sha256(CONFIG_TEXT.encode()).hexdigest(),
+            "urdf_sha256": hashlib.sha256(b"golden urdf").hexdigest(),
+            "robot_toml_sha256": hashlib.sha256(b"golden robot.toml").hexdigest(),
+            "jobs": 1,
+            "seconds": 0.25,
+            "deterministic": True,
+            "discards": {"position_limit": 2, "collision": 1},
+        },
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "out", nargs="?", default=str(Path(__file__).with_name("tree_v1_golden.h5"))
+    )
+    parser.add_argument("--force", action="store_true", help="overwrite an existing file")
+    args = parser.parse_args(argv)
+    if Path(args.out).exists() and not args.force:
+        print(f"{args.out} exists (golden files are never regenerated; --force to overwrite)")
+        return 1
+    save_tree(golden_tree(), args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

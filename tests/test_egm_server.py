@@ -1,0 +1,215 @@
+"""EGM server over real UDP on 127.0.0.1 with real protobuf bytes."""
+
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from thinkfast.runtime import egm_proto as egm
+from thinkfast.runtime.egm_server import EgmAddressError, EgmServer, parse_hostport
+
+LOOPBACK = "127.0.0.1"
+
+
+def _hold(fb):
+    """Setpoint source for tests: hold the measured position, 0.1 rad/s on joint 1."""
+    return fb.q_rad, np.array([0.1, 0, 0, 0, 0, 0])
+
+
+@pytest.fixture
+def client():
+    socks = []
+
+    def make():
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.bind((LOOPBACK, 0))
+        s.settimeout(1.0)
+        socks.append(s)
+        return s
+
+    yield make
+    for s in socks:
+        s.close()
+
+
+def _poll_until(server, n_received, timeout=2.0):
+    t_end = time.monotonic() + timeout
+    while server.counters.received < n_received and time.monotonic() < t_end:
+        server.poll()
+        time.sleep(0.0005)
+    server.poll()
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        ("0.0.0.0:6510", ("0.0.0.0", 6510)),
+        ("127.0.0.1:0", ("127.0.0.1", 0)),
+        (" localhost:6511 ", ("localhost", 6511)),
+        ("[::1]:6512", ("::1", 6512)),
+    ],
+)
+def test_parse_hostport_accepts_host_colon_port(text, expected):
+    assert parse_hostport(text) == expected
+
+
+@pytest.mark.parametrize("text", ["6510", ":6510", "host:", "host:abc", "host:70000", "h:-1", ""])
+def test_parse_hostport_refuses_with_an_example_in_the_message(text):
+    with pytest.raises(EgmAddressError, match="HOST:PORT"):
+        parse_hostport(text)
+
+
+def test_bad_controller_ip_and_busy_port_are_clear_errors():
+    with pytest.raises(EgmAddressError, match="--egm-controller"):
+        EgmServer("127.0.0.1:0", _hold, controller_ip="robot")
+    with EgmServer("127.0.0.1:0", _hold) as a:
+        with pytest.raises(EgmAddressError, match="cannot bind"):
+            EgmServer(a.address, _hold)
+
+
+def test_one_reply_per_request_back_to_each_senders_port_with_seqno_plus_one(client):
+    a, b = client(), client()
+    seen = []
+
+    def reply(fb):
+        seen.append(fb)
+        return _hold(fb)
+
+    with EgmServer(f"{LOOPBACK}:0", reply) as server:
+        assert server.poll() == 0  # nothing pending: returns at once
+        rng = np.random.default_rng(2)
+        qs = rng.uniform(-1, 1, (20, 6))
+        for i, q in enumerate(qs):
+            (a if i % 2 == 0 else b).sendto(egm.encode_robot(i + 1, 4 * i, q), server.address)
+            _poll_until(server, i + 1)
+        replies = {a: [], b: []}
+        for s in (a, b):
+            for _ in range(10):
+                replies[s].append(egm.decode_sensor(s.recv(65535)))
+            s.settimeout(0.05)
+            with pytest.raises(TimeoutError):  # exactly one reply per request
+                s.recv(65535)
+        assert server.counters.replied == 20 and server.counters.received == 20
+    seqnos = sorted(r.seqno for rs in replies.values() for r in rs)
+    assert seqnos == list(range(1, 21))
+    for i, r in enumerate(replies[a]):
+        assert r.seqno == 2 * i + 1 and r.mtype == egm.MSGTYPE_CORRECTION
+        np.testing.assert_allclose(r.q_rad, qs[2 * i], atol=1e-12)
+        np.testing.assert_allclose(r.qd_rad_s, [0.1, 0, 0, 0, 0, 0], atol=1e-12)
+    tms = [r.tm_ms for r in sorted(replies[a] + replies[b], key=lambda r: r.seqno)]
+    assert tms == sorted(tms)
+    assert [fb.seqno for fb in seen] == list(range(1, 21))
+
+
+def test_foreign_sender_is_dropped_and_counted(client):
+    c = client()
+    with EgmServer(f"{LOOPBACK}:0", _hold, controller_ip="127.0.0.2") as server:
+        for i in range(5):
+            c.sendto(egm.encode_robot(i, i, np.zeros(6)), server.address)
+        _poll_until(server, 5)
+        assert (server.counters.foreign, server.counters.replied) == (5, 0)
+        assert server.last_feedback is None
+    with EgmServer(f"{LOOPBACK}:0", _hold, controller_ip=LOOPBACK) as server:
+        c.sendto(egm.encode_robot(1, 1, np.zeros(6)), server.address)
+        _poll_until(server, 1)
+        assert (server.counters.foreign, server.counters.replied) == (0, 1)
+        egm.decode_sensor(c.recv(65535))
+
+
+def _fuzz_packets(rng, n):
+    good = [egm.encode_robot(i, i, rng.uniform(-3, 3, 6)) for i in range(50)]
+    out = []
+    for _ in range(n):
+        kind = int(rng.integers(6))
+        if kind == 0:
+            p = rng.bytes(int(rng.integers(0, 200)))
+        elif kind == 1:
+            g = good[int(rng.integers(len(good)))]
+            p = g[: int(rng.integers(0, len(g)))]
+        elif kind == 2:
+            b = bytearray(good[int(rng.integers(len(good)))])
+            for _ in range(int(rng.integers(1, 5))):
+                b[int(rng.integers(len(b)))] = int(rng.integers(256))
+            p = bytes(b)
+        elif kind == 3:
+            msg = egm.EgmRobot.FromString(good[0])
+            del msg.feedBack.joints.joints[int(rng.integers(0, 6)) :]
+            if rng.integers(2):
+                msg.feedBack.joints.joints.extend([float("nan")] * 6)
+            p = msg.SerializeToString()
+        elif kind == 4:
+            p = egm.encode_sensor(1, 1, np.zeros(6), np.zeros(6))  # wrong message type
+        else:
+            p = good[int(rng.integers(len(good)))]
+        out.append(p)
+    return out
+
+
+def test_ten_thousand_fuzzed_packets_are_counted_and_never_crash(client):
+    c = client()
+    c.setblocking(False)
+    rng = np.random.default_rng(3)
+    packets = _fuzz_packets(rng, 10_000)
+    valid = 0
+    for p in packets:
+        try:
+            egm.decode_robot(p)
+            valid += 1
+        except egm.EgmDecodeError:
+            pass
+    with EgmServer(f"{LOOPBACK}:0", _hold) as server:
+        for start in range(0, len(packets), 100):
+            for p in packets[start : start + 100]:
+                c.sendto(p, server.address)
+            _poll_until(server, start + 100)
+            while True:  # drain the replies so the client buffer never fills
+                try:
+                    egm.decode_sensor(c.recv(65535))
+                except BlockingIOError:
+                    break
+        k = server.counters
+    assert k.received == 10_000
+    assert k.malformed == 10_000 - valid and k.replied == valid > 1000
+    assert k.reply_errors == k.socket_errors == k.foreign == 0
+
+
+def test_a_failing_setpoint_source_is_counted_and_the_next_request_served(client):
+    c = client()
+    answers = iter([RuntimeError("boom"), (np.full(6, np.nan), np.zeros(6)), (np.zeros(5), 0)])
+
+    def reply(fb):
+        a = next(answers, None)
+        if a is None:
+            return _hold(fb)
+        if isinstance(a, Exception):
+            raise a
+        return a
+
+    with EgmServer(f"{LOOPBACK}:0", reply) as server:
+        for i in range(4):
+            c.sendto(egm.encode_robot(i, i, np.zeros(6)), server.address)
+        _poll_until(server, 4)
+        assert server.counters.reply_errors == 3 and server.counters.replied == 1
+        assert egm.decode_sensor(c.recv(65535)).seqno == 1  # no seqno spent on unsent replies
+
+
+def test_serve_thread_replies_as_packets_arrive_and_stops_on_event(client):
+    c = client()
+    with EgmServer(f"{LOOPBACK}:0", _hold) as server:
+        stop = threading.Event()
+        th = threading.Thread(target=server.serve, args=(stop, 0.01))
+        th.start()
+        rtts = []
+        for i in range(200):
+            t0 = time.perf_counter()
+            c.sendto(egm.encode_robot(i, i, np.zeros(6)), server.address)
+            egm.decode_sensor(c.recv(65535))
+            rtts.append(time.perf_counter() - t0)
+        stop.set()
+        th.join(1.0)
+        assert not th.is_alive()
+        assert server.counters.replied == 200
+        assert server.last_rx_time is not None and server.last_feedback.seqno == 199
+    assert np.median(rtts) < 0.005  # loose: CI machines are shared

@@ -1,0 +1,48 @@
+"""Primitive checks: the motion bound between checks holds for real points of the robot."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from thinkfast.compile.pathcheck import PathChecker, step_motion
+from thinkfast.compile.primitive import Limits, Steering
+from thinkfast.robot.batch_collision import sphere_cover
+
+
+def test_step_motion_bounds_the_motion_of_every_point(robot, checker):
+    """Points sampled inside every link's collision shapes never move farther than the bound."""
+    pc = PathChecker(robot, 0.02, 0.0, 0.002)
+    rng = np.random.default_rng(11)
+    q = robot.home + np.cumsum(rng.normal(0, 0.02, (200, 6)), axis=0)
+    poses = pc.batch.fk.link_poses(q)
+    bound = step_motion(poses, pc.extent)
+    for shape in robot.shapes:
+        centres, radii = sphere_cover(shape)
+        local = centres[rng.integers(len(centres), size=50)] + rng.normal(
+            0, 0.3 * radii.min(), (50, 3)
+        )
+        pts = local @ shape.T_link_shape[:3, :3].T + shape.T_link_shape[:3, 3]
+        P = poses[shape.link]
+        world = pts @ P[:, :3, :3].transpose(0, 2, 1) + P[:, None, :3, 3]
+        moved = np.linalg.norm(np.diff(world, axis=0), axis=2).max(axis=1)
+        assert np.all(moved <= bound + 1e-12), shape.link
+
+
+def test_checks_are_spaced_by_at_most_the_resolution(robot):
+    steer = Steering(Limits(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]))
+    traj = steer.steer(np.r_[robot.home[:3], np.zeros(6)], robot.home[:3] + [0.5, 0.3, -0.2])
+    coarse = PathChecker(robot, 0.04, 0.01, 0.002).check(traj, traj.duration, robot.home[3:])
+    fine = PathChecker(robot, 0.01, 0.01, 0.002).check(traj, traj.duration, robot.home[3:])
+    assert coarse.ok and fine.ok
+    assert fine.checks >= 3 * coarse.checks  # 4x finer resolution, about 4x the checks
+
+
+def test_position_limits_are_enforced_along_the_primitive(robot):
+    steer = Steering(Limits(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]))
+    start = np.r_[robot.home[:3], np.zeros(6)]
+    target = robot.home[:3].copy()
+    target[1] = robot.q_upper[1] - 0.005  # inside the URDF limit, outside the 0.01 margin
+    res = PathChecker(robot, 0.02, 0.01, 0.002).check(
+        steer.steer(start, target), 5.0, robot.home[3:]
+    )
+    assert not res.ok and res.reason in ("position_limit", "collision")

@@ -1,0 +1,257 @@
+"""Safety supervisor: whatever is requested, commands stay inside the limits and brake cleanly."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from thinkfast.errors import ThinkfastError
+from thinkfast.runtime.safety import (
+    BRAKE_REASONS,
+    KINDS,
+    SafetyConfig,
+    SafetyError,
+    SafetySupervisor,
+    brake_velocity,
+    limit_step,
+    make_limits,
+    recoverable,
+)
+
+D = math.pi / 180.0
+CFG = SafetyConfig()
+DT = CFG.dt
+LIM = make_limits(
+    np.array([-180, -90, -245, -200, -115, -400]) * D,
+    np.array([180, 120, 65, 200, 115, 400]) * D,
+    np.array([180, 180, 185, 385, 400, 460]) * D,
+    [12, 12, 15, 30, 30, 40],
+    [120, 120, 150, 300, 300, 400],
+    margin=CFG.position_margin,
+)
+TOL = 1e-9
+PROPERTY = settings(
+    max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow]
+)
+
+
+def assert_admissible(q, qd, q_prev, qd_prev):
+    """The guarantees: finite, positions inside, |qd| <= v_max, |dqd/dt| <= a_max, recoverable."""
+    assert np.isfinite(q).all() and np.isfinite(qd).all()
+    assert (q >= LIM.q_min).all() and (q <= LIM.q_max).all()
+    assert (np.abs(qd) <= LIM.v_max * (1 + TOL)).all()
+    assert (np.abs(qd - qd_prev) / DT <= LIM.a_max * (1 + TOL)).all()
+    stop = qd * qd / (2 * LIM.a_max) + 0.5 * np.abs(qd) * DT  # braking distance, see safety.py
+    assert (q + np.where(qd > 0, stop, 0) <= LIM.q_max + 1e-12).all()
+    assert (q - np.where(qd < 0, stop, 0) >= LIM.q_min - 1e-12).all()
+
+
+def test_recoverable_matches_the_braking_distance():
+    q = LIM.q_max - 0.1
+    v = _max_recoverable_speed(q)
+    assert recoverable(q, 0.999 * v, LIM, DT).all() and not recoverable(q, 1.001 * v, LIM, DT).any()
+
+
+def _max_recoverable_speed(q):
+    """Largest |v| towards the nearer limit that still brakes in time (per joint)."""
+    room = np.minimum(LIM.q_max - q, q - LIM.q_min)
+    a = LIM.a_max
+    return np.minimum(LIM.v_max, a * (np.sqrt(0.25 * DT**2 + 2 * room / a) - 0.5 * DT))
+
+
+def _start(q_frac, v_frac, brake=None):
+    q0 = LIM.q_min + np.asarray(q_frac) * (LIM.q_max - LIM.q_min)
+    sup = SafetySupervisor(LIM, CFG, q0)
+    sup.qd = np.asarray(v_frac) * _max_recoverable_speed(q0) * 0.999
+    if brake:
+        sup.request_brake(brake)
+    return sup
+
+
+finite_or_not = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([0.0, 1e300, -1e300, 1e6, -1e6, math.nan, math.inf, -math.inf]),
+    st.floats(-4.0, 4.0),
+)
+vector = st.one_of(
+    st.lists(finite_or_not, min_size=6, max_size=6),
+    st.lists(st.floats(-4.0, 4.0), min_size=6, max_size=6),
+    st.sampled_from([None, [1.0] * 5, "junk", [[0.0] * 6]]),
+)
+request = st.tuples(
+    vector,
+    vector,
+    st.one_of(st.none(), st.lists(st.floats(-4.0, 4.0), min_size=6, max_size=6)),
+    st.one_of(st.none(), st.floats(0.0, 0.2)),
+    st.one_of(st.none(), st.sampled_from(BRAKE_REASONS)),
+)
+fractions = st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6)
+signed = st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6)
+
+
+@PROPERTY
+@given(fractions, signed, st.lists(request, min_size=1, max_size=60))
+def test_any_request_sequence_stays_inside_all_limits(q_frac, v_frac, requests):
+    sup = _start(q_frac, v_frac)
+    q_prev, qd_prev = sup.q.copy(), sup.qd.copy()
+    for q_req, qd_req, q_meas, age, brake in requests:
+        if brake:
+            sup.request_brake(brake)
+        cmd = sup.step(q_req, qd_req, q_meas=q_meas, egm_age=age)
+        assert_admissible(cmd.q, cmd.qd, q_prev, qd_prev)
+        assert set(cmd.kinds) <= set(KINDS)
+        q_prev, qd_prev = cmd.q, cmd.qd
+
+
+def test_seeded_adversarial_requests_towards_the_limits_stay_admissible():
+    """Long runs that chase the position limits at full speed: the case random floats rarely hit."""
+    rng = np.random.default_rng(6)
+    span = LIM.q_max - LIM.q_min
+    for _ in range(40):
+        sup = _start(rng.uniform(0, 1, 6), rng.uniform(-1, 1, 6))
+        q_prev, qd_prev = sup.q.copy(), sup.qd.copy()
+        for _ in range(300):
+            pick = rng.integers(4)
+            if pick == 0:  # beyond a limit, at speed
+                q_req = np.where(rng.uniform(size=6) < 0.5, LIM.q_min, LIM.q_max) + rng.normal(
+                    0, 0.3, 6
+                )
+                qd_req = np.sign(q_req - q_prev) * LIM.v_max * rng.uniform(0.5, 3, 6)
+            elif pick == 1:  # plausible next state with an acceleration a bit too large
+                qd_req = qd_prev + rng.uniform(-1.5, 1.5, 6) * LIM.a_max * DT
+                q_req = q_prev + 0.5 * (qd_prev + qd_req) * DT
+            elif pick == 2:  # jumps anywhere
+                q_req, qd_req = LIM.q_min + rng.uniform(-0.1, 1.1, 6) * span, rng.normal(0, 5, 6)
+            else:  # the previous command again
+                q_req, qd_req = q_prev, qd_prev
+            cmd = sup.step(q_req, qd_req)
+            assert_admissible(cmd.q, cmd.qd, q_prev, qd_prev)
+            q_prev, qd_prev = cmd.q, cmd.qd
+
+
+@PROPERTY
+@given(fractions, signed, st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6))
+def test_braking_reaches_zero_velocity_within_limits(q_frac, v_frac, a_frac):
+    sup = _start(q_frac, v_frac)
+    sup.qdd = np.asarray(a_frac) * LIM.a_max
+    sup.request_brake("signal")
+    v0 = sup.qd.copy()
+    q_prev, qd_prev = sup.q.copy(), sup.qd.copy()
+    # Worst case: ramp a_max down to -a_max, then brake from v_max: v/a + 3 a/j, plus slack.
+    bound = int(np.max(LIM.v_max / LIM.a_max + 3 * LIM.a_max / LIM.j_max) / DT) + 10
+    for _ in range(bound):
+        cmd = sup.step(None, None)
+        assert_admissible(cmd.q, cmd.qd, q_prev, qd_prev)
+        assert (cmd.qd * v0 >= 0).all()  # never reverses
+        assert (np.abs(cmd.qd) <= np.abs(qd_prev) + LIM.a_max * DT * (1 + TOL)).all()
+        q_prev, qd_prev = cmd.q, cmd.qd
+        if cmd.stopped:
+            break
+    assert cmd.stopped and not cmd.qd.any()
+    held = sup.step([0.0] * 6, [9.0] * 6)  # requests are ignored while braking
+    assert not held.qd.any() and (held.q == cmd.q).all()
+
+
+@PROPERTY
+@given(signed)
+def test_brake_from_cruise_respects_jerk_up_to_the_last_tick(v_frac):
+    sup = _start([0.5] * 6, v_frac)
+    sup.request_brake("signal")
+    vs = [sup.qd.copy()]
+    for _ in range(400):
+        cmd = sup.step(None, None)
+        vs.append(cmd.qd)
+        if cmd.stopped:
+            break
+    acc = np.diff(vs, axis=0) / DT
+    jerk = np.diff(np.vstack([np.zeros(6), acc]), axis=0) / DT
+    assert (np.abs(acc) <= LIM.a_max * (1 + TOL)).all()
+    assert (np.abs(jerk) <= 1.25 * LIM.j_max).all()
+
+
+def test_admissible_smooth_trajectory_passes_unchanged():
+    sup = SafetySupervisor(LIM, CFG, np.zeros(6))
+    for k in range(1, 500):
+        t = k * DT
+        q = 0.5 * (1 - np.cos(np.pi * t)) * np.ones(6)
+        qd = 0.5 * np.pi * np.sin(np.pi * t) * np.ones(6)
+        cmd = sup.step(q, qd)
+        assert cmd.kinds == () and (cmd.q == q).all() and (cmd.qd == qd).all()
+    assert not any(sup.counts.values())
+
+
+def test_a_jump_request_is_reached_smoothly_and_counted():
+    sup = SafetySupervisor(LIM, CFG, np.zeros(6))
+    target = np.full(6, 1.0)
+    qd_prev = np.zeros(6)
+    peak = np.zeros(6)
+    for _ in range(400):
+        cmd = sup.step(target, np.zeros(6))
+        assert (np.abs(cmd.qd - qd_prev) <= LIM.a_max * DT * (1 + TOL)).all()
+        qd_prev, peak = cmd.qd, np.maximum(peak, cmd.q)
+    np.testing.assert_allclose(cmd.q, target, atol=1e-6)
+    assert (peak <= target + 0.02).all()  # no large overshoot
+    assert sup.counts["position_step"] > 0 and sup.counts["brake_nonfinite"] == 0
+
+
+def test_request_beyond_a_limit_stops_at_the_margin():
+    sup = SafetySupervisor(LIM, CFG, np.zeros(6))
+    for _ in range(1000):
+        cmd = sup.step(LIM.q_max + 1.0, np.zeros(6))
+    np.testing.assert_allclose(cmd.q, LIM.q_max, atol=1e-6)
+    assert sup.counts["position_limit"] > 0
+
+
+@pytest.mark.parametrize(
+    "kwargs, reason",
+    [
+        ({"q_meas": np.full(6, 1.0)}, "deviation"),
+        ({"q_meas": [math.nan] * 6}, "deviation"),
+        ({"egm_age": 0.5}, "traffic"),
+        ({"egm_age": math.nan}, "traffic"),
+        ({"egm_age": "late"}, "traffic"),
+    ],
+)
+def test_triggers_latch_a_brake_and_are_counted(kwargs, reason):
+    sup = SafetySupervisor(LIM, CFG, np.zeros(6))
+    cmd = sup.step(np.zeros(6), np.zeros(6), **kwargs)
+    assert cmd.braking and sup.brake_reason == reason and sup.counts[f"brake_{reason}"] == 1
+    sup.release()
+    assert not sup.step(np.zeros(6), np.zeros(6)).braking
+
+
+def test_non_finite_request_brakes_and_is_counted():
+    sup = SafetySupervisor(LIM, CFG, np.zeros(6))
+    cmd = sup.step([0.0, 0.0, math.nan, 0.0, 0.0, 0.0], np.zeros(6))
+    assert cmd.braking and cmd.kinds == ("nonfinite",)
+    assert sup.counts["nonfinite"] == 1 and sup.counts["brake_nonfinite"] == 1
+    assert np.isfinite(cmd.q).all()
+
+
+def test_start_outside_the_margin_is_clipped_and_counted():
+    sup = SafetySupervisor(LIM, CFG, LIM.q_max + 0.01)
+    assert (sup.q == LIM.q_max).all() and sup.counts["init_clamped"] == 1
+
+
+def test_limits_are_validated():
+    with pytest.raises(SafetyError, match="no range"):
+        make_limits([0.0], [0.05], [1.0], [1.0], [1.0], margin=0.03)
+    with pytest.raises(SafetyError, match="> 0"):
+        make_limits([0.0], [1.0], [0.0], [1.0], [1.0])
+    with pytest.raises(SafetyError, match="finite"):
+        make_limits([0.0, 0.0], [1.0], [1.0], [1.0], [1.0])
+    with pytest.raises(ThinkfastError):
+        SafetySupervisor(LIM, CFG, [0.0] * 5)
+    with pytest.raises(ValueError, match="signal"):
+        SafetySupervisor(LIM, CFG, np.zeros(6)).request_brake("because")
+
+
+def test_kernels_are_pure_functions_of_their_arrays():
+    q, v = np.full(6, 0.3), np.full(6, 0.5)
+    a = limit_step(q, v, np.full(6, 9.0), LIM, DT)
+    b = limit_step(q, v, np.full(6, 9.0), LIM, DT)
+    assert all((x == y).all() for x, y in zip(a, b, strict=True))
+    assert (brake_velocity(v, np.zeros(6), LIM, DT) < v).all()
+    assert (q == 0.3).all() and (v == 0.5).all()

@@ -1,0 +1,119 @@
+"""thinkfast-compile tree / info / diff / verify as real processes on real HDF5 files."""
+
+from __future__ import annotations
+
+import shutil
+
+import h5py
+import pytest
+
+from tests.conftest import ROBOT_TOML, assert_one_line_error, run_cli
+
+BASE = """
+robot = "{robot}"
+[goals]
+spacing = 0.3
+[tree]
+max_depth = {depth}
+eps = {eps}
+subgoal_spacing = 0.9
+connect_radius = 0.25
+"""
+
+
+def _config(tmp_path, name, depth=2, eps=0.1):
+    path = tmp_path / f"{name}.toml"
+    path.write_text(BASE.format(robot=ROBOT_TOML, depth=depth, eps=eps))
+    return path
+
+
+@pytest.fixture(scope="module")
+def trees(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("cli")
+    out = {}
+    for name, depth, eps in (("a", 2, 0.1), ("deeper", 3, 0.1), ("slower", 2, 0.12)):
+        cfg = _config(tmp, name, depth, eps)
+        proc = run_cli(
+            "thinkfast-compile", "tree", str(cfg), "-o", str(tmp / f"{name}.h5"), "--jobs", "2"
+        )
+        assert proc.returncode == 0, proc.stderr
+        out[name] = tmp / f"{name}.h5"
+    out["tmp"], out["a_cfg"] = tmp, tmp / "a.toml"
+    return out
+
+
+def test_tree_writes_a_file_and_reports_progress_and_counts(trees):
+    proc = run_cli("thinkfast-compile", "info", str(trees["a"]))
+    assert proc.returncode == 0
+    assert (
+        "depth" in proc.stdout
+        and "terminals" in proc.stdout
+        and "tree.max_depth = 2" in proc.stdout
+    )
+
+
+def test_if_changed_skips_an_up_to_date_tree(trees):
+    proc = run_cli(
+        "thinkfast-compile", "tree", str(trees["a_cfg"]), "-o", str(trees["a"]), "--if-changed"
+    )
+    assert proc.returncode == 0 and "up to date" in proc.stdout
+
+
+def test_diff_of_a_tree_with_itself_exits_0(trees):
+    proc = run_cli("thinkfast-compile", "diff", str(trees["a"]), str(trees["a"]))
+    assert proc.returncode == 0, proc.stdout
+
+
+@pytest.mark.parametrize("other, key", [("deeper", "tree.max_depth"), ("slower", "tree.eps")])
+def test_diff_reports_a_changed_parameter_and_exits_1(trees, other, key):
+    png = trees["tmp"] / f"diff_{other}.png"
+    proc = run_cli(
+        "thinkfast-compile", "diff", str(trees["a"]), str(trees[other]), "--png", str(png)
+    )
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert key in proc.stdout
+    assert png.stat().st_size > 10_000
+
+
+def test_verify_passes_on_a_compiled_tree(trees):
+    proc = run_cli("thinkfast-compile", "verify", str(trees["a"]), "--jobs", "2")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "verify: OK" in proc.stdout
+
+
+def _corrupt(src, dst, how):
+    shutil.copy(src, dst)
+    if how == "truncated":
+        data = dst.read_bytes()
+        dst.write_bytes(data[: len(data) // 2])
+    elif how == "flipped":
+        with h5py.File(dst, "r") as f:
+            ds = f["nodes/ttc"]
+            offset = ds.id.get_offset() + 8 * 3
+        data = bytearray(dst.read_bytes())
+        data[offset] ^= 0x40
+        dst.write_bytes(bytes(data))
+    elif how == "version":
+        with h5py.File(dst, "r+") as f:
+            f.attrs["schema_version"] = 99
+    elif how == "not_hdf5":
+        dst.write_text("this is not a tree\n")
+
+
+@pytest.mark.parametrize(
+    "how, needle",
+    [
+        ("truncated", "HDF5"),
+        ("flipped", "checksum"),
+        ("version", "schema_version"),
+        ("not_hdf5", "not an HDF5 file"),
+    ],
+)
+def test_damaged_files_are_refused_with_path_and_reason(trees, how, needle):
+    bad = trees["tmp"] / f"bad_{how}.h5"
+    _corrupt(trees["a"], bad, how)
+    for cmd in ("info", "verify"):
+        assert_one_line_error(run_cli("thinkfast-compile", cmd, str(bad)), str(bad), needle)
+    proc = run_cli("thinkfast-compile", "diff", str(trees["a"]), str(bad))
+    assert proc.returncode == 2
+    assert_one_line_error(proc, needle)

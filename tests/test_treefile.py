@@ -1,0 +1,360 @@
+"""Tree files v1: exact round trip, atomic writes, and a clear refusal for every kind of damage."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from tests.treegen import random_tree
+from thinkfast.compile.tree import ActionTree
+from thinkfast.compile.treefile import (
+    DERIVED,
+    LAYOUT,
+    PATHS,
+    array_sha256,
+    layout_problem,
+    load_meta,
+    load_tree,
+    save_tree,
+    tree_fingerprint,
+)
+from thinkfast.errors import TreeFileError
+
+ROOT = Path(__file__).resolve().parents[1]
+GOLDEN = ROOT / "tests" / "data" / "tree_v1_golden.h5"
+
+
+@pytest.fixture
+def tree_file(tmp_path) -> Path:
+    path = tmp_path / "tree.h5"
+    save_tree(random_tree(1), path)
+    return path
+
+
+def assert_refused(path: Path, *needles: str) -> str:
+    """Loading fails with one TreeFileError line that starts with the path and names every needle.
+
+    The h5py/OS exception behind it is suppressed, so the CLI never shows a traceback chain.
+    """
+    with pytest.raises(TreeFileError) as info:
+        load_tree(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: "), message
+    assert "\n" not in message
+    for needle in needles:
+        assert needle in message, (needle, message)
+    err = info.value
+    assert err.__cause__ is None and (err.__context__ is None or err.__suppress_context__)
+    return message
+
+
+def assert_same_tree(a: ActionTree, b: ActionTree) -> None:
+    for name, x in a.arrays().items():
+        y = getattr(b, name)
+        assert y.dtype == x.dtype and y.shape == x.shape, name
+        assert np.array_equal(x, y), name
+    assert a.meta == b.meta
+
+
+@pytest.mark.parametrize("seed, depth", [(0, 1), (1, 2), (2, 3), (3, 4)])
+def test_round_trip_gives_identical_arrays_dtypes_and_meta(tmp_path, seed, depth):
+    tree = random_tree(seed, max_depth=depth)
+    save_tree(tree, tmp_path / "t.h5")
+    back = load_tree(tmp_path / "t.h5")
+    assert_same_tree(tree, back)
+    assert tree_fingerprint(back) == tree_fingerprint(tree)
+    assert all(not a.flags.writeable for a in back.arrays().values())
+
+
+def test_tree_without_terminals_round_trips(tmp_path):
+    tree = random_tree(5, terminals_per_leaf=0)
+    assert tree.n_terminals == 0
+    save_tree(tree, tmp_path / "t.h5")
+    assert_same_tree(tree, load_tree(tmp_path / "t.h5"))
+
+
+def test_meta_scalars_stay_native_and_the_rest_is_json_under_a_dotjson_name(tmp_path):
+    meta = {"n": 3, "x": 0.5, "ok": False, "s": "é", "d": {"a": [1, 2.5, None]}, "l": [1, "b"]}
+    meta["none"] = None
+    meta["np"] = np.int64(7)
+    tree = dataclasses.replace(random_tree(0), meta=meta)
+    save_tree(tree, tmp_path / "t.h5")
+    with h5py.File(tmp_path / "t.h5") as f:
+        assert f.attrs["d.json"] == '{"a": [1, 2.5, null]}'
+        assert f.attrs["none.json"] == "null"
+        assert f.attrs["n"] == 3 and "d" not in f.attrs
+    back = load_tree(tmp_path / "t.h5").meta
+    assert back.pop("created").endswith("Z")
+    assert back == {**meta, "np": 7}
+    assert type(back["n"]) is int and type(back["ok"]) is bool and type(back["np"]) is int
+
+
+def test_created_is_taken_from_meta_or_is_now_in_iso_utc(tmp_path):
+    tree = random_tree(0)
+    save_tree(tree, tmp_path / "a.h5")
+    assert load_meta(tmp_path / "a.h5")["created"] == "2025-01-01T00:00:00Z"
+    meta = {k: v for k, v in tree.meta.items() if k != "created"}
+    save_tree(dataclasses.replace(tree, meta=meta), tmp_path / "b.h5")
+    created = load_meta(tmp_path / "b.h5")["created"]
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", created), created
+
+
+@pytest.mark.parametrize("key", ["format", "schema_version", "fingerprint", "stats.json", ""])
+def test_reserved_meta_keys_are_refused_on_write(tmp_path, key):
+    tree = dataclasses.replace(random_tree(0), meta={key: 1})
+    with pytest.raises(TreeFileError, match=re.escape(str(tmp_path / "t.h5"))):
+        save_tree(tree, tmp_path / "t.h5")
+    assert not (tmp_path / "t.h5").exists()
+
+
+def test_meta_that_is_not_json_able_is_refused_on_write(tmp_path):
+    tree = dataclasses.replace(random_tree(0), meta={"obj": object()})
+    with pytest.raises(TreeFileError, match="meta\\['obj'\\] is not JSON-able"):
+        save_tree(tree, tmp_path / "t.h5")
+
+
+def test_an_invalid_tree_is_refused_on_write(tmp_path):
+    tree = random_tree(0)
+    parent = tree.node_parent.copy()
+    parent[3] = 5
+    with pytest.raises(TreeFileError, match="refusing to write an invalid tree: /nodes/parent"):
+        save_tree(dataclasses.replace(tree, node_parent=parent), tmp_path / "t.h5")
+    wrong_dtype = dataclasses.replace(tree, node_ttc=tree.node_ttc.astype(np.float32))
+    with pytest.raises(TreeFileError, match="/nodes/ttc has dtype float32, expected float64"):
+        save_tree(wrong_dtype, tmp_path / "t.h5")
+
+
+def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path, tree_file, monkeypatch):
+    before = tree_file.read_bytes()
+
+    def broken(f, *args):
+        f.create_dataset("/partial", data=np.zeros(3))
+        raise OSError("disk full")
+
+    monkeypatch.setattr("thinkfast.compile.treefile._write", broken)
+    with pytest.raises(TreeFileError, match="cannot write \\(disk full\\)"):
+        save_tree(random_tree(2), tree_file)
+    assert tree_file.read_bytes() == before
+    assert sorted(p.name for p in tree_file.parent.iterdir()) == [tree_file.name]
+
+
+def test_writing_into_a_missing_directory_names_it(tmp_path):
+    with pytest.raises(TreeFileError, match="directory .*nope does not exist"):
+        save_tree(random_tree(0), tmp_path / "nope" / "t.h5")
+
+
+def test_golden_v1_file_still_reads_with_its_known_values():
+    """Breaks when a change makes this thinkfast unable to read files written as v1."""
+    tree = load_tree(GOLDEN)
+    assert GOLDEN.stat().st_size < 50_000
+    assert tree.node_parent.tolist() == [-1, 0, 0, 1, 2]
+    assert tree.node_depth.tolist() == [0, 1, 1, 2, 2]
+    assert tree.child_start.tolist() == [1, 3, 4, 5, 5]
+    assert tree.term_count.tolist() == [0, 0, 0, 2, 2]
+    assert tree.edge_kind.tolist() == [1, 0, 0, 0, 1]
+    assert tree.term_goal.tolist() == [0, 1, 1, 2]
+    assert np.allclose(tree.node_ttc, [0.0, 0.1, 0.1, 0.2, 0.2], rtol=0, atol=1e-15)
+    assert np.allclose(tree.term_arrival, [0.5, 0.45, 0.4, 0.55], rtol=0, atol=1e-15)
+    assert tree.node_state[4, 8] == 0.44 and tree.node_q[1, 0] == -0.4
+    assert tree.goal_yz.tolist() == [[-0.15, 0.85], [0.0, 1.0], [0.15, 0.85]]
+    assert tree.grid_reachable.tolist() == [True, True, False, True]
+    assert tree.subgoal_goal.tolist() == [0, 2]
+    assert tree.meta["discards"] == {"position_limit": 2, "collision": 1}
+    assert tree.meta["deterministic"] is True and tree.meta["jobs"] == 1
+    assert tree.meta["created"] == "2025-01-01T00:00:00Z"
+    assert "max_depth = 2" in tree.meta["config_text"]
+    assert tree.meta["config_sha256"].startswith("0bc819342769")
+    assert tree_fingerprint(tree) == (
+        "76822d676d13f86e8341a5bdee3d29cf18114d6540880e88c2918fe9ac95cb7c"
+    )
+
+
+def test_every_tree_array_has_a_dataset_and_every_dataset_is_documented():
+    names = {f.name for f in dataclasses.fields(ActionTree)} - {"meta"}
+    assert set(PATHS) == names and len(LAYOUT) == len(names)
+    doc = (ROOT / "docs" / "TREE_FORMAT.md").read_text()
+    for path in [*PATHS.values(), *(p for p, _, _ in DERIVED)]:
+        assert f"`{path}`" in doc, path
+
+
+def test_every_dataset_carries_units_doc_and_checksum(tree_file):
+    with h5py.File(tree_file) as f:
+        assert f.attrs["format"] == "thinkfast-tree" and f.attrs["schema_version"] == 1
+        for path in [*PATHS.values(), *(p for p, _, _ in DERIVED)]:
+            ds = f[path]
+            assert ds.attrs["units"] and ds.attrs["doc"]
+            assert ds.attrs["sha256"] == array_sha256(ds[()])
+
+
+def test_checksum_covers_bytes_dtype_and_shape_but_not_byte_order():
+    a = np.arange(6, dtype=np.float64)
+    assert array_sha256(a) == array_sha256(a.astype(">f8"))
+    assert array_sha256(a) != array_sha256(a.reshape(2, 3))
+    assert array_sha256(a) != array_sha256(a.view(np.int64))
+    assert array_sha256(a[::2]) == array_sha256(a[::2].copy())
+
+
+def test_fingerprint_follows_every_array_and_ignores_meta():
+    tree = random_tree(3)
+    base = tree_fingerprint(tree)
+    assert tree_fingerprint(dataclasses.replace(tree, meta={})) == base
+    for name, a in tree.arrays().items():
+        if a.size == 0:
+            continue
+        b = a.copy()
+        b.reshape(-1)[0] = not b.reshape(-1)[0] if b.dtype == bool else b.reshape(-1)[0] + 1
+        assert tree_fingerprint(dataclasses.replace(tree, **{name: b})) != base, name
+
+
+def test_treegen_trees_satisfy_the_layout_invariants():
+    for seed in range(40):
+        tree = random_tree(seed, max_depth=1 + seed % 4, max_children=1 + seed % 3)
+        assert layout_problem(tree.arrays()) is None, seed
+        assert np.array_equal(tree.term_arrival, tree.node_ttc[tree.term_node] + tree.term_duration)
+
+
+# --- damage: every case is one clear TreeFileError naming the path and the reason ---
+
+
+def test_missing_file(tmp_path):
+    assert_refused(tmp_path / "absent.h5", "file not found")
+
+
+@pytest.mark.parametrize("content", [b"", b"not a tree\n", b"\x89PNG\r\n\x1a\n" + bytes(600)])
+def test_non_hdf5_file(tmp_path, content):
+    path = tmp_path / "x.h5"
+    path.write_bytes(content)
+    assert_refused(path, "not an HDF5 file")
+
+
+def test_a_directory_is_not_readable(tmp_path):
+    assert_refused(tmp_path, "cannot read file")
+
+
+@pytest.mark.parametrize("fraction", [0.05, 0.5, 0.95, 0.999])
+def test_truncated_file(tree_file, fraction):
+    data = tree_file.read_bytes()
+    tree_file.write_bytes(data[: int(len(data) * fraction)])
+    assert_refused(tree_file, "truncated or unreadable HDF5 file")
+
+
+@pytest.mark.parametrize(
+    "path", ["/nodes/ttc", "/nodes/state", "/edges/kind", "/terminals/arrival", "/grid/reachable"]
+)
+def test_one_flipped_byte_inside_a_dataset_fails_its_checksum(tree_file, path):
+    with h5py.File(tree_file) as f:
+        ds = f[path]
+        offset = ds.id.get_offset() + ds.id.get_storage_size() // 2
+    data = bytearray(tree_file.read_bytes())
+    data[offset] ^= 0xFF
+    tree_file.write_bytes(bytes(data))
+    assert_refused(tree_file, f"dataset {path}: checksum mismatch (file is corrupt)")
+
+
+@pytest.mark.parametrize("version", [7, 2, 0])
+def test_unknown_schema_version_is_refused(tree_file, version):
+    with h5py.File(tree_file, "r+") as f:
+        f.attrs["schema_version"] = version
+    assert_refused(tree_file, f"schema_version {version} is not supported (this thinkfast reads 1)")
+    with pytest.raises(TreeFileError, match="is not supported"):
+        load_meta(tree_file)
+
+
+def test_schema_version_that_is_not_an_integer(tree_file):
+    with h5py.File(tree_file, "r+") as f:
+        f.attrs["schema_version"] = "1"
+    assert_refused(tree_file, "schema_version '1' is not an integer")
+
+
+def test_wrong_format_attribute(tree_file):
+    with h5py.File(tree_file, "r+") as f:
+        f.attrs["format"] = "thinkfast-record"
+    assert_refused(tree_file, "format is 'thinkfast-record', expected 'thinkfast-tree'")
+
+
+def test_hdf5_file_of_another_kind(tmp_path):
+    path = tmp_path / "other.h5"
+    with h5py.File(path, "w") as f:
+        f["data"] = np.zeros(3)
+    assert_refused(path, "missing root attribute format")
+
+
+@pytest.mark.parametrize("path", ["/terminals/goal", "/nodes/parent", "/edges/child", "/grid/yz"])
+def test_missing_dataset(tree_file, path):
+    with h5py.File(tree_file, "r+") as f:
+        del f[path]
+    assert_refused(tree_file, f"missing dataset {path}")
+
+
+def rewrite(path: Path, dataset: str, data: np.ndarray) -> None:
+    """Replace a dataset with a valid checksum: damage that only the structural checks can see."""
+    with h5py.File(path, "r+") as f:
+        del f[dataset]
+        f[dataset] = data
+        f[dataset].attrs["sha256"] = array_sha256(data)
+
+
+def test_wrong_dtype(tree_file):
+    rewrite(tree_file, "/nodes/ttc", load_tree(tree_file).node_ttc.astype(np.float32))
+    assert_refused(tree_file, "dataset /nodes/ttc: dtype float32, expected float64")
+
+
+def test_rows_that_disagree_within_a_group(tree_file):
+    rewrite(tree_file, "/terminals/arrival", load_tree(tree_file).term_arrival[:-1])
+    assert_refused(tree_file, "/terminals/arrival has", "rows but /terminals/node has")
+
+
+def test_wrong_trailing_shape(tree_file):
+    rewrite(tree_file, "/nodes/state", load_tree(tree_file).node_state[:, :8].copy())
+    assert_refused(tree_file, "/nodes/state has shape", "expected ('N', 9)")
+
+
+@pytest.mark.parametrize(
+    "dataset, change, needle",
+    [
+        ("/nodes/parent", lambda t: _set(t.node_parent, 2, 2), "/nodes/parent[2] = 2 is not in"),
+        ("/nodes/depth", lambda t: _set(t.node_depth, 1, 5), "/nodes/depth decreases"),
+        ("/nodes/child_count", lambda t: _set(t.child_count, 0, 99), "a range is outside"),
+        ("/nodes/term_start", lambda t: _set(t.term_start, -1, -3), "a range is outside"),
+        ("/terminals/node", lambda t: t.term_node[::-1].copy(), "/terminals/node is not sorted"),
+        ("/terminals/goal", lambda t: _set(t.term_goal, 0, 999), "/terminals/goal holds an index"),
+        ("/edges/kind", lambda t: _set(t.edge_kind, 1, 7), "/edges/kind holds a value other"),
+    ],
+)
+def test_layout_violations_with_valid_checksums_are_refused(tree_file, dataset, change, needle):
+    rewrite(tree_file, dataset, change(load_tree(tree_file)))
+    assert_refused(tree_file, "invalid tree layout", needle)
+
+
+def _set(a: np.ndarray, i: int, value: int) -> np.ndarray:
+    b = a.copy()
+    b[i] = value
+    return b
+
+
+def test_derived_edge_dataset_that_disagrees_is_refused(tree_file):
+    rewrite(tree_file, "/edges/child", np.zeros(load_tree(tree_file).n_nodes, dtype=np.int32))
+    assert_refused(tree_file, "dataset /edges/child disagrees with /nodes")
+
+
+def test_fingerprint_attribute_must_match(tree_file):
+    with h5py.File(tree_file, "r+") as f:
+        f.attrs["fingerprint"] = "0" * 64
+    assert_refused(tree_file, "attribute fingerprint does not match the datasets")
+
+
+def test_bad_json_attribute(tree_file):
+    with h5py.File(tree_file, "r+") as f:
+        f.attrs["discards.json"] = "{not json"
+    assert_refused(tree_file, "attribute discards.json is not valid JSON")
+
+
+def test_missing_checksum_attribute(tree_file):
+    with h5py.File(tree_file, "r+") as f:
+        del f["/goals/q"].attrs["sha256"]
+    assert_refused(tree_file, "dataset /goals/q: missing sha256 attribute")

@@ -1,0 +1,239 @@
+"""Action tree growth (Algorithm 1 of the paper) on joints 1-3.
+
+From the root (home at rest), every node steers with Ruckig towards every sub-goal (to rest, minimum
+time, jerk limited, from the node's non-zero state); the primitive is cut at ``eps`` and the state
+at the cut is the child (``EDGE_CUT``). A primitive that reaches its sub-goal sooner holds there at
+rest until ``eps`` (``EDGE_REACHED``; towards the sub-goal a node rests at, this is "wait"), so
+every tree edge lasts ``eps`` and a node at depth d has time-to-come d * eps. Breadth first to
+``max_depth``.
+
+Terminal edges are full primitives ending at rest at a goal. Nodes at ``max_depth`` connect to
+every goal within ``connect_radius`` of their shield centre on the plane, and every goal also to
+its ``connect_min`` nearest leaves, so no reachable goal is left without a terminal edge. With
+``internal_terminals`` shallower nodes connect within ``connect_radius`` too, and with
+``root_connects_all`` home connects to every goal: the runtime may then commit to a direct move as
+soon as the belief makes it the best branch.
+
+Every primitive is checked by :class:`PathChecker`; what fails is dropped and counted by reason.
+Work is split by parent (or node) into chunks that run in worker processes and are merged in order,
+so any number of jobs gives identical arrays.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from thinkfast.compile.config import TreeConfig
+from thinkfast.compile.goals import GoalGrid
+from thinkfast.compile.pathcheck import PathChecker
+from thinkfast.compile.primitive import Limits, Steering, state_at
+from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED
+from thinkfast.errors import NoSolutionError
+from thinkfast.robot.model import Robot
+
+CHUNK = 8  # parents (or leaves) per work item
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class GrowInputs:
+    """What a worker needs (picklable)."""
+
+    robot: Robot
+    tree: TreeConfig
+    goal_q: np.ndarray  # (G, 6) [rad]
+    subgoal_goal: np.ndarray  # (K,) indices into goal_q
+
+
+_W: dict[str, Any] = {}  # per-process worker state
+
+
+def _init_worker(inputs: GrowInputs) -> None:
+    robot, cfg = inputs.robot, inputs.tree
+    _W["inputs"] = inputs
+    _W["steer"] = Steering(Limits(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]))
+    _W["check"] = PathChecker(robot, cfg.collision_resolution, cfg.position_margin, cfg.sample_dt)
+
+
+def _expand(chunk: list[tuple[int, np.ndarray, np.ndarray]]) -> tuple[list, Counter]:
+    """Children of each (node, state (9,), wrist (3,)) in ``chunk``."""
+    inputs, steer, check = _W["inputs"], _W["steer"], _W["check"]
+    eps = inputs.tree.eps
+    out, why = [], Counter()
+    for node, state, wrist in chunk:
+        for k, g in enumerate(inputs.subgoal_goal):
+            try:
+                traj = steer.steer(state, inputs.goal_q[g, :3])
+            except NoSolutionError:
+                why["steering_failed"] += 1
+                continue
+            reached = traj.duration <= eps
+            t_move = traj.duration if reached else eps  # then at rest until eps
+            if t_move > 0.0:
+                res = check.check(traj, t_move, wrist)
+                if not res.ok:
+                    why[res.reason] += 1
+                    continue
+                wrist_end = res.wrist_end
+            else:
+                wrist_end = wrist.copy()
+            kind = EDGE_REACHED if reached else EDGE_CUT
+            out.append((node, kind, eps, k, state_at(traj, t_move), wrist_end))
+    return out, why
+
+
+def _connect(chunk: list[tuple[int, np.ndarray, np.ndarray, list[int]]]) -> tuple[list, Counter]:
+    """Terminal edges of each (leaf, state, wrist, goals) in ``chunk``: (leaf, goal, duration)."""
+    inputs, steer, check = _W["inputs"], _W["steer"], _W["check"]
+    out, why = [], Counter()
+    for leaf, state, wrist, goals in chunk:
+        for g in goals:
+            try:
+                traj = steer.steer(state, inputs.goal_q[g, :3])
+            except NoSolutionError:
+                why["steering_failed"] += 1
+                continue
+            res = check.check(traj, traj.duration, wrist)
+            if not res.ok:
+                why[res.reason] += 1
+                continue
+            out.append((leaf, g, traj.duration))
+    return out, why
+
+
+def subgoals(grid: GoalGrid, goals_cfg, spacing: float, centre_yz: np.ndarray) -> np.ndarray:
+    """Sub-goal indices into the reachable goals.
+
+    A coarse grid of step ``spacing`` through ``centre_yz`` (home's shield position on the plane,
+    so that "stay" is always one of the choices) over the goal region, each point snapped to the
+    nearest reachable goal; duplicates dropped; row-major from the lowest z.
+    """
+
+    def axis(c: float, lo: float, hi: float) -> np.ndarray:
+        k = np.arange(np.ceil((lo - c) / spacing - 1e-9), np.floor((hi - c) / spacing + 1e-9) + 1)
+        return c + spacing * k
+
+    ys = axis(centre_yz[0], goals_cfg.y_min, goals_cfg.y_max)
+    zs = axis(centre_yz[1], goals_cfg.z_min, goals_cfg.z_max)
+    yz = grid.yz[grid.goal_index]
+    out: list[int] = []
+    for z in zs:
+        for y in ys:
+            k = int(np.argmin(np.linalg.norm(yz - [y, z], axis=1)))
+            if k not in out:
+                out.append(k)
+    return np.array(out, dtype=np.int32)
+
+
+def _run(fn, items: list, pool, progress: Progress | None, phase: str, per_item: int):
+    chunks = [items[i : i + CHUNK] for i in range(0, len(items), CHUNK)]
+    results, why, done = [], Counter(), 0
+    total = len(items) * per_item if per_item else sum(len(it[3]) for it in items)
+    mapper: Iterable = pool.imap(fn, chunks) if pool is not None else map(fn, chunks)
+    for chunk, (res, w) in zip(chunks, mapper, strict=True):
+        results.extend(res)
+        why.update(w)
+        done += sum(len(c[3]) for c in chunk) if not per_item else len(chunk) * per_item
+        if progress:
+            progress(phase, done, total)
+    return results, why
+
+
+def grow(
+    inputs: GrowInputs,
+    leaf_plane_yz: Callable[[np.ndarray], np.ndarray],
+    goal_yz: np.ndarray,
+    jobs: int = 1,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Grow the tree; returns node, edge and terminal arrays plus discard counts.
+
+    Args:
+        inputs: robot, tree parameters, goals and sub-goals.
+        leaf_plane_yz: maps configurations (L, 6) [rad] to shield centres on the plane (L, 2).
+        goal_yz: goal positions on the plane (G, 2) [m].
+        jobs: worker processes (1: in this process).
+        progress: called with (phase, done, total).
+    """
+    robot, cfg = inputs.robot, inputs.tree
+    root_state = np.r_[robot.home[:3], np.zeros(6)]
+    parent, depth, kind = [-1], [0], [EDGE_REACHED]
+    duration, target, ttc = [0.0], [-1], [0.0]
+    state, wrist = [root_state], [robot.home[3:].copy()]
+    tree_why, term_why = Counter(), Counter()
+    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
+    pool = ctx.Pool(jobs, _init_worker, (inputs,)) if jobs > 1 else None
+    if pool is None:
+        _init_worker(inputs)
+    try:
+        level = [0]
+        for d in range(1, cfg.max_depth + 1):
+            items = [(i, state[i], wrist[i]) for i in level]
+            children, why = _run(
+                _expand, items, pool, progress, f"depth {d}", len(inputs.subgoal_goal)
+            )
+            tree_why.update(why)
+            level = []
+            for node, k_kind, t_end, k, s, w in children:
+                level.append(len(parent))
+                parent.append(node)
+                depth.append(d)
+                kind.append(k_kind)
+                duration.append(t_end)
+                target.append(k)
+                ttc.append(ttc[node] + t_end)
+                state.append(s)
+                wrist.append(w)
+        goals_of = _connect_plan(inputs, depth, state, wrist, leaf_plane_yz, goal_yz)
+        items = [(i, state[i], wrist[i], gl) for i, gl in goals_of]
+        terms, term_why = _run(_connect, items, pool, progress, "terminals", 0)
+    finally:
+        if pool is not None:
+            pool.close()
+            pool.join()
+    return dict(
+        parent=np.array(parent, np.int32),
+        depth=np.array(depth, np.int32),
+        kind=np.array(kind, np.uint8),
+        duration=np.array(duration, np.float64),
+        target=np.array(target, np.int32),
+        ttc=np.array(ttc, np.float64),
+        state=np.array(state, np.float64).reshape(-1, 9),
+        wrist=np.array(wrist, np.float64).reshape(-1, 3),
+        terminals=terms,
+        tree_discards=dict(tree_why),
+        terminal_discards=dict(term_why),
+    )
+
+
+def _connect_plan(inputs: GrowInputs, depth, state, wrist, plane_yz, goal_yz):
+    """(node, sorted goal indices) for every node that gets terminal edges, in node order."""
+    cfg = inputs.tree
+    depth = np.asarray(depth)
+    q = np.column_stack([np.asarray(state)[:, :3], np.asarray(wrist)])
+    d = np.linalg.norm(plane_yz(q)[:, None, :] - goal_yz[None, :, :], axis=2)  # (N, G)
+    link = d <= cfg.connect_radius
+    leaves = np.flatnonzero(depth == cfg.max_depth)
+    if not cfg.internal_terminals:
+        link[depth < cfg.max_depth] = False
+    if cfg.root_connects_all:
+        link[0] = True
+    if cfg.connect_min > 0 and len(leaves):
+        nearest = np.argsort(d[leaves], axis=0, kind="stable")[: cfg.connect_min]  # (k, G)
+        link[leaves[nearest], np.arange(d.shape[1])[None, :]] = True
+    return [(int(i), list(np.flatnonzero(row))) for i, row in enumerate(link) if row.any()]
+
+
+def default_jobs() -> int:
+    """All cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1

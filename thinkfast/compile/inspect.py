@@ -1,0 +1,336 @@
+"""Text and plots about compiled action trees: ``info``, ``diff`` and the diff figure.
+
+Pure functions of :class:`~thinkfast.compile.tree.ActionTree` values (no argument parsing, no file
+reading); the CLI loads the trees and prints what these return.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED, ActionTree
+from thinkfast.compile.treefile import tree_fingerprint
+
+ROBOT_KEYS = ("urdf_sha256", "robot_toml_sha256")
+GOAL_KEY_SCALE = 1e6  # goals of two trees are the same goal when (y, z) agree to 1e-6 m
+LARGEST = 10
+
+
+class TreeDiff(NamedTuple):
+    """Result of :func:`tree_diff`.
+
+    Attributes:
+        same: True exactly when the arrays are identical (equal fingerprints) and the compile
+            parameters (flattened ``config_text``) are equal.
+        text: the report, several lines.
+    """
+
+    same: bool
+    text: str
+
+
+def earliest_arrival(tree: ActionTree) -> np.ndarray:
+    """Earliest arrival time at every goal over its terminal edges.
+
+    Returns:
+        arrival time from motion start [s], shape (G,); ``inf`` for a goal no terminal edge reaches.
+    """
+    out = np.full(len(tree.goal_yz), np.inf)
+    np.minimum.at(out, tree.term_goal, tree.term_arrival)
+    return out
+
+
+def depth_counts(tree: ActionTree) -> np.ndarray:
+    """Counts per depth: columns nodes, cut edges, reached edges, terminal edges.
+
+    Returns:
+        int64 array, shape (max_depth + 1, 4); row d counts the nodes at depth d, the edges into
+        them by kind and the terminal edges leaving them.
+    """
+    depth = tree.node_depth
+    n = tree.max_depth + 1
+    into = depth[1:]
+    kind = tree.edge_kind[1:]
+    return np.stack(
+        [
+            np.bincount(depth, minlength=n),
+            np.bincount(into[kind == EDGE_CUT], minlength=n),
+            np.bincount(into[kind == EDGE_REACHED], minlength=n),
+            np.bincount(depth[tree.term_node], minlength=n),
+        ],
+        axis=1,
+    ).astype(np.int64)
+
+
+def config_params(meta: dict[str, Any]) -> dict[str, Any] | None:
+    """The compile config of ``meta["config_text"]`` as flat ``{"tree.max_depth": 3, ...}``.
+
+    Returns:
+        None when the text is absent or not valid TOML.
+    """
+    text = meta.get("config_text")
+    if not isinstance(text, str):
+        return None
+    try:
+        return _flatten(tomllib.loads(text))
+    except tomllib.TOMLDecodeError:
+        return None
+
+
+def _flatten(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def tree_info(tree: ActionTree) -> str:
+    """Summary of a tree: counts per depth, goal coverage, arrival times, parameters, provenance."""
+    counts = depth_counts(tree)
+    ea = earliest_arrival(tree)
+    covered = np.isfinite(ea)
+    g, m = len(ea), len(tree.grid_yz)
+    lines = [
+        f"action tree: {tree.n_nodes} nodes, {tree.n_terminals} terminal edges,"
+        f" max depth {tree.max_depth}, {len(tree.subgoal_goal)} steering sub-goals",
+        f"goals: {int(covered.sum())} covered by a terminal edge / {g} reachable / {m} grid points",
+        "",
+        "  depth      nodes        cut    reached  terminals",
+    ]
+    for d, (nodes, cut, reached, terms) in enumerate(counts):
+        edges = (f"{'-':>10} {'-':>10}") if d == 0 else f"{cut:>10} {reached:>10}"
+        lines.append(f"  {d:>5} {nodes:>10} {edges} {terms:>10}")
+    lines += ["", f"arrival time [s]{'min':>18} {'median':>8} {'p90':>8} {'max':>8}"]
+    lines.append(_stats_row(f"terminal edges ({tree.n_terminals})", tree.term_arrival))
+    lines.append(_stats_row(f"earliest per goal ({int(covered.sum())})", ea[covered]))
+    missing = [_yz(tree.goal_yz[i]) for i in np.flatnonzero(~covered)]
+    if missing:
+        shown = ", ".join(missing[:LARGEST]) + (", ..." if len(missing) > LARGEST else "")
+        lines.append(f"uncovered goals ({len(missing)}): {shown}")
+    lines += ["", *_meta_lines(tree.meta)]
+    return "\n".join(lines)
+
+
+def _stats_row(label: str, x: np.ndarray) -> str:
+    if x.size == 0:
+        return f"  {label:<28} none"
+    q = np.percentile(x, [0, 50, 90, 100])
+    return f"  {label:<28}" + " ".join(f"{v:8.3f}" for v in q)
+
+
+def _yz(yz: np.ndarray) -> str:
+    y, z = np.round(yz, 6) + 0.0  # + 0.0 turns -0.0 into 0.0
+    return f"(y {y:+.3f}, z {z:.3f})"
+
+
+def _meta_lines(meta: dict[str, Any]) -> list[str]:
+    params = config_params(meta)
+    lines = [f"parameters (config sha256 {str(meta.get('config_sha256', '?'))[:12]}):"]
+    if params is None:
+        lines.append("  none recorded (no readable config_text)")
+    lines += [f"  {k} = {_fmt(v)}" for k, v in params.items()] if params else []
+    prov = [k for k in meta if k == "created" or k.endswith(("_version", "_sha256"))]
+    lines += ["provenance:", *(f"  {k} = {meta[k]}" for k in prov)]
+    discard = [k for k in meta if "discard" in k]
+    for k in discard:
+        value = _json_dict(meta[k])
+        items = _flatten(value).items() if isinstance(value, dict) else [("", value)]
+        lines.append(f"{k}:" + ("" if items else " none"))
+        lines += [f"  {name or 'total'} = {_fmt(v)}" for name, v in items]
+    rest = [k for k in meta if k not in {*prov, *discard, "config_text"}]
+    if rest:
+        lines += ["other statistics:", *(f"  {k} = {_fmt(meta[k])}" for k in rest)]
+    return lines
+
+
+def _json_dict(v: Any) -> Any:
+    """A dict stored as a JSON string (as some writers do) becomes the dict; others unchanged."""
+    if isinstance(v, str) and v.startswith("{"):
+        try:
+            return json.loads(v)
+        except ValueError:
+            return v
+    return v
+
+
+def _fmt(v: Any) -> str:
+    text = repr(v) if isinstance(v, str) else str(v)
+    return text if len(text) <= 100 else text[:97] + "..."
+
+
+def tree_diff(a: ActionTree, b: ActionTree) -> TreeDiff:
+    """Compare two trees: parameters, robot, counts per depth, goals, earliest arrival times.
+
+    Goals are matched by their plane position (y, z) rounded to 1e-6 m, since goal indices differ
+    between trees. Robot hash and version changes are reported but do not by themselves make the
+    trees differ (see :class:`TreeDiff`).
+    """
+    fa, fb = tree_fingerprint(a), tree_fingerprint(b)
+    pa, pb = config_params(a.meta), config_params(b.meta)
+    lines = [_headline("A", a, fa), _headline("B", b, fb)]
+    param_lines = _dict_changes(pa or {}, pb or {})
+    if (pa is None) != (pb is None):
+        param_lines.insert(0, f"  config_text: {_readable(pa)} -> {_readable(pb)}")
+    lines += [f"parameters: {len(param_lines)} changed" if param_lines else "parameters: equal"]
+    lines += param_lines
+
+    def provenance(meta: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in meta.items() if k.endswith(("_version", "_sha256"))}
+
+    prov = _dict_changes(provenance(a.meta), provenance(b.meta))
+    prov = [line for line in prov if not line.startswith("  config_sha256:")]
+    robot = [line for line in prov if line.startswith(tuple(f"  {k}:" for k in ROBOT_KEYS))]
+    if robot:
+        lines += ["robot: changed", *robot]
+    elif any(k in a.meta or k in b.meta for k in ROBOT_KEYS):
+        lines.append("robot: same hashes")
+    else:
+        lines.append("robot: no hashes recorded")
+    if len(prov) > len(robot):
+        lines += ["versions:", *(line for line in prov if line not in robot)]
+    lines += _count_lines(a, b)
+    lines += _goal_lines(a, b)
+    same = fa == fb and pa == pb
+    if same:
+        lines.append(f"same: identical datasets (fingerprint {fa[:16]}) and parameters")
+    else:
+        why = [w for w, d in (("datasets", fa != fb), ("parameters", pa != pb)) if d]
+        lines.append(f"different: {' and '.join(why)} differ")
+    return TreeDiff(same=same, text="\n".join(lines))
+
+
+def _headline(label: str, t: ActionTree, fingerprint: str) -> str:
+    return (
+        f"{label}: {t.n_nodes} nodes, {t.n_terminals} terminal edges, max depth {t.max_depth},"
+        f" created {t.meta.get('created', '?')}, fingerprint {fingerprint[:16]}"
+    )
+
+
+def _readable(params: dict[str, Any] | None) -> str:
+    return "absent or invalid" if params is None else "present"
+
+
+def _dict_changes(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
+    """``"  key: old -> new"`` for every key whose value differs (``(absent)`` when missing)."""
+    out = []
+    for key in sorted(set(a) | set(b)):
+        va = _fmt(a[key]) if key in a else "(absent)"
+        vb = _fmt(b[key]) if key in b else "(absent)"
+        if key not in a or key not in b or a[key] != b[key]:
+            out.append(f"  {key}: {va} -> {vb}")
+    return out
+
+
+def _count_lines(a: ActionTree, b: ActionTree) -> list[str]:
+    ca, cb = depth_counts(a), depth_counts(b)
+    n = max(len(ca), len(cb))
+    ca = np.pad(ca, ((0, n - len(ca)), (0, 0)))
+    cb = np.pad(cb, ((0, n - len(cb)), (0, 0)))
+    names = ("nodes", "cut", "reached", "terminals")
+    out = [f"  max depth: {a.max_depth} -> {b.max_depth}"] if a.max_depth != b.max_depth else []
+    for d in np.flatnonzero(np.any(ca != cb, axis=1)):
+        parts = [f"{k} {x} -> {y}" for k, x, y in zip(names, ca[d], cb[d], strict=True) if x != y]
+        out.append(f"  depth {d}: " + ", ".join(parts))
+    return ["counts per depth: " + ("changed" if out else "equal"), *out]
+
+
+def _goal_keys(t: ActionTree) -> dict[tuple[int, int], int]:
+    keys = np.rint(t.goal_yz * GOAL_KEY_SCALE).astype(np.int64)
+    return {(int(y), int(z)): i for i, (y, z) in enumerate(keys)}
+
+
+def _key_yz(key: tuple[int, int]) -> str:
+    return _yz(np.array(key) / GOAL_KEY_SCALE)
+
+
+def _goal_lines(a: ActionTree, b: ActionTree) -> list[str]:
+    ka, kb = _goal_keys(a), _goal_keys(b)
+    ea, eb = earliest_arrival(a), earliest_arrival(b)
+    cov_a = {k for k, i in ka.items() if np.isfinite(ea[i])}
+    cov_b = {k for k, i in kb.items() if np.isfinite(eb[i])}
+    lines = ["goals (matched by plane y, z to 1e-6 m):"]
+    lines.append(_set_change("reachable", set(ka), set(kb)))
+    lines.append(_set_change("covered", cov_a, cov_b))
+    for label, keys in (("gained", cov_b - cov_a), ("lost", cov_a - cov_b)):
+        if keys:
+            shown = sorted(keys)[:LARGEST]
+            more = ", ..." if len(keys) > LARGEST else ""
+            lines.append(f"  {label}: " + ", ".join(map(_key_yz, shown)) + more)
+    both = sorted(cov_a & cov_b)
+    ta = np.array([ea[ka[k]] for k in both])
+    tb = np.array([eb[kb[k]] for k in both])
+    lines.append(f"earliest arrival time [s], {len(both)} goals covered in both:")
+    if not both:
+        return lines
+    delta = tb - ta
+    better, worse = delta < 0, delta > 0
+    lines.append(
+        f"  mean change {delta.mean():+.4f}; improved {int(better.sum())}"
+        f" (max {-delta.min() if better.any() else 0.0:.4f}), regressed {int(worse.sum())}"
+        f" (max {delta.max() if worse.any() else 0.0:.4f}),"
+        f" unchanged {int((delta == 0).sum())}"
+    )
+    order = [i for i in np.argsort(-np.abs(delta), kind="stable") if delta[i] != 0][:LARGEST]
+    if order:
+        lines.append("  largest changes (B - A):")
+    lines += [
+        f"    {_key_yz(both[i])}: {ta[i]:.4f} -> {tb[i]:.4f} ({delta[i]:+.4f})" for i in order
+    ]
+    return lines
+
+
+def _set_change(label: str, a: set, b: set) -> str:
+    return f"  {label}: {len(a)} -> {len(b)} (gained {len(b - a)}, lost {len(a - b)})"
+
+
+def diff_png(a: ActionTree, b: ActionTree, path: str) -> None:
+    """Draw earliest arrival time over the plane for A, B and B - A into a PNG file.
+
+    The plane is drawn as the robot sees it: base y horizontal with +y on the left, z up. Goals
+    without a terminal edge are grey crosses; B - A uses a diverging map centred on 0 (blue is
+    faster in B) over the goals covered in both, the others crossed.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ea, eb = earliest_arrival(a), earliest_arrival(b)
+    ka, kb = _goal_keys(a), _goal_keys(b)
+    both = [k for k in ka if k in kb and np.isfinite(ea[ka[k]]) and np.isfinite(eb[kb[k]])]
+    yz_both = np.array(both, dtype=float).reshape(-1, 2) / GOAL_KEY_SCALE
+    delta = np.array([eb[kb[k]] - ea[ka[k]] for k in both])
+    finite = np.concatenate([ea[np.isfinite(ea)], eb[np.isfinite(eb)]])
+    lo, hi = (finite.min(), finite.max()) if finite.size else (0.0, 1.0)
+    fig, axes = plt.subplots(1, 3, figsize=(16, 5))
+    for ax, t, e, title in ((axes[0], a, ea, "A"), (axes[1], b, eb, "B")):
+        ok = np.isfinite(e)
+        sc = ax.scatter(*t.goal_yz[ok].T, c=e[ok], cmap="viridis", vmin=lo, vmax=hi, marker="s")
+        ax.scatter(*t.goal_yz[~ok].T, c="0.6", marker="x", label="no terminal edge")
+        ax.set_title(f"{title}: earliest arrival ({int(ok.sum())}/{len(e)} goals)")
+        fig.colorbar(sc, ax=ax, shrink=0.8, label="earliest arrival time [s]")
+    span = float(np.abs(delta).max()) if delta.size and np.abs(delta).max() > 0 else 1e-3
+    sc = axes[2].scatter(
+        *yz_both.T, c=delta, cmap="RdBu_r", vmin=-span, vmax=span, marker="s", edgecolors="0.7"
+    )
+    others = np.array([k for k in {*ka, *kb} if k not in set(both)], dtype=float)
+    if others.size:
+        axes[2].scatter(*(others / GOAL_KEY_SCALE).T, c="0.6", marker="x", label="not in both")
+    axes[2].set_title(f"B - A: {len(both)} goals covered in both")
+    fig.colorbar(sc, ax=axes[2], shrink=0.8, label="B - A earliest arrival [s] (blue: B faster)")
+    for ax in axes:
+        ax.set(xlabel="base y [m] (left +)", ylabel="base z [m]", aspect="equal")
+        ax.invert_xaxis()  # as the robot sees the plane: base +y on the left
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), frameon=False)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

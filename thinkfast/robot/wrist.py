@@ -1,0 +1,83 @@
+"""The coplanar wrist rule: joints 4-5 keep the shield normal along a given direction.
+
+For the ABB x-y-x spherical wrist (joint_4 about x, joint_5 about y, joint_6 about x, all origins
+without rotation) and a shield whose normal is link_6's x axis (tool0 = link_6 rotated pi/2 about
+y), the normal is n = R_03 Rx(q4) Ry(q5) e_x. With v = R_03^T n = (cos q5, sin q4 sin q5,
+-cos q4 sin q5): q5 = +-acos(v_x), q4 = atan2(v_y, -v_z) (+ pi on the other branch). joint_6 turns
+the disk about its own axis and is held constant.
+
+Along a path the solution is made continuous: the branch flips where the bend direction jumps by
+more than pi/2 (passing near the singularity v = e_x, where the forearm is parallel to the normal),
+q4 is unwrapped, and the start is the branch and 2 pi wrap nearest the previous wrist angles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from thinkfast.errors import RobotModelError
+from thinkfast.robot.batch_fk import BatchFK
+from thinkfast.robot.model import Robot
+
+
+def check_wrist_geometry(robot: Robot) -> None:
+    """Raise RobotModelError unless the robot has the x-y-x wrist the rule is written for."""
+    by_name = {j.name: j for j in robot.chain}
+    want = {"joint_4": (1, 0, 0), "joint_5": (0, 1, 0), "joint_6": (1, 0, 0)}
+    for name, axis in want.items():
+        j = by_name.get(name)
+        if (
+            j is None
+            or not np.allclose(j.axis, axis)
+            or not np.allclose(j.T_parent_joint[:3, :3], np.eye(3))
+        ):
+            raise RobotModelError(f"coplanar wrist rule needs an x-y-x wrist; {name} differs")
+
+
+class CoplanarWrist:
+    """Wrist angles (joints 4-6) holding the shield normal along ``normal`` for given joints 1-3.
+
+    Args:
+        robot: the robot (x-y-x wrist checked).
+        normal: shield normal in ``base`` (unit vector (3,)), default +x (facing the ball).
+    """
+
+    def __init__(self, robot: Robot, normal=(1.0, 0.0, 0.0)):
+        check_wrist_geometry(robot)
+        self.robot = robot
+        self.fk = BatchFK(robot)
+        n = np.asarray(normal, dtype=np.float64)
+        self.normal = n / np.linalg.norm(n)
+
+    def solve(self, q123: np.ndarray, q_prev: np.ndarray) -> np.ndarray:
+        """Wrist angles [rad] (N, 3) along a path of joints 1-3 [rad] (N, 3).
+
+        Args:
+            q123: joints 1-3 at consecutive samples of a continuous path.
+            q_prev: wrist angles (3,) just before the first sample (for continuity).
+        """
+        q123 = np.atleast_2d(q123)
+        q = np.zeros((len(q123), 6))
+        q[:, :3] = q123
+        R03 = self.fk.link_poses(q, until="link_3")["link_3"][:, :3, :3]
+        v = np.einsum("nji,j->ni", R03, self.normal)  # R03^T n
+        q5 = np.arccos(np.clip(v[:, 0], -1.0, 1.0))
+        theta = np.arctan2(v[:, 1], -v[:, 2])
+        jump = np.abs(np.angle(np.exp(1j * np.diff(theta))))
+        sign = np.where(np.cumsum(np.r_[0, jump > 0.5 * np.pi]) % 2 == 0, 1.0, -1.0)
+        q4 = theta + np.where(sign < 0, np.pi, 0.0)
+        q5 = sign * q5
+        # start on the branch nearest the previous wrist
+        flipped_q4, flipped_q5 = q4[0] + np.pi, -q5[0]
+        if _ang(flipped_q4 - q_prev[0]) + abs(flipped_q5 - q_prev[1]) < _ang(
+            q4[0] - q_prev[0]
+        ) + abs(q5[0] - q_prev[1]):
+            q4, q5 = q4 + np.pi, -q5
+        q4 = np.unwrap(q4)
+        q4 += 2 * np.pi * np.round((q_prev[0] - q4[0]) / (2 * np.pi))
+        return np.column_stack([q4, q5, np.full(len(q4), q_prev[2])])
+
+
+def _ang(a: float) -> float:
+    """Absolute angle difference wrapped to [0, pi]."""
+    return abs((a + np.pi) % (2 * np.pi) - np.pi)

@@ -1,0 +1,290 @@
+"""ABB EGM wire format (protobuf proto2, package ``abb.egm``) and pure encode/decode helpers.
+
+The schema is built at import time from a ``FileDescriptorProto`` (no ``protoc``), with the field
+numbers of ABB's published ``egm.proto`` (see ``shared/INTERFACES.md``). Only the fields thinkfast
+uses are declared; everything else a controller sends (RobotWare 7 additions, Cartesian poses,
+RAPID data, ...) arrives as unknown fields and is ignored by the parser.
+
+Degrees live only here: the helpers take and return radians and rad/s; the wire carries degrees
+and deg/s. Header fields that ABB declares ``required`` are declared ``optional`` here, which is
+wire-identical and lets the decoders report a missing field as a clear :class:`EgmDecodeError`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+from thinkfast.errors import ThinkfastError
+
+N_JOINTS = 6
+RAD_TO_DEG = 180.0 / math.pi
+DEG_TO_RAD = math.pi / 180.0
+UINT32 = 0xFFFFFFFF
+MAX_ABS_DEG = 1e5  # decoders refuse joint values beyond this [deg, deg/s]: no axis turns 277 times
+
+MSGTYPE_UNDEFINED, MSGTYPE_COMMAND, MSGTYPE_DATA, MSGTYPE_CORRECTION, MSGTYPE_PATH_CORRECTION = (
+    range(5)
+)
+MOTORS_UNDEFINED, MOTORS_ON, MOTORS_OFF = range(3)
+MCI_UNDEFINED, MCI_ERROR, MCI_STOPPED, MCI_RUNNING = range(4)
+
+
+class EgmDecodeError(ThinkfastError):
+    """An EGM datagram cannot be used: not protobuf, a required field missing, wrong joint count,
+    or a non-finite value. The message says which."""
+
+
+class EgmEncodeError(ThinkfastError):
+    """Values handed to an encoder have the wrong shape or are not finite."""
+
+
+def _schema() -> descriptor_pb2.FileDescriptorProto:
+    fdp = descriptor_pb2.FileDescriptorProto(name="thinkfast/abb_egm.proto", package="abb.egm")
+    fdp.syntax = "proto2"
+    F = descriptor_pb2.FieldDescriptorProto
+    opt, rep = F.LABEL_OPTIONAL, F.LABEL_REPEATED
+
+    def message(name, fields, enums=()):
+        m = fdp.message_type.add(name=name)
+        for ename, values in enums:
+            e = m.enum_type.add(name=ename)
+            for number, vname in enumerate(values):
+                e.value.add(name=vname, number=number)
+        for fname, number, label, ftype, type_name in fields:
+            f = m.field.add(name=fname, number=number, label=label, type=ftype)
+            if type_name:
+                f.type_name = type_name
+
+    msg, enum = F.TYPE_MESSAGE, F.TYPE_ENUM
+    message(
+        "EgmHeader",
+        [
+            ("seqno", 1, opt, F.TYPE_UINT32, ""),
+            ("tm", 2, opt, F.TYPE_UINT32, ""),
+            ("mtype", 3, opt, enum, ".abb.egm.EgmHeader.MessageType"),
+        ],
+        [("MessageType", ["MSGTYPE_UNDEFINED", "MSGTYPE_COMMAND", "MSGTYPE_DATA",
+                          "MSGTYPE_CORRECTION", "MSGTYPE_PATH_CORRECTION"])],
+    )  # fmt: skip
+    message("EgmJoints", [("joints", 1, rep, F.TYPE_DOUBLE, "")])
+    for name in ("EgmFeedBack", "EgmPlanned", "EgmSpeedRef"):
+        message(name, [("joints", 1, opt, msg, ".abb.egm.EgmJoints")])
+    message(
+        "EgmMotorState",
+        [("state", 1, opt, enum, ".abb.egm.EgmMotorState.MotorStateType")],
+        [("MotorStateType", ["MOTORS_UNDEFINED", "MOTORS_ON", "MOTORS_OFF"])],
+    )
+    message(
+        "EgmMCIState",
+        [("state", 1, opt, enum, ".abb.egm.EgmMCIState.MCIStateType")],
+        [("MCIStateType", ["MCI_UNDEFINED", "MCI_ERROR", "MCI_STOPPED", "MCI_RUNNING"])],
+    )
+    message(
+        "EgmRobot",
+        [
+            ("header", 1, opt, msg, ".abb.egm.EgmHeader"),
+            ("feedBack", 2, opt, msg, ".abb.egm.EgmFeedBack"),
+            ("planned", 3, opt, msg, ".abb.egm.EgmPlanned"),
+            ("motorState", 4, opt, msg, ".abb.egm.EgmMotorState"),
+            ("mciState", 5, opt, msg, ".abb.egm.EgmMCIState"),
+        ],
+    )
+    message(
+        "EgmSensor",
+        [
+            ("header", 1, opt, msg, ".abb.egm.EgmHeader"),
+            ("planned", 2, opt, msg, ".abb.egm.EgmPlanned"),
+            ("speedRef", 3, opt, msg, ".abb.egm.EgmSpeedRef"),
+        ],
+    )
+    return fdp
+
+
+# A private pool: another module registering its own abb.egm schema cannot clash with this one.
+_POOL = descriptor_pool.DescriptorPool()
+_FILE = _POOL.Add(_schema())
+EgmHeader = message_factory.GetMessageClass(_POOL.FindMessageTypeByName("abb.egm.EgmHeader"))
+EgmJoints = message_factory.GetMessageClass(_POOL.FindMessageTypeByName("abb.egm.EgmJoints"))
+EgmRobot = message_factory.GetMessageClass(_POOL.FindMessageTypeByName("abb.egm.EgmRobot"))
+EgmSensor = message_factory.GetMessageClass(_POOL.FindMessageTypeByName("abb.egm.EgmSensor"))
+
+
+class RobotFeedback(NamedTuple):
+    """What the controller reports in one ``EgmRobot`` message.
+
+    Attributes:
+        seqno: controller sequence number (uint32).
+        tm_ms: controller time stamp [ms] (uint32, wraps).
+        q_rad: measured joint angles [rad], shape (6,), read-only.
+        motors_on: ``motorState`` is ``MOTORS_ON``.
+        mci_running: ``mciState`` is ``MCI_RUNNING`` (the EGM motion is active).
+    """
+
+    seqno: int
+    tm_ms: int
+    q_rad: np.ndarray
+    motors_on: bool
+    mci_running: bool
+
+
+class SensorCommand(NamedTuple):
+    """What the sensor (thinkfast) sends in one ``EgmSensor`` message.
+
+    Attributes:
+        seqno: sensor sequence number (uint32).
+        tm_ms: sensor time stamp [ms] (uint32, wraps).
+        mtype: header message type (``MSGTYPE_CORRECTION`` from thinkfast).
+        q_rad: planned joint angles [rad], shape (6,), read-only.
+        qd_rad_s: speed reference [rad/s], shape (6,), read-only; zeros if ``speedRef`` is absent.
+    """
+
+    seqno: int
+    tm_ms: int
+    mtype: int
+    q_rad: np.ndarray
+    qd_rad_s: np.ndarray
+
+
+def _wire_joints(values, what: str) -> list[float]:
+    """Six finite radian values -> list of six degrees (raises :class:`EgmEncodeError`)."""
+    try:
+        out = [float(v) * RAD_TO_DEG for v in values]
+    except (TypeError, ValueError) as exc:
+        raise EgmEncodeError(f"{what}: expected {N_JOINTS} numbers ({exc})") from None
+    if len(out) != N_JOINTS:
+        raise EgmEncodeError(f"{what}: expected {N_JOINTS} values, got {len(out)}")
+    if not all(math.isfinite(v) for v in out):
+        raise EgmEncodeError(f"{what}: non-finite value in {out}")
+    return out
+
+
+def _joints_from_wire(joints, what: str) -> np.ndarray:
+    if len(joints) != N_JOINTS:
+        raise EgmDecodeError(f"{what}: expected {N_JOINTS} joints, got {len(joints)}")
+    deg = np.array(joints, dtype=float)
+    if not (np.abs(deg) <= MAX_ABS_DEG).all():  # also false for NaN
+        raise EgmDecodeError(f"{what}: non-finite or absurd joint value (|deg| > {MAX_ABS_DEG:g})")
+    q = deg * DEG_TO_RAD
+    q.setflags(write=False)
+    return q
+
+
+def _parse(cls, data: bytes):
+    msg = cls()
+    try:
+        msg.ParseFromString(bytes(data))
+    except Exception as exc:  # untrusted bytes: any parser failure is a decode error
+        raise EgmDecodeError(f"not a valid {cls.DESCRIPTOR.name} message ({exc})") from None
+    if not msg.HasField("header"):
+        raise EgmDecodeError(f"{cls.DESCRIPTOR.name}: no header")
+    return msg
+
+
+def encode_sensor(
+    seqno: int, tm_ms: int, q_rad, qd_rad_s, mtype: int = MSGTYPE_CORRECTION
+) -> bytes:
+    """Serialize one ``EgmSensor`` (planned joints + speed reference).
+
+    Args:
+        seqno: sequence number, taken modulo 2**32.
+        tm_ms: time stamp [ms], taken modulo 2**32.
+        q_rad: joint position setpoint [rad], 6 finite values.
+        qd_rad_s: joint velocity setpoint [rad/s], 6 finite values.
+        mtype: header message type.
+
+    Returns:
+        The datagram payload (degrees and deg/s on the wire).
+
+    Raises:
+        EgmEncodeError: wrong count or a non-finite value (nothing unsafe is ever serialized).
+    """
+    msg = EgmSensor()
+    h = msg.header
+    h.seqno = int(seqno) & UINT32
+    h.tm = int(tm_ms) & UINT32
+    h.mtype = mtype
+    msg.planned.joints.joints.extend(_wire_joints(q_rad, "planned joints"))
+    msg.speedRef.joints.joints.extend(_wire_joints(qd_rad_s, "speedRef joints"))
+    return msg.SerializeToString()
+
+
+def decode_robot(data: bytes) -> RobotFeedback:
+    """Parse one ``EgmRobot`` datagram.
+
+    Args:
+        data: the UDP payload.
+
+    Returns:
+        The feedback, joints in radians.
+
+    Raises:
+        EgmDecodeError: not protobuf, no header, no ``feedBack.joints``, not exactly 6 joints, or
+            a joint value that is non-finite or beyond ``MAX_ABS_DEG``.
+    """
+    msg = _parse(EgmRobot, data)
+    if not (msg.HasField("feedBack") and msg.feedBack.HasField("joints")):
+        raise EgmDecodeError("EgmRobot: no feedBack.joints")
+    q = _joints_from_wire(msg.feedBack.joints.joints, "EgmRobot feedBack")
+    return RobotFeedback(
+        seqno=msg.header.seqno,
+        tm_ms=msg.header.tm,
+        q_rad=q,
+        motors_on=msg.motorState.state == MOTORS_ON,
+        mci_running=msg.mciState.state == MCI_RUNNING,
+    )
+
+
+def encode_robot(
+    seqno: int,
+    tm_ms: int,
+    q_rad,
+    motors_on: bool = True,
+    mci_running: bool = True,
+    planned_q_rad=None,
+) -> bytes:
+    """Serialize one ``EgmRobot`` as a controller would (simulator and tests).
+
+    Args:
+        seqno: sequence number, modulo 2**32.
+        tm_ms: controller time stamp [ms], modulo 2**32.
+        q_rad: measured joint angles [rad], 6 finite values.
+        motors_on: motor state ``MOTORS_ON`` (else ``MOTORS_OFF``).
+        mci_running: MCI state ``MCI_RUNNING`` (else ``MCI_STOPPED``).
+        planned_q_rad: optional planned joint angles [rad], 6 values.
+
+    Raises:
+        EgmEncodeError: wrong count or a non-finite value.
+    """
+    msg = EgmRobot()
+    msg.header.seqno = int(seqno) & UINT32
+    msg.header.tm = int(tm_ms) & UINT32
+    msg.header.mtype = MSGTYPE_DATA
+    msg.feedBack.joints.joints.extend(_wire_joints(q_rad, "feedBack joints"))
+    if planned_q_rad is not None:
+        msg.planned.joints.joints.extend(_wire_joints(planned_q_rad, "planned joints"))
+    msg.motorState.state = MOTORS_ON if motors_on else MOTORS_OFF
+    msg.mciState.state = MCI_RUNNING if mci_running else MCI_STOPPED
+    return msg.SerializeToString()
+
+
+def decode_sensor(data: bytes) -> SensorCommand:
+    """Parse one ``EgmSensor`` datagram (simulated controller and tests).
+
+    Raises:
+        EgmDecodeError: not protobuf, no header, no ``planned.joints``, not exactly 6 values in
+            ``planned`` or ``speedRef``, or a value non-finite or beyond ``MAX_ABS_DEG``.
+    """
+    msg = _parse(EgmSensor, data)
+    if not (msg.HasField("planned") and msg.planned.HasField("joints")):
+        raise EgmDecodeError("EgmSensor: no planned.joints")
+    q = _joints_from_wire(msg.planned.joints.joints, "EgmSensor planned")
+    if msg.HasField("speedRef") and msg.speedRef.HasField("joints"):
+        qd = _joints_from_wire(msg.speedRef.joints.joints, "EgmSensor speedRef")
+    else:
+        qd = np.zeros(N_JOINTS)
+        qd.setflags(write=False)
+    return SensorCommand(msg.header.seqno, msg.header.tm, msg.header.mtype, q, qd)

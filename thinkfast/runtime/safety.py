@@ -1,0 +1,333 @@
+"""Safety supervisor: the last stage before the wire, independent of the planner.
+
+Every 4 ms tick it takes the planner's requested ``(q, qd)`` and the previous *commanded* state
+and returns a command that is guaranteed, whatever the request (NaN, inf, 1e300, jumps):
+
+* inside the position limits shrunk by a margin: ``q_min <= q <= q_max``;
+* ``|qd| <= v_max`` and ``|qd - qd_prev| <= a_max * dt``;
+* finite;
+* *recoverable*: from every commanded state, braking at ``a_max`` stops inside the limits.
+
+The last property is the invariant that makes the others provable. With trapezoidal integration
+``q' = q + (v + v') dt / 2`` and braking ``v' = v - sign(v) min(|v|, a dt)``, a state with
+``q + v^2 / (2a) + |v| dt / 2 <= q_max`` (for ``v > 0``; mirrored for the lower limit) keeps
+satisfying it after a braking tick, so the braking velocity is always admissible and the set of
+admissible next velocities is never empty. Requests that are admissible and consistent with the
+previous state (their position step matches some ``|acc| <= a_max`` motion) pass unchanged;
+anything else is replaced by the admissible velocity closest to one that tracks the request.
+
+Braking (on a stop signal, feedback deviation, loss of EGM traffic or a non-finite request)
+drives every joint's velocity to zero with ``|acc| <= a_max`` and ramps the acceleration at
+``j_max`` (a sqrt law, like a jerk-limited time-optimal stop). Jerk is honoured unless the state
+when braking starts makes it impossible without reversing (then the velocity stops at zero), or
+a position limit demands a harder stop. Joints brake independently (each as fast as it may).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.config import spec
+from thinkfast.errors import ThinkfastError
+
+CLAMP_KINDS = ("nonfinite", "velocity", "acceleration", "position_step", "position_limit")
+BRAKE_REASONS = ("signal", "deviation", "traffic", "nonfinite")
+KINDS = CLAMP_KINDS + tuple(f"brake_{r}" for r in BRAKE_REASONS) + ("init_clamped",)
+
+
+class SafetyError(ThinkfastError):
+    """Limits handed to the supervisor are unusable (shape, sign, margin larger than the range)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SafetyConfig:
+    """Supervisor parameters (joint limits come from the robot model)."""
+
+    dt: float = spec(0.004, doc="tick period (EGM cycle)", unit="s", lo=0.0, lo_open=True)
+    position_margin: float = spec(
+        0.035, doc="commands stay this far inside the URDF position limits", unit="rad", lo=0.0
+    )
+    max_deviation: float = spec(
+        0.35,
+        doc="brake when |feedback - last command| exceeds this on any joint; must exceed "
+        "v_max * controller lag (3.2 rad/s * 80 ms = 0.26 rad on joint 1)",
+        unit="rad",
+        lo=0.0,
+        lo_open=True,
+    )
+    traffic_timeout: float = spec(
+        0.05, doc="brake when no EgmRobot arrived for this long", unit="s", lo=0.0, lo_open=True
+    )
+
+
+class SafetyLimits(NamedTuple):
+    """Per-joint limits the supervisor enforces, each shape (n,), read-only.
+
+    Attributes:
+        q_min, q_max: position limits already shrunk by the margin [rad].
+        v_max: velocity limits [rad/s], > 0.
+        a_max: acceleration limits [rad/s^2], > 0.
+        j_max: jerk limits for braking [rad/s^3], > 0.
+    """
+
+    q_min: np.ndarray
+    q_max: np.ndarray
+    v_max: np.ndarray
+    a_max: np.ndarray
+    j_max: np.ndarray
+
+
+def make_limits(q_lower, q_upper, v_max, a_max, j_max, margin: float = 0.0) -> SafetyLimits:
+    """Validate and freeze limits; positions are shrunk by ``margin`` [rad] on both sides.
+
+    Raises:
+        SafetyError: shapes differ, a value is not finite, a v/a/j limit is not > 0, or the
+            margin leaves no room (``q_upper - q_lower <= 2 margin``).
+    """
+    arrs = [np.array(x, dtype=float).reshape(-1) for x in (q_lower, q_upper, v_max, a_max, j_max)]
+    names = ("q_lower", "q_upper", "v_max", "a_max", "j_max")
+    n = arrs[0].size
+    for name, a in zip(names, arrs, strict=True):
+        if a.size != n or not np.isfinite(a).all():
+            raise SafetyError(f"safety limits: {name} must hold {n} finite values, got {a}")
+    for name, a in zip(names[2:], arrs[2:], strict=True):
+        if (a <= 0).any():
+            raise SafetyError(f"safety limits: {name} must be > 0, got {a}")
+    lo, hi = arrs[0] + margin, arrs[1] - margin
+    if (hi <= lo).any():
+        raise SafetyError(
+            f"safety limits: margin {margin} rad leaves no range in {arrs[0]}..{arrs[1]}"
+        )
+    out = [lo, hi, *arrs[2:]]
+    for a in out:
+        a.setflags(write=False)
+    return SafetyLimits(*out)
+
+
+def _room_speed(r: np.ndarray, a: np.ndarray, dt: float) -> np.ndarray:
+    """Largest next speed towards a limit at distance ``r`` (after half a tick at the old speed)
+    that can still be braked at ``a`` without passing it."""
+    root = a * (np.sqrt(dt * dt + 2.0 * np.maximum(r, 0.0) / a) - dt)
+    return np.where(r >= 0.0, root, 2.0 * r / dt)
+
+
+def velocity_bounds(q_p, v_p, lim: SafetyLimits, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Admissible next velocities ``[lo, hi]`` from the commanded state ``(q_p, v_p)``.
+
+    Intersection of ``|v| <= v_max``, ``|v - v_p| <= a_max dt`` and the braking-room invariant.
+    Contains the braking velocity whenever ``(q_p, v_p)`` satisfies the invariant.
+    """
+    half = q_p + 0.5 * v_p * dt
+    hi = np.minimum(
+        np.minimum(lim.v_max, v_p + lim.a_max * dt), _room_speed(lim.q_max - half, lim.a_max, dt)
+    )
+    lo = np.maximum(
+        np.maximum(-lim.v_max, v_p - lim.a_max * dt), -_room_speed(half - lim.q_min, lim.a_max, dt)
+    )
+    return lo, hi
+
+
+def recoverable(q, v, lim: SafetyLimits, dt: float) -> np.ndarray:
+    """Per joint: inside the limits and able to brake at ``a_max`` without leaving them."""
+    end = q + v * (np.abs(v) / (2.0 * lim.a_max) + 0.5 * dt)  # where braking now would stop
+    return (np.minimum(q, end) >= lim.q_min) & (np.maximum(q, end) <= lim.q_max)
+
+
+def limit_step(q_p, v_p, v_des, lim: SafetyLimits, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The admissible next state whose velocity is closest to ``v_des`` (finite, shape (n,)).
+
+    Returns:
+        ``(q, v)``: ``v`` clipped into :func:`velocity_bounds` (the braking velocity if rounding
+        empties them), ``q`` its trapezoidal integral.
+    """
+    lo, hi = velocity_bounds(q_p, v_p, lim, dt)
+    v_brake = v_p - np.sign(v_p) * np.minimum(np.abs(v_p), lim.a_max * dt)
+    v = np.where(lo <= hi, np.clip(v_des, lo, hi), v_brake)
+    v = np.clip(v, -lim.v_max, lim.v_max)
+    q = np.clip(q_p + 0.5 * (v_p + v) * dt, lim.q_min, lim.q_max)
+    return q, v
+
+
+def brake_velocity(v_p, a_p, lim: SafetyLimits, dt: float) -> np.ndarray:
+    """Next velocity of a jerk-limited stop from velocity ``v_p`` and acceleration ``a_p``.
+
+    Per joint, in the direction of motion ``u = |v|``: the deceleration ``b`` grows at jerk
+    ``j_max`` up to ``a_max`` as long as ramping it back to zero still ends at rest (about
+    ``b = sqrt(2 j u)``), then shrinks at ``j_max``; the velocity never changes sign.
+    """
+    s = np.sign(v_p)
+    j = lim.j_max
+    u, b = np.abs(v_p), np.clip(s * a_p, -lim.a_max, lim.a_max)
+    # Acceleration is constant over a tick (v' = v + b' dt). Strongest deceleration x = -b'
+    # such that ramping it back to zero in steps of j dt still removes no more than the speed
+    # left: u - x dt >= x^2 / (2 j) - x dt / 2 (root written without cancellation, so that
+    # tiny speeds still end at exactly zero).
+    x = 2.0 * u / (np.sqrt(0.25 * dt * dt + 2.0 * u / j) + 0.5 * dt)
+    b_new = np.clip(np.clip(-x, b - j * dt, b + j * dt), -lim.a_max, lim.a_max)
+    u_new = np.maximum(u + b_new * dt, 0.0)
+    return s * u_new
+
+
+class StepResult(NamedTuple):
+    """One filtered command: ``q`` [rad], ``qd`` [rad/s], shape (n,), and the kinds applied."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    kinds: tuple[str, ...]
+
+
+def filter_step(q_p, v_p, q_req, v_req, lim: SafetyLimits, dt: float) -> StepResult:
+    """Make the requested next state admissible (pure; the non-braking path of the supervisor).
+
+    Args:
+        q_p, v_p: previous commanded state [rad], [rad/s], shape (n,), recoverable.
+        q_req, v_req: requested state, shape (n,), finite.
+        lim: limits. dt: tick [s].
+
+    Returns:
+        The request itself when admissible, else the closest admissible state; ``kinds`` lists
+        which checks the request failed (empty when it passed).
+    """
+    with np.errstate(over="ignore", invalid="ignore"):  # 1e300-sized requests: inf compares fine
+        return _filter_step(q_p, v_p, q_req, v_req, lim, dt)
+
+
+def _filter_step(q_p, v_p, q_req, v_req, lim: SafetyLimits, dt: float) -> StepResult:
+    kinds = []
+    a_dt = lim.a_max * dt
+    if (np.abs(v_req) > lim.v_max).any():
+        kinds.append("velocity")
+    if (np.abs(v_req - v_p) > a_dt).any():
+        kinds.append("acceleration")
+    err = q_req - (q_p + 0.5 * (v_p + v_req) * dt)
+    if (np.abs(err) > 0.25 * a_dt * dt * (1.0 + 1e-9)).any():
+        kinds.append("position_step")
+    if not recoverable(q_req, v_req, lim, dt).all():
+        kinds.append("position_limit")
+    if not kinds:
+        return StepResult(np.array(q_req, dtype=float), np.array(v_req, dtype=float), ())
+    # Track the request: its velocity plus a correction that closes the position error at a
+    # rate a_max/2 could stop (sqrt law), linear near zero so it settles without chatter.
+    err = np.clip(err, -1e3, 1e3)
+    fix = np.sign(err) * np.minimum(np.abs(err) / (4.0 * dt), np.sqrt(lim.a_max * np.abs(err)))
+    q, v = limit_step(q_p, v_p, np.clip(v_req, -lim.v_max, lim.v_max) + fix, lim, dt)
+    return StepResult(q, v, tuple(kinds))
+
+
+class SafeCommand(NamedTuple):
+    """The supervisor's output for one tick.
+
+    Attributes:
+        q: commanded joint angles [rad], shape (n,), finite, inside the limits.
+        qd: commanded joint velocities [rad/s], shape (n,), finite.
+        braking: a brake is latched (requests are ignored until :meth:`SafetySupervisor.release`).
+        stopped: braking and every velocity is zero.
+        kinds: interventions made this tick (entries of :data:`KINDS`).
+    """
+
+    q: np.ndarray
+    qd: np.ndarray
+    braking: bool
+    stopped: bool
+    kinds: tuple[str, ...]
+
+
+class SafetySupervisor:
+    """Stateful wrapper of :func:`filter_step` and :func:`brake_velocity`, one call per tick.
+
+    Args:
+        limits: joint limits (margin already applied, see :func:`make_limits`).
+        config: tick period and trigger thresholds.
+        q0: starting command [rad], normally the measured joint angles; clipped into the limits
+            (counted as ``init_clamped``).
+    """
+
+    def __init__(self, limits: SafetyLimits, config: SafetyConfig, q0):
+        self.limits = limits
+        self.config = config
+        self.counts = dict.fromkeys(KINDS, 0)
+        self.reset(q0)
+
+    def reset(self, q0) -> None:
+        """Start from rest at ``q0`` [rad] with no brake latched."""
+        q0 = np.array(q0, dtype=float).reshape(-1)
+        n = self.limits.q_min.size
+        if q0.size != n or not np.isfinite(q0).all():
+            raise SafetyError(f"safety supervisor: q0 must hold {n} finite values, got {q0}")
+        q = np.clip(q0, self.limits.q_min, self.limits.q_max)
+        if (q != q0).any():
+            self.counts["init_clamped"] += 1
+        self.q, self.qd, self.qdd = q, np.zeros(n), np.zeros(n)
+        self.brake_reason: str | None = None
+
+    @property
+    def braking(self) -> bool:
+        """A brake is latched."""
+        return self.brake_reason is not None
+
+    def request_brake(self, reason: str) -> None:
+        """Latch a smooth stop; ``reason`` is one of :data:`BRAKE_REASONS` (first one is kept)."""
+        if reason not in BRAKE_REASONS:
+            raise ValueError(f"brake reason {reason!r} is not one of {', '.join(BRAKE_REASONS)}")
+        if self.brake_reason is None:
+            self.brake_reason = reason
+            self.counts[f"brake_{reason}"] += 1
+
+    def release(self) -> None:
+        """Accept requests again (call when stopped and the cause is gone)."""
+        self.brake_reason = None
+
+    def step(self, q_req, qd_req, q_meas=None, egm_age: float | None = None) -> SafeCommand:
+        """Advance one tick. Never raises; whatever the inputs the output is admissible.
+
+        Args:
+            q_req: requested joint angles [rad], shape (n,) (anything: checked here).
+            qd_req: requested joint velocities [rad/s], shape (n,).
+            q_meas: latest measured joint angles [rad], shape (n,), or None; a deviation from
+                the last command beyond ``max_deviation`` (or a non-finite value) brakes.
+            egm_age: time since the last EgmRobot arrived [s], or None; beyond
+                ``traffic_timeout`` brakes.
+        """
+        cfg, lim, n = self.config, self.limits, self.q.size
+        kinds: tuple[str, ...] = ()
+        if q_meas is not None:
+            dev = _vector(q_meas, n)
+            if dev is None or (np.abs(dev - self.q) > cfg.max_deviation).any():
+                self.request_brake("deviation")
+        if egm_age is not None:
+            try:
+                fresh = float(egm_age) <= cfg.traffic_timeout  # False for NaN
+            except (TypeError, ValueError):
+                fresh = False
+            if not fresh:
+                self.request_brake("traffic")
+        q_r, v_r = _vector(q_req, n), _vector(qd_req, n)
+        if not self.braking and (q_r is None or v_r is None):
+            kinds = ("nonfinite",)
+            self.request_brake("nonfinite")
+        if self.braking:
+            v_des = brake_velocity(self.qd, self.qdd, lim, cfg.dt)
+            q, v = limit_step(self.q, self.qd, v_des, lim, cfg.dt)
+        else:
+            q, v, kinds = filter_step(self.q, self.qd, q_r, v_r, lim, cfg.dt)
+        for k in kinds:
+            self.counts[k] += 1
+        self.qdd = (v - self.qd) / cfg.dt
+        q.setflags(write=False)  # fresh arrays each tick: safe to hand out read-only
+        v.setflags(write=False)
+        self.q, self.qd = q, v
+        return SafeCommand(q, v, self.braking, self.braking and not v.any(), kinds)
+
+
+def _vector(x, n: int) -> np.ndarray | None:
+    """``x`` as a finite float array of shape (n,), or None (bad shape, type or value)."""
+    try:
+        a = np.array(x, dtype=float).reshape(-1)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    if a.size != n or not np.isfinite(a).all():
+        return None
+    return a

@@ -1,0 +1,317 @@
+"""Simulated ABB controller: an EGM client with a servo model, in lockstep or over real UDP.
+
+:class:`SimController` is the deterministic core (no sockets, no clocks): it makes ``EgmRobot``
+messages from its state, takes ``EgmSensor`` replies as commands, and integrates the servo model
+with :meth:`SimController.step`. :class:`ControllerRunner` puts it on a UDP socket and exchanges
+one message pair every 4 ms (or flat out), as a real controller does.
+
+Servo model (every number an ASSUMPTION in :class:`ServoConfig`, to calibrate from logged EGM
+feedback; FACTS.md: ABB quotes 10-20 ms lag, field reports 40-80 ms with default gains):
+
+1. transport: a command received at ``t`` takes effect at ``t + delay``;
+2. reference filter: position and speed references through one first-order low pass at
+   ``lowpass_hz`` (EGM's ``\\LpFilter``);
+3. position loop with speed feed-forward: ``v_cmd = kff * qd_ref_f + kp * (q_ref_f - q)``;
+4. velocity loop: first-order lag ``tau_v`` towards ``v_cmd``, with the arm's acceleration and
+   velocity limits, slowing down before the position limits (a stop at ``a_max / 2``), which
+   are hard stops for what is left (at most one integration step of speed).
+
+With ``kff = 1`` a ramp is tracked with a steady lag of about ``delay + 1 / (2 pi lowpass_hz)``.
+Simulated time advances by the nominal ``dt`` per exchange, whatever the wall clock does.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import logging
+import math
+import socket
+import threading
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.config import spec
+from thinkfast.runtime.egm_proto import EgmDecodeError, decode_sensor, encode_robot
+
+log = logging.getLogger(__name__)
+_DEG = math.pi / 180.0
+
+
+@dataclasses.dataclass(frozen=True)
+class ServoConfig:
+    """Simulated controller: cycle, lag model and the arm's limits (IRB 1600-10/1.45)."""
+
+    dt: float = spec(0.004, doc="EGM cycle", unit="s", lo=0.0, lo_open=True)
+    delay: float = spec(0.008, doc="transport + input processing delay", unit="s", lo=0.0)
+    lowpass_hz: float = spec(
+        20.0, doc="reference low-pass bandwidth", unit="Hz", lo=0.0, lo_open=True
+    )
+    kp: float = spec(20.0, doc="position gain", unit="1/s", lo=0.0)
+    kff: float = spec(1.0, doc="speed feed-forward gain", lo=0.0)
+    tau_v: float = spec(0.01, doc="velocity loop time constant", unit="s", lo=0.0, lo_open=True)
+    substep: float = spec(0.001, doc="integration step", unit="s", lo=0.0, lo_open=True)
+    q_min: tuple[float, ...] = spec(
+        tuple(d * _DEG for d in (-180, -90, -245, -200, -115, -400)), unit="rad", length=6
+    )
+    q_max: tuple[float, ...] = spec(
+        tuple(d * _DEG for d in (180, 120, 65, 200, 115, 400)), unit="rad", length=6
+    )
+    v_max: tuple[float, ...] = spec(
+        tuple(d * _DEG for d in (180, 180, 185, 385, 400, 460)), unit="rad/s", length=6, lo=0.0
+    )
+    a_max: tuple[float, ...] = spec((12.0, 12.0, 15.0, 30.0, 30.0, 40.0), unit="rad/s^2", length=6)
+
+
+class JointHistory(NamedTuple):
+    """Recorded motion: ``t`` [s] (T,), ``q`` [rad] (T, 6), ``qd`` [rad/s] (T, 6)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+
+
+class SimController:
+    """Deterministic simulated controller (servo model + EGM message handling).
+
+    Args:
+        config: servo model and limits.
+        q0: initial joint angles [rad], shape (6,); zeros by default.
+    """
+
+    def __init__(self, config: ServoConfig = ServoConfig(), q0=None):
+        self.config = config
+        self.q = np.zeros(6) if q0 is None else np.array(q0, dtype=float).reshape(6)
+        self.qd = np.zeros(6)
+        self.t = 0.0
+        self.seqno = 0
+        self.malformed = 0
+        self._ref = (self.q.copy(), np.zeros(6))  # active (q_ref, qd_ref) after the delay
+        self._filt = (self.q.copy(), np.zeros(6))  # low-passed reference
+        self._queue: collections.deque = collections.deque()
+        self._lock = threading.Lock()
+        self._hist: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, self.q.copy(), self.qd)]
+        self._cmds: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self._lim = tuple(np.array(x) for x in (config.q_min, config.q_max, config.v_max))
+        self._a_max = np.array(config.a_max)
+
+    def robot_message(self) -> bytes:
+        """The next ``EgmRobot`` datagram: current joint angles, sequence number +1."""
+        self.seqno += 1
+        return encode_robot(self.seqno, int(round(self.t * 1000.0)), self.q)
+
+    def handle_sensor(self, data: bytes, t: float | None = None) -> bool:
+        """Take one ``EgmSensor`` datagram as a command received at ``t`` [s] (default: now).
+
+        Returns:
+            False (and counts ``malformed``) if the datagram is not a usable ``EgmSensor``.
+        """
+        try:
+            cmd = decode_sensor(data)
+        except EgmDecodeError:
+            self.malformed += 1
+            return False
+        self.command(cmd.q_rad, cmd.qd_rad_s, t)
+        return True
+
+    def command(self, q_ref, qd_ref, t: float | None = None) -> None:
+        """Queue a position [rad] and speed [rad/s] reference, shape (6,), received at ``t``."""
+        t = self.t if t is None else t
+        q_ref, qd_ref = np.array(q_ref, dtype=float), np.array(qd_ref, dtype=float)
+        with self._lock:
+            self._queue.append((t + self.config.delay, q_ref, qd_ref))
+            self._cmds.append((t, q_ref, qd_ref))
+
+    def step(self, dt: float) -> None:
+        """Integrate the servo model over ``dt`` [s] and record one history sample."""
+        cfg = self.config
+        n = max(1, math.ceil(dt / cfg.substep - 1e-9))
+        h = dt / n
+        alpha = 1.0 - math.exp(-2.0 * math.pi * cfg.lowpass_hz * h)
+        q_min, q_max, v_max = self._lim
+        a = self._a_max
+        q, qd = self.q.copy(), self.qd.copy()
+        fq, fqd = self._filt
+        with self._lock:
+            for i in range(n):
+                t = self.t + i * h
+                while self._queue and self._queue[0][0] <= t + 1e-12:
+                    self._ref = self._queue.popleft()[1:]
+                rq, rqd = self._ref
+                fq, fqd = fq + alpha * (rq - fq), fqd + alpha * (rqd - fqd)
+                v_cmd = np.clip(cfg.kff * fqd + cfg.kp * (fq - q), -v_max, v_max)
+                dv = np.clip((v_cmd - qd) * (h / cfg.tau_v), -a * h, a * h)
+                # Soft limits: never faster than a stop at a_max / 2 (or one step) allows.
+                up, dn = np.maximum(q_max - q, 0.0), np.maximum(q - q_min, 0.0)
+                v_up = np.minimum(np.sqrt(a * up), up / h)
+                v_dn = np.minimum(np.sqrt(a * dn), dn / h)
+                qd = np.clip(qd + dv, np.maximum(-v_max, -v_dn), np.minimum(v_max, v_up))
+                q = q + qd * h
+                stop = (q < q_min) | (q > q_max)
+                q, qd = np.clip(q, q_min, q_max), np.where(stop, 0.0, qd)
+            self._filt = (fq, fqd)
+            self.q, self.qd, self.t = q, qd, self.t + dt
+            self._hist.append((self.t, q.copy(), qd.copy()))
+
+    def history(self) -> JointHistory:
+        """Joint motion recorded so far (one sample per :meth:`step`, plus the start)."""
+        with self._lock:
+            rows = list(self._hist)
+        return JointHistory(
+            np.array([r[0] for r in rows]),
+            np.array([r[1] for r in rows]),
+            np.array([r[2] for r in rows]),
+        )
+
+    def commands(self) -> JointHistory:
+        """Commands received so far: reception time [s], ``q_ref`` [rad], ``qd_ref`` [rad/s]."""
+        with self._lock:
+            rows = list(self._cmds)
+        if not rows:
+            return JointHistory(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)))
+        return JointHistory(
+            np.array([r[0] for r in rows]),
+            np.array([r[1] for r in rows]),
+            np.array([r[2] for r in rows]),
+        )
+
+
+@dataclasses.dataclass
+class ExchangeStats:
+    """Counts and round-trip times of the UDP exchanges (``rtt_s``: one entry per reply in time)."""
+
+    sent: int = 0
+    replies: int = 0
+    missed: int = 0
+    late: int = 0
+    malformed: int = 0
+    rtt_s: list[float] = dataclasses.field(default_factory=list)
+
+
+class ControllerRunner:
+    """Runs a :class:`SimController` as an EGM client over UDP in a thread.
+
+    Each cycle: send ``EgmRobot``, wait for the ``EgmSensor`` until the cycle ends (or
+    ``reply_timeout``), apply it, step the model by ``config.dt``, sleep to the next cycle on
+    ``perf_counter``. A reply that comes after its cycle is counted ``late`` (and still applied,
+    as a controller would); a cycle without a reply in time is ``missed``.
+
+    Args:
+        sim: the simulated controller.
+        target: ``(host, port)`` of the EGM sensor.
+        rate_hz: exchanges per second; 0 runs flat out (next exchange as soon as one completes).
+        n: stop after this many exchanges (None: until :meth:`stop`).
+        reply_timeout: longest wait for a reply [s]; default one cycle (4 ms when flat out).
+        bind: local address of the client socket.
+        spin: busy-wait this long [s] for each reply before blocking (a real controller does
+            not sleep between send and receive; the OS wake-up latency would otherwise be
+            charged to the sensor). 0 blocks at once.
+    """
+
+    def __init__(
+        self,
+        sim,
+        target,
+        rate_hz=250.0,
+        n=None,
+        reply_timeout=None,
+        bind=("127.0.0.1", 0),
+        spin=0.0,
+    ):
+        self.sim, self.target, self.n, self.spin = sim, tuple(target), n, spin
+        self.period = 1.0 / rate_hz if rate_hz > 0 else 0.0
+        self.reply_timeout = reply_timeout or (self.period or sim.config.dt)
+        self.stats = ExchangeStats()
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.bind(bind)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self.run, name="sim-egm-controller", daemon=True)
+        self._last_warn = -math.inf
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """Local ``(host, port)`` the controller sends from."""
+        return self._sock.getsockname()[:2]
+
+    def start(self) -> ControllerRunner:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def join(self, timeout: float | None = None) -> None:
+        """Wait for the thread (if it was started) and close the socket."""
+        if self._thread.ident is not None:
+            self._thread.join(timeout)
+        self._sock.close()
+
+    def run(self) -> None:
+        """The exchange loop (body of the thread; callable directly for a blocking run)."""
+        st, sim, sock = self.stats, self.sim, self._sock
+        t_next = time.perf_counter()
+        while not self._stop.is_set() and (self.n is None or st.sent < self.n):
+            sock.setblocking(False)
+            while True:  # replies that missed their cycle
+                try:
+                    data = sock.recv(65535)
+                except OSError:
+                    break
+                st.late += 1
+                if not sim.handle_sensor(data):
+                    st.malformed += 1
+            payload = sim.robot_message()
+            t_send = time.perf_counter()  # before sendto: loopback may run the server inside it
+            st.sent += 1
+            try:
+                sock.sendto(payload, self.target)
+            except OSError as exc:  # e.g. no route: a lost cycle, like a lost datagram
+                st.missed += 1
+                self._warn(f"cannot send EgmRobot to {self.target} ({exc})")
+            else:
+                self._await_reply(t_send, t_send + self.reply_timeout)
+            sim.step(sim.config.dt)
+            if self.period:
+                t_next += self.period
+                now = time.perf_counter()
+                if now < t_next:
+                    time.sleep(t_next - now)
+                elif now > t_next + self.period:
+                    self._warn(f"controller loop overrun by {1e3 * (now - t_next):.1f} ms")
+                    t_next = now
+
+    def _await_reply(self, t_send: float, deadline: float) -> None:
+        st, sock = self.stats, self._sock
+        spin_end = t_send + self.spin
+        while True:
+            now = time.perf_counter()
+            if now >= deadline:
+                st.missed += 1
+                return
+            try:
+                if now < spin_end:  # busy-wait: no wake-up latency in the measurement
+                    sock.setblocking(False)
+                else:
+                    sock.settimeout(deadline - now)
+                data = sock.recv(65535)
+            except (BlockingIOError, InterruptedError):
+                continue
+            except TimeoutError:
+                st.missed += 1
+                return
+            except OSError:
+                continue
+            rtt = time.perf_counter() - t_send
+            if self.sim.handle_sensor(data):
+                st.replies += 1
+                st.rtt_s.append(rtt)
+                return
+            st.malformed += 1
+
+    def _warn(self, message: str) -> None:
+        now = time.monotonic()
+        if now - self._last_warn >= 1.0:  # at most one warning per second
+            self._last_warn = now
+            log.warning(message)
