@@ -235,5 +235,5 @@ def test_to_base_moves_position_and_rotates_covariance():
 def test_default_extrinsic_looks_along_base_x_and_loads_from_toml_tables():
     ext = CameraExtrinsic()
     np.testing.assert_array_equal(ext.rotation(), np.eye(3))
-    loaded = from_dict(CameraExtrinsic, {"xyz": [0.0, -0.8, 1.0]}, "run.toml", "camera")
+    loaded = from_dict(CameraExtrinsic, {"xyz": [0.46, 0.0, 0.30]}, "run.toml", "camera")
     assert loaded == ext

@@ -49,18 +49,23 @@ class CoplanarWrist:
         n = np.asarray(normal, dtype=np.float64)
         self.normal = n / np.linalg.norm(n)
 
-    def solve(self, q123: np.ndarray, q_prev: np.ndarray) -> np.ndarray:
+    def solve(
+        self, q123: np.ndarray, q_prev: np.ndarray, normal: np.ndarray | None = None
+    ) -> np.ndarray:
         """Wrist angles [rad] (N, 3) along a path of joints 1-3 [rad] (N, 3).
 
         Args:
             q123: joints 1-3 at consecutive samples of a continuous path.
             q_prev: wrist angles (3,) just before the first sample (for continuity).
+            normal: shield normal in ``base`` for this call (unit (3,)); default: the
+                constructor's.
         """
+        n = self.normal if normal is None else np.asarray(normal, dtype=np.float64)
         q123 = np.atleast_2d(q123)
         q = np.zeros((len(q123), 6))
         q[:, :3] = q123
         R03 = self.fk.link_poses(q, until="link_3")["link_3"][:, :3, :3]
-        v = np.einsum("nji,j->ni", R03, self.normal)  # R03^T n
+        v = np.einsum("nji,j->ni", R03, n)  # R03^T n
         q5 = np.arccos(np.clip(v[:, 0], -1.0, 1.0))
         theta = np.arctan2(v[:, 1], -v[:, 2])
         jump = np.abs(np.angle(np.exp(1j * np.diff(theta))))

@@ -1,19 +1,85 @@
-"""``thinkfast-run``: the runtime daemon (zenoh in, EGM out). Not built yet: prints its help."""
+"""``thinkfast-run``: the runtime daemon (zenoh detections in, EGM setpoints out)."""
 
 from __future__ import annotations
 
+import json
+import logging
 import sys
+from pathlib import Path
+
+import typer
 
 from thinkfast.cli_util import make_app, run_app
 
 app = make_app("thinkfast runtime daemon: ball detections over zenoh in, EGM setpoints out.")
 
 
-@app.callback(invoke_without_command=True)
-def run() -> None:
-    """The daemon is not implemented yet (issue 5)."""
-    print("thinkfast-run: the daemon is not implemented yet (see --help)", file=sys.stderr)
-    sys.exit(1)
+@app.command()
+def run(
+    tree: Path = typer.Option(..., "--tree", help="compiled action tree (HDF5)"),
+    config: Path | None = typer.Option(None, "--config", help="runtime configuration (TOML)"),
+    planner: str = typer.Option("tree", "--planner", help="tree (belief-space) or naive"),
+    egm_bind: str = typer.Option("0.0.0.0:6510", "--egm-bind", help="UDP HOST:PORT to serve EGM"),
+    egm_controller: str | None = typer.Option(
+        None, "--egm-controller", help="serve only this controller IP"
+    ),
+    key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
+    zenoh_connect: list[str] | None = typer.Option(
+        None, "--zenoh-connect", help="zenoh endpoint to connect to (repeatable)"
+    ),
+    zenoh_listen: list[str] | None = typer.Option(
+        None, "--zenoh-listen", help="zenoh endpoint to listen on (repeatable)"
+    ),
+    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="zenoh JSON5 config"),
+    record: Path | None = typer.Option(None, "--record", help="flight recorder file (HDF5)"),
+    log_level: str = typer.Option("info", "--log-level", help="debug, info, warning or error"),
+) -> None:
+    """Run until SIGINT/SIGTERM, then brake smoothly and exit 0."""
+    from thinkfast.compile.treefile import load_tree
+    from thinkfast.errors import ConfigError, RobotModelError
+    from thinkfast.robot.model import default_robot_path, load_robot
+    from thinkfast.runtime.config import load_run_config
+    from thinkfast.runtime.daemon import Daemon, Endpoints
+    from thinkfast.runtime.egm_server import parse_hostport
+    from thinkfast.runtime.zenoh_io import session_config
+
+    if planner not in ("tree", "naive"):
+        raise ConfigError("--planner", None, f"{planner!r} is not one of tree, naive")
+    if log_level.upper() not in ("DEBUG", "INFO", "WARNING", "ERROR"):
+        raise ConfigError("--log-level", None, f"{log_level!r} is not one of debug, info, ...")
+    logging.basicConfig(
+        level=log_level.upper(),
+        stream=sys.stderr,
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+    )
+    parse_hostport(egm_bind)
+    cfg = load_run_config(config)
+    t = load_tree(tree)
+    robot_path = Path(cfg.robot) if cfg.robot else _tree_robot(t) or default_robot_path()
+    robot = load_robot(robot_path)
+    if robot.urdf_sha256 != t.meta.get("urdf_sha256") or robot.toml_sha256 != t.meta.get(
+        "robot_toml_sha256"
+    ):
+        raise RobotModelError(
+            f"{tree}: compiled for another robot description than {robot.toml_path}; recompile it"
+        )
+    conf = session_config(zenoh_connect or (), zenoh_listen or (), zenoh_config)
+    ends = Endpoints(egm_bind, egm_controller, key_prefix, record)
+    daemon = Daemon(t, robot, cfg, planner, ends, conf)
+    sys.exit(daemon.run())
+
+
+def _tree_robot(tree) -> Path | None:
+    """robot.toml named by the tree's compile configuration, if it still exists."""
+    import tomllib
+
+    try:
+        cfg = tomllib.loads(tree.meta["config_text"])
+        rel = cfg.get("robot", "../robots/irb1600/robot.toml")
+        path = (Path(tree.meta["config_path"]).parent / rel).resolve()
+    except (KeyError, ValueError, json.JSONDecodeError):
+        return None
+    return path if path.is_file() else None
 
 
 def main(argv: list[str] | None = None) -> None:

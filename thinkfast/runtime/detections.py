@@ -59,15 +59,14 @@ class DetectionLimits:
 class CameraExtrinsic:
     """Pose of the ``camera`` frame in ``base`` (``T_base_camera``).
 
-    Default cell (ASSUMPTION until the cell is measured): the ZED 2i stands on a tripod beside
-    the robot, 0.8 m to its right (base -y) on the joint-1 line, lens 1.0 m above the floor,
-    level and looking +x (the same way as the base, towards the thrower), so the flight from
-    6-8 m down to the plane at x = 0.8 m is in view and the arm is mostly off the line of sight.
+    Default cell (ASSUMPTION until the cell is measured): the ZED 2i sits at the robot base on
+    the camera pedestal of robots/irb1600/robot.toml (box x 0.40..0.52 m, top at z 0.25 m), lens
+    at (0.46, 0, 0.30) m, level and looking +x (the same way as the base, towards the thrower).
     ``rpy`` is fixed-axis roll-pitch-yaw as in URDF: ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
     """
 
     xyz: tuple[float, float, float] = spec(
-        (0.0, -0.8, 1.0), doc="camera origin in base", unit="m", length=3
+        (0.46, 0.0, 0.30), doc="camera origin in base", unit="m", length=3
     )
     rpy: tuple[float, float, float] = spec(
         (0.0, 0.0, 0.0), doc="camera orientation in base (roll, pitch, yaw)", unit="rad", length=3

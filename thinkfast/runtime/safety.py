@@ -311,6 +311,9 @@ class SafetySupervisor:
         if self.braking:
             v_des = brake_velocity(self.qd, self.qdd, lim, cfg.dt)
             q, v = limit_step(self.q, self.qd, v_des, lim, cfg.dt)
+            # rounding in the limit bounds can leave +-1e-13 rad/s of the wrong sign: a stop
+            # is exactly zero, never a reversal
+            v = np.where(np.abs(v) < 1e-9, 0.0, v)
         else:
             q, v, kinds = filter_step(self.q, self.qd, q_r, v_r, lim, cfg.dt)
         for k in kinds:

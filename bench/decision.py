@@ -1,0 +1,258 @@
+"""Time one full decision update: filter step + delta method + all terminal values + backup + best
+child, on a synthetic action tree (or a compiled one with --tree).
+
+    .venv/bin/python bench/decision.py            # table
+    .venv/bin/python bench/decision.py --json     # one JSON object
+    .venv/bin/python bench/decision.py --tree trees/irb1600_default.h5
+
+The beliefs come from simulated throws (6-8 m, 0.4-0.8 s flight, 50 Hz, a few cm of noise, with
+drag), so the belief width sweeps from wide (first frames) to tight (just before the crossing).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from thinkfast.runtime import backup as bk  # noqa: E402
+from thinkfast.runtime import delta as dm  # noqa: E402
+from thinkfast.runtime import filter as kf  # noqa: E402
+from thinkfast.runtime import values as vl  # noqa: E402
+
+PLANE = 0.8  # m, intercept plane x = PLANE in base
+RADIUS = 0.15  # m, shield radius (assumption for the bench)
+
+
+def synthetic_tree(branching: int = 13, depth: int = 3, spacing: float = 0.15, seed: int = 0):
+    """A tree in the ARCHITECTURE.md layout with a realistic shape.
+
+    Goals on a ``spacing`` grid over y in [-0.9, 0.9], z in [0.3, 1.8]. Every node has a point on
+    the plane that drifts from the home point as the tree deepens; each leaf connects to the 3-6
+    goals nearest its point and each inner node below the root to 1-2; arrival times are the
+    node's time-to-come plus a 0.1-0.4 s move, so 0.2-0.9 s.
+    """
+    rng = np.random.default_rng(seed)
+    gy, gz = np.meshgrid(np.arange(-0.9, 0.9 + 1e-9, spacing), np.arange(0.3, 1.8 + 1e-9, spacing))
+    goal_yz = np.column_stack([gy.ravel(), gz.ravel()])
+    sizes = [branching**d for d in range(depth + 1)]
+    n = sum(sizes)
+    node_depth = np.repeat(np.arange(depth + 1), sizes).astype(np.int32)
+    level_start = np.concatenate([[0], np.cumsum(sizes)])
+    node_parent = np.full(n, -1, dtype=np.int32)
+    child_start = np.zeros(n, dtype=np.int64)
+    child_count = np.zeros(n, dtype=np.int64)
+    point = np.zeros((n, 2))
+    point[0] = (0.0, 1.05)
+    ttc = np.zeros(n)
+    for d in range(depth):
+        lo, hi = level_start[d], level_start[d + 1]
+        kids = np.arange(level_start[d + 1], level_start[d + 2])
+        parent = np.repeat(np.arange(lo, hi), branching)
+        node_parent[kids] = parent
+        child_start[lo:hi] = level_start[d + 1] + branching * np.arange(hi - lo)
+        child_count[lo:hi] = branching
+        point[kids] = point[parent] + rng.normal(0.0, 0.45 / (d + 1), (len(kids), 2))
+        ttc[kids] = ttc[parent] + rng.uniform(0.05, 0.15, len(kids))
+    point[:, 0] = np.clip(point[:, 0], -0.9, 0.9)
+    point[:, 1] = np.clip(point[:, 1], 0.3, 1.8)
+    n_term = np.where(node_depth == depth, rng.integers(3, 7, n), rng.integers(1, 3, n))
+    n_term[0] = 0
+    nearest = np.empty((n, 6), dtype=np.intp)
+    for lo in range(0, n, 8192):  # chunks keep the distance matrix small for huge trees
+        dist = np.linalg.norm(point[lo : lo + 8192, None, :] - goal_yz[None, :, :], axis=2)
+        part = np.argpartition(dist, 6, axis=1)[:, :6]
+        order = np.argsort(np.take_along_axis(dist, part, axis=1), axis=1)
+        nearest[lo : lo + 8192] = np.take_along_axis(part, order, axis=1)
+    term_node = np.repeat(np.arange(n), n_term).astype(np.int32)
+    rank = np.arange(len(term_node)) - np.repeat(np.cumsum(n_term) - n_term, n_term)
+    term_goal = nearest[term_node, rank].astype(np.int32)
+    term_arrival = ttc[term_node] + rng.uniform(0.1, 0.4, len(term_node))
+    term_start = (np.cumsum(n_term) - n_term).astype(np.int64)
+    return SimpleNamespace(
+        node_parent=node_parent,
+        node_depth=node_depth,
+        node_ttc=ttc,
+        node_state=np.zeros((n, 9)),
+        child_start=child_start,
+        child_count=child_count,
+        term_start=term_start,
+        term_count=n_term.astype(np.int64),
+        term_node=term_node,
+        term_goal=term_goal,
+        term_arrival=term_arrival,
+        goal_yz=goal_yz,
+        goal_q=np.zeros((len(goal_yz), 6)),
+    )
+
+
+def tree_for_terminals(target: int, seed: int = 0):
+    """A depth-3 synthetic tree with about ``target`` terminal edges (branching from the size)."""
+    branching = max(2, round((target / 4.5) ** (1.0 / 3.0)))
+    return synthetic_tree(branching=branching, seed=seed)
+
+
+def throws(n: int, seed: int = 1, noise: float = 0.03, rate: float = 50.0):
+    """Measurement sequences ``[(t, z), ...]`` of ``n`` simulated throws with drag."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        x0, flight = rng.uniform(6.0, 8.0), rng.uniform(0.4, 0.8)
+        target = np.array([PLANE, rng.uniform(-0.7, 0.7), rng.uniform(0.5, 1.6)])
+        p = np.array([x0 + PLANE, rng.uniform(-0.5, 0.5), rng.uniform(1.0, 2.0)])
+        v = (target - p) / flight
+        v[2] += 0.5 * 9.81 * flight
+        dt, k, t, seq = 1.0 / rate, 0.01, 0.0, []
+        while p[0] > PLANE:
+            if rng.random() > 0.05:  # 5 % dropped frames
+                seq.append((t, p + rng.normal(0.0, noise, 3)))
+            for _ in range(10):  # integrate drag finely
+                a = np.array([0.0, 0.0, -9.81]) - k * np.linalg.norm(v) * v
+                p, v = p + v * dt / 10, v + a * dt / 10
+            t += dt
+        out.append(seq)
+    return out
+
+
+class Decision:
+    """The per-update pipeline, as the daemon composes it."""
+
+    def __init__(self, tree, fcfg=None, vcfg=None):
+        self.tree = tree
+        self.fcfg = fcfg or kf.FilterConfig()
+        self.vlay = vl.layout(tree.goal_yz, tree.term_goal, RADIUS, vcfg or vl.ValueConfig())
+        self.blay = bk.backup_layout(
+            tree.node_depth, tree.child_start, tree.child_count, tree.term_start, tree.term_count
+        )
+        self.arrival = np.asarray(tree.term_arrival, dtype=float)
+
+    def update(self, belief, t, z, elapsed, node=0):
+        """One update; returns (belief, best child of ``node``, its value)."""
+        belief, _ = kf.update(belief, t, z, self.fcfg)
+        if belief.n_meas < 2:
+            return belief, -1, 0.0
+        cross = dm.crossing(belief.mean, belief.cov, PLANE, self.fcfg.gravity)
+        if not cross.ok:
+            return belief, -1, 0.0
+        tv = vl.terminal_values(self.vlay, cross.mean, cross.cov, self.arrival - elapsed)
+        back = bk.backup(self.blay, tv.value, tv.goal_mass)
+        return belief, bk.best_child(self.blay, back.value, node), float(back.value[node])
+
+
+def time_updates(tree, n_throws: int = 40, repeat: int = 3) -> np.ndarray:
+    """Durations [s] of every update past initialisation over simulated throws."""
+    dec = Decision(tree)
+    seqs = throws(n_throws)
+    times = []
+    for _ in range(repeat):
+        for seq in seqs:
+            belief = kf.empty(dec.fcfg)
+            t_start = seq[0][0] + 0.1  # the robot starts moving 100 ms into the throw
+            for t, z in seq:
+                elapsed = max(0.0, t - t_start)
+                t0 = time.perf_counter()
+                belief, _, _ = dec.update(belief, t, z, elapsed)
+                dt = time.perf_counter() - t0
+                if belief.n_meas > 2:
+                    times.append(dt)
+    return np.array(times)
+
+
+def machine() -> dict:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+    }
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--tree", type=Path, help="compiled tree file (.h5) instead of synthetic")
+    parser.add_argument("--throws", type=int, default=40, help="simulated throws per run")
+    parser.add_argument("--no-scaling", action="store_true", help="skip the 10^3..10^6 table")
+    args = parser.parse_args(argv)
+
+    if args.tree is not None:
+        from thinkfast.compile.treefile import load_tree  # lazy: h5py only when asked
+
+        tree, source = load_tree(args.tree), str(args.tree)
+    else:
+        tree, source = synthetic_tree(), "synthetic (branching 13, depth 3, goals every 0.15 m)"
+    gc.collect()
+    times = time_updates(tree, args.throws) * 1e3
+    result = {
+        "tree": source,
+        "terminals": int(len(tree.term_goal)),
+        "nodes": int(len(tree.node_depth)),
+        "goals": int(len(tree.goal_yz)),
+        "updates": int(len(times)),
+        "p50_ms": round(float(np.percentile(times, 50)), 4),
+        "p99_ms": round(float(np.percentile(times, 99)), 4),
+        "max_ms": round(float(times.max()), 4),
+        "machine": machine(),
+    }
+    if not args.no_scaling:
+        rows = []
+        for target in (10**3, 10**4, 10**5, 10**6):
+            t = tree_for_terminals(target)
+            ms = (
+                time_updates(
+                    t, n_throws=max(3, args.throws // (4 if target < 10**5 else 20)), repeat=1
+                )
+                * 1e3
+            )
+            rows.append(
+                {
+                    "terminals": int(len(t.term_goal)),
+                    "nodes": int(len(t.node_depth)),
+                    "p50_ms": round(float(np.percentile(ms, 50)), 4),
+                    "p99_ms": round(float(np.percentile(ms, 99)), 4),
+                }
+            )
+        result["scaling"] = rows
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    m = result["machine"]
+    print(f"decision update: {result['tree']}")
+    print(
+        f"  {result['nodes']} nodes, {result['terminals']} terminals, {result['goals']} goals, "
+        f"{result['updates']} updates"
+    )
+    print(f"  {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m['numpy']}")
+    print(f"  {'terminals':>10} {'nodes':>9} {'p50 ms':>9} {'p99 ms':>9}")
+    print(
+        f"  {result['terminals']:>10} {result['nodes']:>9} {result['p50_ms']:>9.3f} "
+        f"{result['p99_ms']:>9.3f}   (default)"
+    )
+    for row in result.get("scaling", []):
+        print(
+            f"  {row['terminals']:>10} {row['nodes']:>9} {row['p50_ms']:>9.3f} "
+            f"{row['p99_ms']:>9.3f}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

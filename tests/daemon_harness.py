@@ -1,0 +1,197 @@
+"""Runs the real ``thinkfast-run`` process against a simulated EGM controller and zenoh peers.
+
+Everything is real: the daemon process, its UDP socket with protobuf EGM messages from
+:class:`ControllerRunner`, and zenoh sessions on loopback.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import zenoh
+
+from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_port(kind=socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def zenoh_session(connect: str) -> zenoh.Session:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([connect]))
+    return zenoh.open(conf)
+
+
+class DaemonRun:
+    """A daemon process with a simulated controller and a zenoh peer connected to it."""
+
+    def __init__(
+        self,
+        tree: Path,
+        record: Path,
+        planner: str = "tree",
+        q0=None,
+        extra: tuple[str, ...] = (),
+        prefix: str = "thinkfast",
+    ):
+        self.egm_port = free_port()
+        self.zport = free_port(socket.SOCK_STREAM)
+        self.record = record
+        self.prefix = prefix
+        exe = Path(sys.executable).parent / "thinkfast-run"
+        cmd = [
+            str(exe),
+            "--tree",
+            str(tree),
+            "--planner",
+            planner,
+            "--egm-bind",
+            f"127.0.0.1:{self.egm_port}",
+            "--zenoh-listen",
+            f"tcp/127.0.0.1:{self.zport}",
+            "--record",
+            str(record),
+            "--key-prefix",
+            prefix,
+            *extra,
+        ]
+        self.proc = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, text=True)
+        self.session = None
+        self.status: list[dict] = []
+        self.setpoints: list[dict] = []
+        self._wait_ready()
+        self.sim = SimController(ServoConfig(), q0=q0)
+        self.runner = ControllerRunner(self.sim, ("127.0.0.1", self.egm_port)).start()
+        self.pub = self.session.declare_publisher(  # block, never drop: counts must be exact
+            f"{prefix}/detections", congestion_control=zenoh.CongestionControl.BLOCK
+        )
+
+    def _wait_ready(self, timeout: float = 30.0) -> None:
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"daemon exited: {self.proc.stderr.read()}")
+            try:
+                self.session = zenoh_session(f"tcp/127.0.0.1:{self.zport}")
+                break
+            except Exception:
+                time.sleep(0.2)
+        self.session.declare_subscriber(
+            f"{self.prefix}/status", lambda s: self.status.append(json.loads(s.payload.to_bytes()))
+        )
+        self.session.declare_subscriber(
+            f"{self.prefix}/setpoints",
+            lambda s: self.setpoints.append(json.loads(s.payload.to_bytes())),
+        )
+        while time.time() < deadline and not self.status:
+            time.sleep(0.05)
+        if not self.status:
+            raise RuntimeError("no status from the daemon")
+        time.sleep(0.3)  # let the publisher's routes settle
+
+    def publish(self, payload: bytes) -> None:
+        self.pub.put(payload)
+
+    def wait_state(self, state: str, timeout: float) -> bool:
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            if self.status and self.status[-1]["state"] == state:
+                return True
+            time.sleep(0.02)
+        return False
+
+    def stop(self, timeout: float = 15.0) -> tuple[int, str]:
+        """SIGINT the daemon (the controller keeps talking while it brakes), then stop all."""
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            code = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            code = -9
+        self.runner.stop()
+        self.runner.join(2.0)
+        err = self.proc.stderr.read()
+        self.session.close()
+        return code, err
+
+    def egm_rows(self) -> np.ndarray:
+        """Recorded EGM exchanges: t, seqno, q_fb (6), q_cmd (6), qd_cmd (6), braking."""
+        with h5py.File(self.record) as f:
+            return f["egm"][:]
+
+
+def ballistic_throw(
+    aim_yz,
+    flight: float,
+    t_release: float,
+    release=(7.8, -0.2, 1.5),
+    plane_x: float = 0.8,
+    g: float = 9.81,
+):
+    """Release position (3,), velocity (3,) of a gravity-only throw reaching ``aim_yz`` on the
+    plane after ``flight`` seconds, and a function giving the ball position at wall time t."""
+    p0 = np.array(release, dtype=float)
+    v0 = np.array(
+        [
+            (plane_x - p0[0]) / flight,
+            (aim_yz[0] - p0[1]) / flight,
+            (aim_yz[1] - p0[2] + 0.5 * g * flight**2) / flight,
+        ]
+    )
+
+    def at(t: float) -> np.ndarray:
+        s = max(t - t_release, 0.0)
+        return p0 + v0 * s + np.array([0.0, 0.0, -0.5 * g * s * s])
+
+    return p0, v0, at
+
+
+def publish_throw(
+    run: DaemonRun,
+    at,
+    t_release: float,
+    flight: float,
+    hold: float = 0.4,
+    noise: float = 0.01,
+    camera=(0.46, 0.0, 0.30),
+    latency: float = 0.04,
+    seed: int = 0,
+) -> None:
+    """Publish 50 Hz detections (camera frame) of the ball: held still, then in flight."""
+    rng = np.random.default_rng(seed)
+    cam = np.asarray(camera)
+    seq = 0
+    t = t_release - hold
+    while t <= t_release + flight + 0.06:
+        while time.time() < t + latency:
+            time.sleep(0.0005)
+        seq += 1
+        z = at(t) - cam + rng.normal(0.0, noise, 3)
+        run.publish(
+            json.dumps({"stamp": t, "position": z.tolist(), "frame": "camera", "seq": seq}).encode()
+        )
+        t += 0.02
+
+
+def shield_distance_at_crossing(rows: np.ndarray, kin, t_cross: float, aim_yz, lag: float = 0.0):
+    """Distance [m] on the plane between the shield centre (from the recorded feedback, by
+    forward kinematics) and the crossing point, when the ball crosses; and the normal's x."""
+    t, q_fb = rows[:, 0], rows[:, 2:8]
+    i = min(int(np.searchsorted(t, t_cross + lag)), len(t) - 1)
+    pose = kin.shield(q_fb[i])
+    return float(np.linalg.norm(pose.centre[1:] - np.asarray(aim_yz))), pose

@@ -1,0 +1,172 @@
+"""The real daemon process: throws blocked by both planners, fuzzed input, limits, SIGINT."""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from tests.conftest import ROBOT_TOML
+from tests.daemon_harness import (
+    DaemonRun,
+    ballistic_throw,
+    publish_throw,
+    shield_distance_at_crossing,
+)
+
+TREE_CONFIG = """
+robot = "{robot}"
+[goals]
+spacing = 0.15
+[tree]
+max_depth = 2
+subgoal_spacing = 0.6
+connect_radius = 0.3
+"""
+BLOCK_RADIUS = 0.20 + 0.0335  # shield + ball
+DT = 0.004
+
+
+@pytest.fixture(scope="module")
+def tree_file(tmp_path_factory):
+    from thinkfast.compile.build import compile_tree
+    from thinkfast.compile.config import load_compile_config
+    from thinkfast.compile.treefile import save_tree
+
+    tmp = tmp_path_factory.mktemp("daemon")
+    cfg = tmp / "tree.toml"
+    cfg.write_text(TREE_CONFIG.format(robot=ROBOT_TOML))
+    path = tmp / "tree.h5"
+    save_tree(compile_tree(load_compile_config(cfg), jobs=2), path)
+    return path
+
+
+def _check_limits(rows: np.ndarray, robot, margin: float = 0.005) -> None:
+    q, qd = rows[:, 8:14], rows[:, 14:20]
+    assert np.all(np.isfinite(q)) and np.all(np.isfinite(qd))
+    assert np.all(q >= robot.q_lower + margin - 1e-9) and np.all(q <= robot.q_upper - margin + 1e-9)
+    assert np.all(np.abs(qd) <= robot.v_max + 1e-9)
+    assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT + 1e-9)
+
+
+@pytest.mark.parametrize("planner", ["tree", "naive"])
+def test_a_throw_aimed_at_a_goal_is_blocked(tree_file, tmp_path, robot, kin, planner):
+    aim = (0.30, 1.30)  # 0.42 m from home: the arm has to move
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", planner, q0=robot.home)
+    try:
+        t_release = time.time() + 0.8
+        flight = 0.75
+        _, _, at = ballistic_throw(aim, flight, t_release)
+        publish_throw(run, at, t_release, flight)
+        assert run.wait_state("idle", timeout=6.0), run.status[-1]
+    finally:
+        code, err = run.stop()
+    assert code == 0, err
+    rows = run.egm_rows()
+    dist, pose = shield_distance_at_crossing(rows, kin, t_release + flight, aim)
+    assert dist < BLOCK_RADIUS, f"{planner}: shield {dist:.3f} m from the crossing point"
+    assert abs(pose.centre[0] - 0.8) < 0.06  # the shield is on the plane
+    assert max(s["throws"] for s in run.status) == 1
+    _check_limits(rows, robot)
+    final = rows[-1, 8:14]
+    assert np.allclose(final, robot.home, atol=2e-3)  # back home
+
+
+def _fuzz_payloads(rng: np.random.Generator, n: int, stamp0: float) -> list[bytes]:
+    out = []
+    valid = {"stamp": stamp0, "position": [5.0, 0.1, 1.0], "frame": "camera", "seq": 1}
+    kinds = [
+        lambda: rng.bytes(int(rng.integers(0, 200))),
+        lambda: json.dumps([1, "x", None, [1, 2]][int(rng.integers(4))]).encode(),
+        lambda: json.dumps({"stamp": "now", "position": [1, 2, 3]}).encode(),
+        lambda: json.dumps({"position": [1, 2, 3]}).encode(),
+        lambda: json.dumps({"stamp": stamp0, "position": [1, 2]}).encode(),
+        lambda: json.dumps({"stamp": stamp0, "position": [float("nan"), 0, 0]}).encode(),
+        lambda: json.dumps({"stamp": stamp0, "position": [float("inf"), 0, 0]}).encode(),
+        lambda: json.dumps({"stamp": stamp0, "position": [1e300, 0, 0]}).encode(),
+        lambda: json.dumps({"stamp": 1e300, "position": [1, 2, 3]}).encode(),
+        lambda: json.dumps({**valid, "frame": "world"}).encode(),
+        lambda: json.dumps({**valid, "confidence": 7}).encode(),
+        lambda: json.dumps({**valid, "covariance": [1, 2, 3]}).encode(),
+        lambda: json.dumps({**valid, "position": [True, False, True]}).encode(),
+        lambda: json.dumps(valid).encode(),  # duplicate of the baseline
+        lambda: json.dumps(
+            {**valid, "stamp": stamp0 - float(rng.uniform(0.01, 0.5)), "seq": 0}
+        ).encode(),  # out of order
+        lambda: b"{" * 5000,
+    ]
+    for _ in range(n):
+        out.append(kinds[int(rng.integers(len(kinds)))]())
+    return out
+
+
+def test_fuzzed_detections_and_egm_packets_are_counted_and_move_nothing(tree_file, tmp_path, robot):
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home)
+    n = 10_000
+    try:
+        stamp0 = time.time()
+        base = {"stamp": stamp0, "position": [5.0, 0.1, 1.0], "frame": "camera", "seq": 1}
+        run.publish(json.dumps(base).encode())  # the baseline: a ball standing still
+        for p in _fuzz_payloads(np.random.default_rng(12), n, stamp0):
+            run.publish(p)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            rng = np.random.default_rng(13)
+            for _ in range(500):
+                s.sendto(rng.bytes(int(rng.integers(1, 300))), ("127.0.0.1", run.egm_port))
+        deadline = time.time() + 20
+        while time.time() < deadline:
+            d = run.status[-1]["detections"]
+            counted = d["accepted"] + sum(d["rejected"].values()) + sum(d["dropped"].values())
+            if counted >= n + 1 and run.status[-1]["egm"]["malformed"] >= 500:
+                break
+            time.sleep(0.1)
+        assert run.proc.poll() is None  # still running
+    finally:
+        code, err = run.stop()
+    assert code == 0, err
+    last = run.status[-1]
+    d = last["detections"]
+    assert d["accepted"] + sum(d["rejected"].values()) + sum(d["dropped"].values()) == n + 1
+    assert d["accepted"] == 1  # only the baseline: everything else was rejected or dropped
+    assert sum(d["rejected"].values()) > 0.7 * n and d["dropped"]["duplicate"] > 0
+    assert d["dropped"]["out_of_order"] > 0
+    assert last["egm"]["malformed"] >= 500
+    rows = run.egm_rows()
+    assert np.allclose(rows[:, 8:14], robot.home, atol=1e-9)  # the arm never moved
+    assert np.all(rows[:, 14:20] == 0.0)
+
+
+def test_sigint_during_motion_brakes_within_limits_then_exits_0(tree_file, tmp_path, robot):
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "naive", q0=robot.home)
+    t_release = time.time() + 0.8
+    flight = 0.75
+    _, _, at = ballistic_throw((-0.6, 0.5), flight, t_release)
+    try:
+        import threading
+
+        th = threading.Thread(target=publish_throw, args=(run, at, t_release, flight), daemon=True)
+        th.start()
+        assert run.wait_state("executing", timeout=5.0)
+        time.sleep(0.1)  # moving fast now
+    finally:
+        t_sigint = time.time()
+        code, err = run.stop()
+    assert code == 0, err
+    rows = run.egm_rows()
+    first = int(np.argmax(rows[:, 20] == 1.0))
+    assert rows[first, 0] >= t_sigint - 0.01  # the brake came with the signal, not before
+    braking = rows[first:]
+    assert np.abs(rows[first - 1, 14:20]).max() > 0.3  # it was moving
+    assert np.all(braking[:, 20] == 1.0)  # latched until the end
+    assert np.all(braking[-1, 14:20] == 0.0)  # stopped before exiting
+    _check_limits(rows, robot)  # |acceleration| <= a_max on every tick, braking included
+    speed = np.abs(braking[:, 14:20])
+    # jerk-limited stop: a joint still accelerating gains at most a^2 / (2 j) while its
+    # acceleration ramps down, then only slows down
+    overshoot = robot.a_max**2 / (2 * robot.j_max) + robot.a_max * DT
+    assert np.all(speed.max(axis=0) <= speed[0] + overshoot)
+    turn = int(np.ceil(np.max(2 * robot.a_max / robot.j_max) / DT)) + 2
+    assert np.all(np.diff(speed[turn:], axis=0) <= 1e-9)

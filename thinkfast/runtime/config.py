@@ -1,0 +1,92 @@
+"""Runtime configuration of ``thinkfast-run`` (one TOML file, every table optional).
+
+Defaults describe the default cell; assumed numbers are labelled in the field docs and in
+``config/run_default.toml``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from thinkfast.config import from_dict, load_toml, spec
+from thinkfast.runtime.detections import CameraExtrinsic, DetectionLimits
+from thinkfast.runtime.filter import FilterConfig
+from thinkfast.runtime.safety import SafetyConfig
+from thinkfast.runtime.values import ValueConfig
+
+
+@dataclass(frozen=True)
+class ThrowConfig:
+    """When a throw starts and ends."""
+
+    min_approach_speed: float = spec(
+        3.0, unit="m/s", lo=0.0, doc="ball speed towards the plane that starts a throw"
+    )
+    max_tau: float = spec(
+        1.5, unit="s", lo=0.0, lo_open=True, doc="crossing must be predicted within this time"
+    )
+    region_margin: float = spec(
+        0.6, unit="m", lo=0.0, doc="crossing point may lie this far outside the goal region"
+    )
+    confirm_updates: int = spec(3, lo=1, doc="consecutive approaching beliefs to start a throw")
+    detection_timeout: float = spec(
+        0.25, unit="s", lo=0.0, lo_open=True, doc="no detection this long ends a throw"
+    )
+    after_crossing: float = spec(
+        0.15, unit="s", lo=0.0, doc="hold the pose this long after the predicted crossing"
+    )
+
+
+@dataclass(frozen=True)
+class ExecutionConfig:
+    """How plans become setpoints."""
+
+    controller_lag: float = spec(
+        0.04,
+        unit="s",
+        lo=0.0,
+        doc="ASSUMED delay from a setpoint to the arm being there (EGM transport + servo lag)",
+    )
+    min_move_value: float = spec(
+        0.02, lo=0.0, hi=1.0, doc="leave home only when the best branch blocks with this chance"
+    )
+    wrist_max_tilt: float = spec(
+        0.5, unit="rad", lo=0.0, hi=1.2, doc="largest tilt of the shield normal away from +x"
+    )
+    wrist_confident_speed_std: float = spec(
+        1.0,
+        unit="m/s",
+        lo=0.0,
+        lo_open=True,
+        doc="tilt towards the ball only when the velocity std is below this",
+    )
+    return_speed_scale: float = spec(
+        0.5, lo=0.05, hi=1.0, doc="fraction of the velocity limits used to return home"
+    )
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything ``thinkfast-run`` needs besides the tree and the I/O endpoints."""
+
+    robot: str = spec("", doc="robot.toml path (default: the robot the tree names, else default)")
+    camera: CameraExtrinsic = spec(CameraExtrinsic())
+    detections: DetectionLimits = spec(DetectionLimits())
+    filter: FilterConfig = spec(FilterConfig())
+    value: ValueConfig = spec(ValueConfig())
+    throw: ThrowConfig = spec(ThrowConfig())
+    execution: ExecutionConfig = spec(ExecutionConfig())
+    safety: SafetyConfig = spec(SafetyConfig(position_margin=0.005))
+    status_rate: float = spec(20.0, unit="Hz", lo=10.0, hi=250.0, doc="status publishing rate")
+
+
+def load_run_config(path: str | Path | None) -> RunConfig:
+    """The runtime configuration from ``path`` (None: all defaults).
+
+    Raises:
+        ConfigError: unreadable file, unknown key, wrong type or impossible value (names the key).
+    """
+    if path is None:
+        return RunConfig()
+    return from_dict(RunConfig, load_toml(path), str(path))

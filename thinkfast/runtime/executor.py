@@ -1,0 +1,285 @@
+"""Throw episodes as a state machine: idle -> tracking -> executing -> returning -> idle.
+
+Pure logic, no I/O and no clock reads: the daemon and the lockstep simulator feed it detections
+(``on_detection``) and ask for the setpoint of every 4 ms tick (``setpoint``), both with the wall
+time. States:
+
+- ``idle``: at home, no ball. The first detection starts ``tracking``.
+- ``tracking``: the filter follows the ball; a throw is confirmed once the belief shows it
+  approaching the plane (``throw.confirm_updates`` beliefs in a row: a ball held still never
+  is). With the tree planner the robot leaves home once the best branch at the root blocks with
+  at least ``min_move_value`` and is not "stay"; the naive planner leaves at once.
+- ``executing``: tree planner: every ``eps`` the robot takes the best child of the node it reaches
+  (a primitive in progress is finished), or commits to the node's best terminal edge when that is
+  worth more; when a terminal edge ends while measurements still arrive, Ruckig steers to the
+  most probable goal at every belief update. Naive planner: at every belief update, Ruckig from
+  the commanded state to the goal nearest the most likely crossing point.
+- ``returning``: after the crossing (plus ``after_crossing``) or when detections stop, a move to
+  home within the limits; then ``idle``.
+- ``fault``: set by the daemon (the supervisor's brake); left only by a restart.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from thinkfast.robot.model import Robot
+from thinkfast.runtime import filter as kf
+from thinkfast.runtime.config import RunConfig
+from thinkfast.runtime.planner import Decision, RuntimeTree
+from thinkfast.runtime.segments import (
+    EDGE,
+    RETURN,
+    STEER,
+    TERMINAL,
+    Segment,
+    Steering,
+    WristTracker,
+    hold,
+)
+
+IDLE, TRACKING, EXECUTING, RETURNING, FAULT = "idle", "tracking", "executing", "returning", "fault"
+
+
+@dataclass
+class EpisodeLog:
+    """What the current throw did (for status, records and the judge)."""
+
+    t_confirmed: float = math.nan
+    t_start: float = math.nan
+    t_cross: float = math.nan
+    path: list[int] = field(default_factory=list)  # tree nodes reached
+    terminal: int = -1
+    chosen_value: float = math.nan
+    decisions: int = 0
+
+
+class Executor:
+    """Planner and executor of one robot (see the module doc).
+
+    Args:
+        tree: the runtime tree.
+        robot: the robot (limits, home).
+        cfg: runtime configuration.
+        planner: "tree" or "naive".
+    """
+
+    def __init__(self, tree: RuntimeTree, robot: Robot, cfg: RunConfig, planner: str = "tree"):
+        if planner not in ("tree", "naive"):
+            raise ValueError(f"planner {planner!r} is not one of tree, naive")
+        self.tree, self.robot, self.cfg, self.planner = tree, robot, cfg, planner
+        self.steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
+        scale = cfg.execution.return_speed_scale
+        self.steer_home = Steering(
+            robot.v_max[:3] * scale, robot.a_max[:3] * scale, robot.j_max[:3] * scale
+        )
+        self.wrist = WristTracker(robot, cfg.execution.wrist_max_tilt, cfg.safety.position_margin)
+        self.lag = cfg.execution.controller_lag
+        self.mode = IDLE
+        self.belief = kf.empty(cfg.filter)
+        self.decision: Decision | None = None
+        self.segment = hold(np.r_[robot.home[:3], np.zeros(6)], -np.inf)
+        self.node = 0
+        self.confirm = 0
+        self.t_last_det = -np.inf
+        self.episode = EpisodeLog()
+        self.episodes = 0
+        self.wrist.reset(robot.home[3:], -np.inf)
+
+    # ---------------------------------------------------------------- measurements
+    def on_detection(self, t_now: float, stamp: float, p_base: np.ndarray) -> None:
+        """Fuse a detection (ball centre in ``base`` [m], captured at ``stamp``) at ``t_now``."""
+        if self.mode in (RETURNING, FAULT):
+            return
+        if stamp - self.t_last_det > self.cfg.throw.detection_timeout:
+            self.belief = kf.empty(self.cfg.filter)  # a new ball: start the filter afresh
+            self.confirm = 0
+        self.belief, info = kf.update(self.belief, stamp, p_base, self.cfg.filter)
+        if info.status == "late":
+            return
+        self.t_last_det = max(self.t_last_det, stamp)
+        if self.mode == IDLE:
+            self.mode = TRACKING
+        if self.belief.n_meas < 2:
+            return
+        c = self.tree.crossing(self.belief.mean, self.belief.cov, self.cfg.filter.gravity)
+        if c.ok:
+            self.episode.t_cross = stamp + float(c.mean[2])
+        if self.mode == TRACKING:
+            self.confirm = self.confirm + 1 if self._approaching(c) else 0
+            if self.confirm < self.cfg.throw.confirm_updates:
+                return
+            if math.isnan(self.episode.t_confirmed):
+                self.episode.t_confirmed = t_now
+        t_start = self.episode.t_start if self.mode == EXECUTING else t_now
+        self.decision = self.tree.decide(c, stamp, t_start, self.lag)
+        self.episode.decisions += 1
+        if self.planner == "naive":
+            self._naive(t_now, c)
+        elif self.mode == TRACKING:
+            self._maybe_leave_home(t_now)
+        elif self.segment.kind in (TERMINAL, STEER) and t_now >= self.segment.t_end:
+            self._fallback(t_now)
+
+    def _approaching(self, c) -> bool:
+        th = self.cfg.throw
+        if not c.ok or -self.belief.mean[3] < th.min_approach_speed or c.mean[2] > th.max_tau:
+            return False
+        y, z = c.mean[0], c.mean[1]
+        lo, hi = self.tree.goal_yz.min(axis=0), self.tree.goal_yz.max(axis=0)
+        m = th.region_margin
+        return lo[0] - m <= y <= hi[0] + m and lo[1] - m <= z <= hi[1] + m
+
+    # ---------------------------------------------------------------- decisions
+    def _maybe_leave_home(self, t_now: float) -> None:
+        d = self.decision
+        if d is None or d.backup is None:
+            return
+        b = d.backup
+        if b.value[0] < self.cfg.execution.min_move_value:
+            return
+        first = self._next_from(0, t_now, t_now)
+        if first is None or (first.kind == EDGE and self._is_stay(first)):
+            return  # waiting at home is best: decide again at the next belief
+        self.mode = EXECUTING
+        self.episode.t_start = t_now
+        self.episode.chosen_value = float(b.value[0])
+        self.segment = first
+
+    def _is_stay(self, seg: Segment) -> bool:
+        return bool(
+            np.array_equal(self.tree.tree.node_state[seg.ref], self.tree.tree.node_state[0])
+        )
+
+    def _next_from(self, node: int, t0: float, t_now: float) -> Segment | None:
+        """The segment leaving ``node`` at ``t0``: best child, or best terminal when worth more."""
+        t = self.tree.tree
+        d = self.decision
+        if d is None or d.backup is None:
+            return None
+        b = d.backup
+        state = t.node_state[node]
+        child, term = self.tree.best_child(d, node), self.tree.best_terminal(d, node)
+        if child >= 0 and (term < 0 or b.child_value[node] >= b.term_value[node]):
+            target = self.tree.subgoal_q[t.edge_target[child], :3]
+            traj = self.steer.to_rest(state, target)
+            if traj is not None:
+                return Segment(EDGE, t0, traj, t.node_state[child], self.tree.eps, child)
+        if term >= 0:
+            goal = int(t.term_goal[term])
+            seg = self.steer.segment(TERMINAL, state, self.tree.goal_q[goal, :3], t0, term)
+            if seg is not None:
+                self.episode.terminal = term
+                return seg
+        return None
+
+    def _advance_tree(self, t: float) -> None:
+        """Switch segments at tree-edge boundaries up to wall time ``t``."""
+        while self.segment.kind == EDGE and t >= self.segment.t_end:
+            node = self.segment.ref
+            self.node = node
+            self.episode.path.append(node)
+            nxt = self._next_from(node, self.segment.t_end, t)
+            if nxt is None:  # no decision possible: stop at the node's state
+                self.segment = hold(self.tree.tree.node_state[node], self.segment.t_end)
+                return
+            self.segment = nxt
+
+    def _fallback(self, t_now: float) -> None:
+        """Tree exhausted, ball still coming: steer to the most probable goal."""
+        d = self.decision
+        if d is None or d.backup is None or d.backup.best_goal < 0:
+            return
+        goal = d.backup.best_goal
+        if self.segment.kind == STEER and self.segment.ref == goal:
+            return
+        self._steer_to(goal, t_now)
+
+    def _naive(self, t_now: float, c) -> None:
+        if not c.ok:
+            return
+        goal = self.tree.nearest_goal(c.mean[:2])
+        if self.mode == TRACKING:
+            self.mode = EXECUTING
+            self.episode.t_start = t_now
+        if self.segment.kind == STEER and self.segment.ref == goal:
+            return
+        self._steer_to(goal, t_now)
+
+    def _steer_to(self, goal: int, t_now: float) -> None:
+        seg = self.steer.segment(
+            STEER, self.segment.state(t_now), self.tree.goal_q[goal, :3], t_now, goal
+        )
+        if seg is not None:
+            self.segment = seg
+
+    # ---------------------------------------------------------------- ticks
+    def setpoint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Joint positions [rad] (6,) and velocities [rad/s] (6,) to command at wall time ``t``."""
+        self._end_of_throw(t)
+        if self.planner == "tree" and self.mode == EXECUTING:
+            self._advance_tree(t)
+        s = self.segment.state(t)
+        ball_v = None
+        if self.mode in (TRACKING, EXECUTING) and self.belief.n_meas >= 2:
+            v_std = np.sqrt(np.max(np.diag(self.belief.cov)[3:]))
+            if v_std < self.cfg.execution.wrist_confident_speed_std:
+                ball_v = self.belief.mean[3:]
+        w = self.wrist.step(t, s[:3], self.wrist.normal_for(ball_v))
+        if self.mode == RETURNING and t >= self.segment.t_end and self.wrist.settled(1e-4):
+            self._finish_return(t)  # the whole arm is home and at rest
+        return np.r_[s[:3], w[:3]], np.r_[s[3:6], w[3:6]]
+
+    def _end_of_throw(self, t: float) -> None:
+        if self.mode not in (TRACKING, EXECUTING):
+            return
+        th = self.cfg.throw
+        silent = t - self.t_last_det > th.detection_timeout + 0.05  # stamps lag the wall clock
+        crossed = t > self.episode.t_cross + self.lag + th.after_crossing
+        if self.mode == TRACKING and silent:
+            self._reset_episode(IDLE)
+        elif self.mode == EXECUTING and (silent or crossed):
+            self._start_return(t)
+
+    def _start_return(self, t: float) -> None:
+        state = self.segment.state(t)
+        seg = self.steer_home.segment(RETURN, state, self.robot.home[:3], t)
+        if seg is None:  # moving faster than the return limits: brake with the full ones
+            seg = self.steer.segment(RETURN, state, self.robot.home[:3], t)
+        self.segment = seg if seg is not None else hold(state, t)
+        self.mode = RETURNING
+
+    def _finish_return(self, t: float) -> None:
+        self._reset_episode(IDLE)
+        self.segment = hold(np.r_[self.robot.home[:3], np.zeros(6)], t)
+
+    def _reset_episode(self, mode: str) -> None:
+        if not math.isnan(self.episode.t_confirmed):
+            self.episodes += 1
+        self.mode = mode
+        self.belief = kf.empty(self.cfg.filter)
+        self.decision = None
+        self.confirm = 0
+        self.node = 0
+        self.episode = EpisodeLog()
+
+    def start_from(self, q: np.ndarray, t: float) -> None:
+        """Begin at the measured joints ``q`` (6,) at rest; away from home, return there first."""
+        self.wrist.reset(np.asarray(q[3:], dtype=float), t)
+        self.segment = hold(np.r_[q[:3], np.zeros(6)], t)
+        if np.max(np.abs(np.asarray(q) - self.robot.home)) > 1e-3:
+            self._start_return(t)
+
+    def recover(self, q: np.ndarray, t: float) -> None:
+        """After the supervisor stopped the arm at ``q`` (6,): drop the throw and return home."""
+        self.resync(q, t)
+        self._reset_episode(IDLE)
+        self._start_return(t)
+
+    def resync(self, q: np.ndarray, t: float) -> None:
+        """Continue from rest at commanded joints ``q`` (6,) (after the supervisor intervened)."""
+        self.segment = hold(np.r_[q[:3], np.zeros(6)], t)
+        self.wrist.reset(np.asarray(q[3:], dtype=float), t)

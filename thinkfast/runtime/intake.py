@@ -1,0 +1,69 @@
+"""Detection intake: payload bytes -> validated, ordered detection in ``base``, or a counted drop.
+
+Never raises. Every payload is counted once: accepted, rejected by reason (malformed), or dropped
+by order (duplicate, out of order, stale, future).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.runtime.detections import (
+    CameraExtrinsic,
+    DetectionCounters,
+    DetectionLimits,
+    Rejection,
+    classify_order,
+    parse_detection,
+    to_base,
+)
+
+
+class Accepted(NamedTuple):
+    """A detection ready for the filter: capture stamp [s] and ball centre in base [m] (3,)."""
+
+    stamp: float
+    position: np.ndarray
+    seq: int | None
+
+
+class Intake:
+    """Stateful intake of one detection stream.
+
+    Args:
+        camera: pose of the camera in ``base``.
+        limits: payload and clock limits.
+    """
+
+    def __init__(self, camera: CameraExtrinsic, limits: DetectionLimits):
+        self.R = camera.rotation()
+        self.p = camera.translation()
+        self.limits = limits
+        self.counters = DetectionCounters()
+        self.order = {"duplicate": 0, "out_of_order": 0, "stale": 0, "future": 0}
+        self.last_stamp: float | None = None
+        self.last_seq: int | None = None
+
+    def take(self, payload: bytes, now: float | None) -> Accepted | None:
+        """Validate one payload received at ``now`` (None: no clock checks, for lockstep runs)."""
+        try:
+            det = parse_detection(payload, self.limits)
+        except Exception:  # parse_detection never raises; a bug there must not stop the daemon
+            det = Rejection("not_json", "internal error")
+        if isinstance(det, Rejection):
+            self.counters.count(det)
+            return None
+        cls = classify_order(det.stamp, det.seq, self.last_stamp, self.last_seq, now, self.limits)
+        if cls != "new":
+            self.order[cls] += 1
+            return None
+        self.counters.count(det)
+        self.last_stamp, self.last_seq = det.stamp, det.seq
+        base = to_base(det, self.R, self.p)
+        return Accepted(det.stamp, np.asarray(base.position, dtype=float), det.seq)
+
+    def as_dict(self) -> dict:
+        """Counts for status messages."""
+        return {**self.counters.as_dict(), "dropped": dict(self.order)}

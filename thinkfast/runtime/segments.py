@@ -1,0 +1,160 @@
+"""Commanded motion: joint 1-3 segments (tree edges, terminal edges, steering, return home) and the
+wrist tracker for joints 4-6. Time comes in as an argument (wall-clock seconds).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from ruckig import InputParameter, Result, Ruckig, Trajectory
+
+from thinkfast.robot.model import Robot
+from thinkfast.robot.wrist import CoplanarWrist
+
+EDGE, TERMINAL, STEER, RETURN, HOLD = "edge", "terminal", "steer", "return", "hold"
+
+
+class Segment(NamedTuple):
+    """One piece of joint 1-3 motion, commanded from wall time ``t0`` [s].
+
+    Attributes:
+        kind: EDGE, TERMINAL, STEER, RETURN or HOLD.
+        t0: wall time at which the trajectory's time 0 is commanded [s].
+        traj: Ruckig trajectory (None for HOLD).
+        end: state (9,) held after the trajectory (p [rad], v, a).
+        duration: how long the segment runs before the next decision [s] (eps for tree edges).
+        ref: tree node (EDGE), terminal edge (TERMINAL) or goal (STEER) index; -1 otherwise.
+    """
+
+    kind: str
+    t0: float
+    traj: Trajectory | None
+    end: np.ndarray
+    duration: float
+    ref: int = -1
+
+    @property
+    def t_end(self) -> float:
+        return self.t0 + self.duration
+
+    def state(self, t: float) -> np.ndarray:
+        """Commanded state (9,) at wall time ``t`` (held after the end)."""
+        if self.traj is None:
+            return self.end
+        s = min(max(t - self.t0, 0.0), self.duration, self.traj.duration)
+        p, v, a = self.traj.at_time(s)
+        return np.array([*p, *v, *a])
+
+
+def hold(state: np.ndarray, t0: float) -> Segment:
+    """Stay at rest at the position of ``state``."""
+    end = np.r_[state[:3], np.zeros(6)]
+    return Segment(HOLD, t0, None, end, np.inf)
+
+
+class Steering:
+    """Minimum-time jerk-limited moves to rest (state to state), for n joints."""
+
+    def __init__(self, v_max, a_max, j_max):
+        n = len(v_max)
+        self.n = n
+        self._otg = Ruckig(n)
+        self._inp = InputParameter(n)
+        self._inp.max_velocity = [float(x) for x in v_max]
+        self._inp.max_acceleration = [float(x) for x in a_max]
+        self._inp.max_jerk = [float(x) for x in j_max]
+
+    def to_rest(self, state: np.ndarray, target: np.ndarray) -> Trajectory | None:
+        """Trajectory from ``state`` (3n,) = p, v, a to rest at ``target`` (n,); None on failure."""
+        n, inp = self.n, self._inp
+        inp.current_position = [float(x) for x in state[:n]]
+        inp.current_velocity = [float(x) for x in state[n : 2 * n]]
+        inp.current_acceleration = [float(x) for x in state[2 * n : 3 * n]]
+        inp.target_position = [float(x) for x in target]
+        inp.target_velocity = [0.0] * n
+        inp.target_acceleration = [0.0] * n
+        traj = Trajectory(n)
+        try:
+            result = self._otg.calculate(inp, traj)
+        except RuntimeError:  # Ruckig raises on invalid input (e.g. a state beyond its limits)
+            return None
+        if result not in (Result.Working, Result.Finished) or not np.isfinite(traj.duration):
+            return None
+        return traj
+
+    def segment(self, kind: str, state, target, t0: float, ref: int = -1) -> Segment | None:
+        """A full move to rest at ``target`` as a Segment (None when Ruckig fails)."""
+        traj = self.to_rest(state, target)
+        if traj is None:
+            return None
+        end = np.r_[np.asarray(target, dtype=float), np.zeros(2 * self.n)]
+        return Segment(kind, t0, traj, end, traj.duration, ref)
+
+
+class WristTracker:
+    """Joints 4-6: turn the shield towards the incoming ball, jerk-limited, within the limits.
+
+    The shield normal is +x (coplanar with the plane) unless the ball's velocity is known well;
+    then it points against the ball's velocity, tilted at most ``max_tilt`` from +x. The wrist
+    angles for that normal come from the closed-form x-y-x wrist (:class:`CoplanarWrist`) at the
+    commanded joints 1-3; every tick a minimum-time Ruckig move towards them is sampled one tick
+    ahead, so the wrist follows with bounded velocity, acceleration and jerk.
+    """
+
+    def __init__(self, robot: Robot, max_tilt: float, margin: float):
+        self.rule = CoplanarWrist(robot)
+        self.steer = Steering(robot.v_max[3:], robot.a_max[3:], robot.j_max[3:])
+        self.lo = robot.q_lower[3:] + margin
+        self.hi = robot.q_upper[3:] - margin
+        self.max_tilt = max_tilt
+        self.state = np.r_[robot.home[3:], np.zeros(6)]  # p, v, a of joints 4-6
+        self.goal = robot.home[3:].copy()
+        self.t = -np.inf
+
+    def reset(self, q: np.ndarray, t: float) -> None:
+        """Start at rest at wrist angles ``q`` (3,) at time ``t``."""
+        self.state = np.r_[q, np.zeros(6)]
+        self.goal = np.array(q, dtype=float)
+        self.t = t
+
+    def normal_for(self, ball_velocity: np.ndarray | None) -> np.ndarray:
+        """Shield normal (3,) facing a ball moving with ``ball_velocity`` (None: +x)."""
+        x = np.array([1.0, 0.0, 0.0])
+        if ball_velocity is None or not np.all(np.isfinite(ball_velocity)):
+            return x
+        speed = np.linalg.norm(ball_velocity)
+        if speed < 1e-6 or ball_velocity[0] >= 0.0:
+            return x
+        n = -ball_velocity / speed
+        angle = np.arccos(np.clip(n[0], -1.0, 1.0))
+        if angle > self.max_tilt:  # rotate back towards +x in the plane of (x, n)
+            side = n - n[0] * x
+            side /= np.linalg.norm(side)
+            n = np.cos(self.max_tilt) * x + np.sin(self.max_tilt) * side
+        return n
+
+    def target(self, q123: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """Wrist angles (3,) for ``normal`` at joints 1-3 ``q123``, nearest the current wrist."""
+        w = self.rule.solve(q123[None], self.state[:3], normal)[0]
+        return np.clip(w, self.lo, self.hi)
+
+    def settled(self, tol: float) -> bool:
+        """At rest within ``tol`` [rad] of the last target."""
+        return bool(
+            np.all(np.abs(self.state[3:]) < tol)
+            and np.all(np.abs(self.state[:3] - self.goal) < tol)
+        )
+
+    def step(self, t: float, q123: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """Advance to wall time ``t``; returns the wrist state (9,) = p, v, a."""
+        dt = t - self.t
+        self.t = t
+        if not dt > 0.0 or dt > 0.1:
+            return self.state
+        self.goal = self.target(q123, normal)
+        traj = self.steer.to_rest(self.state, self.goal)
+        if traj is not None:
+            p, v, a = traj.at_time(min(dt, traj.duration))
+            self.state = np.array([*p, *v, *a])
+        return self.state

@@ -1,0 +1,97 @@
+"""zenoh edge of the daemon: session from the command line, detections in, JSON out.
+
+Detections are queued by zenoh's own thread into a bounded FIFO and drained by the control loop
+with ``try_recv`` (nothing runs inside a zenoh callback). Setpoints and status go out as UTF-8
+JSON on ``<prefix>/setpoints`` and ``<prefix>/status`` (INTERFACES.md).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import zenoh
+
+from thinkfast.errors import ConfigError
+
+QUEUE = 4096  # detections buffered between two drains (80 s at 50 Hz)
+
+
+def session_config(
+    connect: Sequence[str] = (),
+    listen: Sequence[str] = (),
+    config_file: str | Path | None = None,
+) -> zenoh.Config:
+    """A zenoh configuration: peer mode (or the JSON5 file's), plus endpoints from the CLI.
+
+    Raises:
+        ConfigError: the file cannot be read or an endpoint is rejected by zenoh.
+    """
+    try:
+        conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
+    except Exception as exc:  # zenoh raises its own ZError
+        raise ConfigError(str(config_file), None, f"invalid zenoh configuration ({exc})") from None
+    try:
+        if not config_file:
+            conf.insert_json5("mode", '"peer"')
+        if connect:
+            conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        if listen:
+            conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    except Exception as exc:
+        raise ConfigError(
+            "--zenoh-connect/--zenoh-listen", None, f"rejected by zenoh ({exc})"
+        ) from None
+    return conf
+
+
+class ZenohIO:
+    """Subscriber and publishers of the daemon on one session.
+
+    Args:
+        conf: zenoh configuration.
+        prefix: key prefix (default ``thinkfast``).
+    """
+
+    def __init__(self, conf: zenoh.Config, prefix: str):
+        try:
+            self.session = zenoh.open(conf)
+        except Exception as exc:
+            raise ConfigError("zenoh", None, f"cannot open a session ({exc})") from None
+        self.sub = self.session.declare_subscriber(
+            f"{prefix}/detections", zenoh.handlers.FifoChannel(QUEUE)
+        )
+        self.pub_setpoints = self.session.declare_publisher(f"{prefix}/setpoints")
+        self.pub_status = self.session.declare_publisher(f"{prefix}/status")
+
+    def drain(self, limit: int = 256) -> list[bytes]:
+        """Payloads received since the last call (at most ``limit``)."""
+        out = []
+        for _ in range(limit):
+            try:
+                sample = self.sub.try_recv()
+            except Exception:  # channel closed while shutting down
+                break
+            if sample is None:
+                break
+            out.append(sample.payload.to_bytes())
+        return out
+
+    def publish_setpoint(self, stamp: float, q, qd, mode: str) -> None:
+        msg = {
+            "stamp": stamp,
+            "q": [float(x) for x in q],
+            "qd": [float(x) for x in qd],
+            "mode": mode,
+        }
+        self.pub_setpoints.put(json.dumps(msg).encode())
+
+    def publish_status(self, status: dict) -> None:
+        self.pub_status.put(json.dumps(status).encode())
+
+    def close(self) -> None:
+        try:
+            self.session.close()
+        except Exception:
+            pass

@@ -1,0 +1,118 @@
+"""Publish simulated detections over zenoh in real time, and open sessions for loopback tests.
+
+The thin edge between :mod:`thinkfast.sim.camera` and the daemon: each detection's payload
+(:func:`~thinkfast.sim.camera.detection_payload`) goes out on ``<prefix>/detections`` at its
+delivery time. The schedule is absolute (target wall times, never accumulated sleeps), so a late
+wake-up delays one sample and never the ones after it.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from typing import NamedTuple
+
+import zenoh
+
+from thinkfast.sim.camera import SimDetection, detection_payload
+
+DEFAULT_PREFIX = "thinkfast"
+
+
+class PublishReport(NamedTuple):
+    """What :func:`publish_detections` did: samples sent, and their lateness [s] (max, mean)."""
+
+    sent: int
+    max_late: float
+    mean_late: float
+
+
+def detections_key(prefix: str = DEFAULT_PREFIX) -> str:
+    """The contract's key expression ``<prefix>/detections``."""
+    return f"{prefix}/detections"
+
+
+def publish_detections(
+    session: zenoh.Session,
+    key: str,
+    detections: Iterable[SimDetection],
+    t0_wall: float = 0.0,
+    clock: Callable[[], float] = time.time,
+    sleep: Callable[[float], None] = time.sleep,
+    with_covariance: bool = False,
+    stop: threading.Event | None = None,
+) -> PublishReport:
+    """Publish each detection at ``t0_wall + delivery_time`` with stamp ``t0_wall + capture_stamp``.
+
+    Detections made with ``t_release_wall`` set to a real wall time go out with ``t0_wall = 0``;
+    detections made on a clock starting at 0 (``t_release_wall = 0``, e.g. a precomputed throw
+    set) are shifted to now with ``t0_wall = clock() + margin``. Samples are sent in delivery
+    order; one already due is sent at once.
+
+    Args:
+        session: an open zenoh session.
+        key: key expression, normally :func:`detections_key`.
+        detections: what to send.
+        t0_wall: offset added to delivery times and stamps [s].
+        clock: wall clock [s] (same clock as the stamps).
+        sleep: sleeps the given seconds (injectable for tests).
+        with_covariance: add the noise model's covariance to each payload.
+        stop: if set, return early (checked before each sample).
+    """
+    pending = sorted(detections, key=lambda d: d.delivery_time)
+    publisher = session.declare_publisher(key)
+    late = []
+    try:
+        for sd in pending:
+            if stop is not None and stop.is_set():
+                break
+            due = t0_wall + sd.delivery_time
+            wait = due - clock()
+            if wait > 0.0:
+                sleep(wait)
+            shifted = sd._replace(capture_stamp=sd.capture_stamp + t0_wall)
+            publisher.put(detection_payload(shifted, with_covariance))
+            late.append(max(0.0, clock() - due))
+    finally:
+        publisher.undeclare()
+    if not late:
+        return PublishReport(0, 0.0, 0.0)
+    return PublishReport(len(late), max(late), sum(late) / len(late))
+
+
+def free_tcp_port(host: str = "127.0.0.1") -> int:
+    """A TCP port that was free a moment ago on ``host`` (the OS picks it)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def loopback_endpoint() -> str:
+    """A zenoh endpoint ``tcp/127.0.0.1:<free port>`` to listen on."""
+    return f"tcp/127.0.0.1:{free_tcp_port()}"
+
+
+def session_config(
+    listen: Sequence[str] = (), connect: Sequence[str] = (), mode: str = "peer"
+) -> zenoh.Config:
+    """A zenoh config with explicit endpoints and multicast scouting off (no stray peers).
+
+    Args:
+        listen: endpoints to listen on, e.g. ``["tcp/127.0.0.1:7447"]``.
+        connect: endpoints to connect to.
+        mode: ``"peer"`` or ``"client"``.
+    """
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    return conf
+
+
+def open_session(listen: Sequence[str] = (), connect: Sequence[str] = ()) -> zenoh.Session:
+    """Open a peer session on explicit endpoints (see :func:`session_config`); close it after."""
+    return zenoh.open(session_config(listen, connect))
