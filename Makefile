@@ -8,6 +8,9 @@ TREE   ?= trees/irb1600_default.h5
 
 .PHONY: install test demo lint bench clean
 
+$(TREE): $(STAMP) $(CONFIG)
+	$(VENV)/bin/thinkfast-compile tree $(CONFIG) -o $(TREE) --if-changed
+
 $(STAMP): pyproject.toml
 	$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "thinkfast needs Python >= 3.11"'
 	$(PYTHON) -m venv $(VENV)
@@ -20,16 +23,23 @@ install: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q
 
+THROWS ?= 5
+
 demo: $(STAMP)
 	$(VENV)/bin/thinkfast-compile goals $(CONFIG)
 	$(VENV)/bin/thinkfast-compile tree $(CONFIG) -o $(TREE) --if-changed
+	$(VENV)/bin/thinkfast-sim run --tree $(TREE) --throws $(THROWS) --planner tree
+	$(VENV)/bin/thinkfast-sim run --tree $(TREE) --throws $(THROWS) --planner naive
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check thinkfast tests bench
 	$(VENV)/bin/ruff format --check thinkfast tests bench
 
-bench: $(STAMP)
-	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+bench: $(STAMP) $(TREE)
+	$(PY) bench/compile.py
+	$(PY) bench/decision.py --tree $(TREE)
+	$(VENV)/bin/thinkfast-sim bench --tree $(TREE) --throws 500 --seed 1
+	$(PY) bench/egm_latency.py --n 20000
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -14,8 +14,6 @@ from __future__ import annotations
 import argparse
 import gc
 import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -25,6 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from thinkfast.machine import machine_info  # noqa: E402
 from thinkfast.runtime import backup as bk  # noqa: E402
 from thinkfast.runtime import delta as dm  # noqa: E402
 from thinkfast.runtime import filter as kf  # noqa: E402
@@ -169,20 +168,8 @@ def time_updates(tree, n_throws: int = 40, repeat: int = 3) -> np.ndarray:
 
 
 def machine() -> dict:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-    }
+    """The machine the figures come from (shared with the other benchmarks)."""
+    return machine_info()
 
 
 def main(argv=None) -> int:

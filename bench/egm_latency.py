@@ -7,8 +7,13 @@ reply that comes after its cycle is ``late``.
 
 The server side runs in a separate process: by default this script starts itself with
 ``--serve`` (an ``EgmServer`` in a dedicated loop whose setpoints go through the safety
-supervisor, as in the daemon); ``--target HOST:PORT`` measures any running sensor instead
-(e.g. ``thinkfast-run``).
+supervisor, as in the daemon); ``--target HOST:PORT`` measures any running sensor instead.
+``--daemon`` starts the real ``thinkfast-run`` (``--tree``, ``--planner``; EGM on a free
+loopback port, zenoh listening on a free loopback TCP port) and, while it measures, keeps it
+busy with a throw every ``--throw-period`` seconds (``bench/throw_stream.py`` in a third
+process: sampled throws seen by the ZED model, published in real time), so the daemon tracks,
+plans, blocks and returns home throughout; the result adds what was thrown and the daemon's own
+reply timing (``daemon.egm_timing``: socket wait and reply work, from its last status).
 
 Rates: ``--rate 250`` (default) is the controller's real 4 ms cycle, so the default 10^5
 exchanges take 400 s; ``--rate 0`` runs flat out (next request as soon as a reply is in, or
@@ -19,6 +24,7 @@ The first ``--warmup`` exchanges (default 250) are not counted. Round trips incl
 scheduling delay of either process, so a loaded machine shows in the tail (``load_1min``).
 
     python bench/egm_latency.py --n 20000 --rate 0 --json
+    python bench/egm_latency.py --daemon --json    # 10^5 exchanges through the daemon: ~7 min
 """
 
 from __future__ import annotations
@@ -29,9 +35,13 @@ import json
 import os
 import platform
 import select
+import signal
+import socket
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -39,6 +49,8 @@ from thinkfast.errors import ThinkfastError
 from thinkfast.runtime.egm_server import EgmServer, parse_hostport
 from thinkfast.runtime.safety import SafetyConfig, SafetySupervisor, make_limits
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
+
+DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"
 
 
 def set_realtime(priority: int = 50) -> bool:
@@ -106,15 +118,23 @@ def machine_info() -> dict:
     }
 
 
-def measure(target: tuple[str, int], n: int, rate: float, warmup: int, spin: float) -> dict:
+def measure(
+    target: tuple[str, int], n: int, rate: float, warmup: int, spin: float, q0=None, on_start=None
+) -> dict:
     """Run ``warmup`` uncounted exchanges, then ``n`` counted ones, on one simulated controller.
 
     The garbage collector of this (measuring) process is off while it measures: its history
     lists grow to 10^5 entries and a full collection would be charged to the server.
+
+    Args:
+        q0: the simulated arm's starting joints [rad] (6,); zeros by default.
+        on_start: called between the warm-up and the counted exchanges.
     """
-    sim = SimController()
+    sim = SimController(q0=q0)
     if warmup:
         ControllerRunner(sim, target, rate_hz=rate, n=warmup, spin=spin).run()
+    if on_start is not None:
+        on_start()
     runner = ControllerRunner(sim, target, rate_hz=rate, n=n, spin=spin)
     gc.collect()
     gc.disable()
@@ -144,6 +164,86 @@ def measure(target: tuple[str, int], n: int, rate: float, warmup: int, spin: flo
     }
 
 
+def run_daemon(args) -> dict:
+    """``--daemon``: the real ``thinkfast-run`` with a stream of throws (see the module doc)."""
+    from thinkfast.robot.model import default_robot_path, load_robot
+    from thinkfast.sim.publisher import loopback_endpoint
+
+    tree = Path(args.tree)
+    home = load_robot(default_robot_path()).home  # the simulated arm starts there
+    if not tree.is_file():
+        raise ThinkfastError(f"{tree}: no tree file; build it with `make demo`")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        egm_port = s.getsockname()[1]
+    zenoh_ep, prefix = loopback_endpoint(), f"egmbench{os.getpid()}"
+    config = ["--config", args.config] if args.config else []
+    exe = args.daemon_exe or str(Path(sys.executable).parent / "thinkfast-run")
+    record = ["--record", args.record] if args.record else []
+    cmd = [exe, "--tree", str(tree), "--planner", args.planner, "--egm-bind",
+           f"127.0.0.1:{egm_port}", "--zenoh-listen", zenoh_ep, "--key-prefix", prefix,
+           "--log-level", "warning", *config, *record]  # fmt: skip
+    n_throws = int((args.n + args.warmup) / args.rate / args.throw_period) + 3
+    stream_cmd = [sys.executable, str(Path(__file__).with_name("throw_stream.py")), "--connect",
+                  zenoh_ep, "--prefix", prefix, "--period", str(args.throw_period), "--throws",
+                  str(n_throws), "--seed", str(args.seed), "--wait-go", *config]  # fmt: skip
+    log = tempfile.TemporaryFile("w+")
+    daemon = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log)
+    stream = subprocess.Popen(stream_cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    result = {"target": f"127.0.0.1:{egm_port}", "mode": "daemon", "planner": args.planner,
+              "tree": str(tree), "throw_period_s": args.throw_period}  # fmt: skip
+    try:
+        if stream.stdout.readline().strip() != "READY":
+            raise ThinkfastError(f"the daemon did not come up: {_tail(log, daemon)}")
+        rt = set_realtime() if args.realtime else False
+        if rt:
+            os.sched_setscheduler(daemon.pid, os.SCHED_FIFO, os.sched_param(50))  # main thread
+
+        def start_throws() -> None:
+            stream.stdin.write("go\n")
+            stream.stdin.flush()
+
+        result["realtime"] = rt
+        result["load_avg_start"] = [round(x, 2) for x in os.getloadavg()]
+        result.update(measure(("127.0.0.1", egm_port), args.n, args.rate, args.warmup,
+                              args.spin_ms / 1e3, q0=home, on_start=start_throws))  # fmt: skip
+        stream.stdin.close()
+        published = json.loads(stream.stdout.readline() or "{}")
+        status = published.pop("status", None) or {}
+        result.update(published)
+        result["daemon"] = {k: status.get(k) for k in _DAEMON_KEYS}
+    finally:
+        _stop(stream, 10.0)
+        result.setdefault("daemon", {})["exit_code"] = _stop(daemon, 20.0)
+    if result["daemon"]["exit_code"] != 0:
+        result["daemon"]["log"] = _tail(log, daemon)
+    return result
+
+
+_DAEMON_KEYS = ("throws", "state", "egm", "egm_timing", "detections", "safety", "planner_errors")
+
+
+def _stop(proc: subprocess.Popen, timeout: float) -> int | None:
+    """Stop a child: close its stdin if piped (the stream), else SIGINT (the daemon brakes and
+    exits 0); kill it after ``timeout`` [s]. Returns the exit code (None when killed)."""
+    if proc.stdin is not None:
+        if not proc.stdin.closed:
+            proc.stdin.close()
+    elif proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        return None
+
+
+def _tail(log, proc, n: int = 2000) -> str:
+    log.seek(0)
+    return f"exit code {proc.poll()}: {log.read()[-n:].strip()}"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=100_000, help="exchanges (default 10^5)")
@@ -156,6 +256,14 @@ def main(argv=None) -> int:
         help="controller busy-waits this long per reply (default 0; needs a spare core)",
     )
     ap.add_argument("--target", help="HOST:PORT of a running EGM sensor (default: start one)")
+    ap.add_argument("--daemon", action="store_true", help="measure thinkfast-run under throws")
+    ap.add_argument("--tree", default=str(DEFAULT_TREE), help="--daemon: tree file (default)")
+    ap.add_argument("--planner", default="tree", choices=("tree", "naive"), help="--daemon")
+    ap.add_argument("--config", help="--daemon: runtime TOML for the daemon and the camera")
+    ap.add_argument("--throw-period", type=float, default=3.5, help="--daemon: s per throw")
+    ap.add_argument("--seed", type=int, default=0, help="--daemon: throws and camera noise")
+    ap.add_argument("--record", help="--daemon: the daemon's flight record (HDF5)")
+    ap.add_argument("--daemon-exe", help="--daemon: daemon executable (default thinkfast-run)")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument(
         "--realtime",
@@ -174,8 +282,15 @@ def main(argv=None) -> int:
             raise ThinkfastError(
                 "--realtime needs --rate > 0 (flat out it would starve the machine)"
             )
+        if args.daemon and args.target:
+            raise ThinkfastError("--daemon and --target exclude each other")
+        if args.daemon and args.rate <= 0:
+            raise ThinkfastError("--daemon needs --rate > 0 (the daemon expects a 4 ms cycle)")
         child = None
-        if args.target:
+        if args.daemon:
+            target = None
+            result = run_daemon(args)
+        elif args.target:
             target = parse_hostport(args.target, "--target")
         else:
             child = subprocess.Popen(
@@ -184,14 +299,16 @@ def main(argv=None) -> int:
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
             )  # fmt: skip
             target = ("127.0.0.1", int(child.stdout.readline().split()[1]))
-        result = {"target": f"{target[0]}:{target[1]}"}
-        result["realtime"] = set_realtime() if args.realtime else False
-        result.update(measure(target, args.n, args.rate, args.warmup, args.spin_ms / 1e3))
+        if target is not None:
+            result = {"target": f"{target[0]}:{target[1]}"}
+            result["realtime"] = set_realtime() if args.realtime else False
+            result.update(measure(target, args.n, args.rate, args.warmup, args.spin_ms / 1e3))
         if child is not None:
             child.stdin.close()
             result["server"] = json.loads(child.stdout.readline())
             child.wait(5)
         result["machine"] = machine_info()
+        result["machine"]["load_avg"] = [round(x, 2) for x in os.getloadavg()]
     except (ThinkfastError, OSError, IndexError, ValueError) as exc:
         print(f"egm_latency: {exc}", file=sys.stderr)
         return 1
@@ -200,8 +317,13 @@ def main(argv=None) -> int:
         return 0
     print(f"EGM exchange latency, {args.n} exchanges at {args.rate:g} Hz -> {result['target']}")
     for key in ("realtime", "replies", "missed", "late", "malformed", "p50_ms", "p90_ms", "p99_ms",
-                "p999_ms", "max_ms", "wall_s"):  # fmt: skip
-        print(f"  {key:<10} {result[key]}")
+                "p999_ms", "max_ms", "wall_s", "throws_published"):  # fmt: skip
+        if key in result:
+            print(f"  {key:<10} {result[key]}")
+    daemon = result.get("daemon") or {}
+    for key in ("exit_code", "throws", "egm_timing", "safety", "planner_errors"):
+        if key in daemon:
+            print(f"  daemon {key:<14} {daemon[key]}")
     for key, value in result["machine"].items():
         print(f"  {key:<10} {value}")
     return 0

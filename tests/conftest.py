@@ -60,3 +60,42 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> N
     assert "Traceback" not in proc.stderr
     for needle in needles:
         assert needle in lines[0], (needle, lines[0])
+
+
+SMALL_TREE = """robot = "{robot}"
+[goals]
+spacing = {spacing}
+[tree]
+max_depth = {depth}
+subgoal_spacing = {subgoal}
+connect_radius = {radius}
+"""
+
+
+def small_tree_config(
+    directory: Path,
+    robot: Path = ROBOT_TOML,
+    spacing: float = 0.3,
+    depth: int = 2,
+    subgoal: float = 0.6,
+    radius: float = 0.3,
+) -> Path:
+    """Write a small compile configuration of the default family; returns its path."""
+    path = directory / "small_tree.toml"
+    path.write_text(
+        SMALL_TREE.format(robot=robot, spacing=spacing, depth=depth, subgoal=subgoal, radius=radius)
+    )
+    return path
+
+
+def compile_small_tree(directory: Path, **kwargs) -> Path:
+    """Compile :func:`small_tree_config` into ``directory/small_tree.h5``; returns its path."""
+    from thinkfast.compile.build import compile_tree
+    from thinkfast.compile.config import load_compile_config
+    from thinkfast.compile.treefile import save_tree
+
+    path = directory / "small_tree.h5"
+    save_tree(
+        compile_tree(load_compile_config(small_tree_config(directory, **kwargs)), jobs=2), path
+    )
+    return path

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from tests.conftest import ROBOT_TOML
+from tests.conftest import compile_small_tree
 from tests.daemon_harness import (
     DaemonRun,
     ballistic_throw,
@@ -17,31 +17,13 @@ from tests.daemon_harness import (
     shield_distance_at_crossing,
 )
 
-TREE_CONFIG = """
-robot = "{robot}"
-[goals]
-spacing = 0.15
-[tree]
-max_depth = 2
-subgoal_spacing = 0.6
-connect_radius = 0.3
-"""
 BLOCK_RADIUS = 0.20 + 0.0335  # shield + ball
 DT = 0.004
 
 
 @pytest.fixture(scope="module")
 def tree_file(tmp_path_factory):
-    from thinkfast.compile.build import compile_tree
-    from thinkfast.compile.config import load_compile_config
-    from thinkfast.compile.treefile import save_tree
-
-    tmp = tmp_path_factory.mktemp("daemon")
-    cfg = tmp / "tree.toml"
-    cfg.write_text(TREE_CONFIG.format(robot=ROBOT_TOML))
-    path = tmp / "tree.h5"
-    save_tree(compile_tree(load_compile_config(cfg), jobs=2), path)
-    return path
+    return compile_small_tree(tmp_path_factory.mktemp("daemon"), spacing=0.15)
 
 
 def _check_limits(rows: np.ndarray, robot, margin: float = 0.005) -> None:

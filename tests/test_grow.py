@@ -7,28 +7,16 @@ import shutil
 import numpy as np
 import pytest
 
-from tests.conftest import ROBOT_TOML
+from tests.conftest import ROBOT_TOML, small_tree_config
 from thinkfast.compile.build import compile_tree
 from thinkfast.compile.config import load_compile_config
 from thinkfast.compile.primitive import Limits, Steering, state_at
 from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED
 from thinkfast.compile.treefile import tree_fingerprint
 
-SMALL = """
-robot = "{robot}"
-[goals]
-spacing = 0.3
-[tree]
-max_depth = 2
-subgoal_spacing = 0.6
-connect_radius = 0.25
-"""
 
-
-def small_config(tmp_path, robot=ROBOT_TOML, extra=""):
-    path = tmp_path / "small.toml"
-    path.write_text(SMALL.format(robot=robot) + extra)
-    return load_compile_config(path)
+def small_config(tmp_path, robot=ROBOT_TOML):
+    return load_compile_config(small_tree_config(tmp_path, robot, radius=0.25))
 
 
 @pytest.fixture(scope="module")

@@ -112,22 +112,22 @@ def _terminal(k: int) -> tuple[list[str], int]:
     return out, res.checks
 
 
-def _edges_chunk(chunk: list) -> tuple[list, Counter]:
+def _checked(one, chunk: list) -> tuple[list, Counter]:
+    """Problems and collision-check count of ``one(i)`` over a chunk of indices."""
     probs, n = [], Counter()
     for i in chunk:
-        p, c = _edge(i)
+        p, c = one(i)
         probs += p
         n["checks"] += c
     return probs, n
+
+
+def _edges_chunk(chunk: list) -> tuple[list, Counter]:
+    return _checked(_edge, chunk)
 
 
 def _terminals_chunk(chunk: list) -> tuple[list, Counter]:
-    probs, n = [], Counter()
-    for k in chunk:
-        p, c = _terminal(k)
-        probs += p
-        n["checks"] += c
-    return probs, n
+    return _checked(_terminal, chunk)
 
 
 def verify_tree(

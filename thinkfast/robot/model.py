@@ -242,21 +242,21 @@ def _link_parents(root: ET.Element, urdf_path: Path) -> dict[str, str]:
     return parents
 
 
+def _origin(elem: ET.Element, what: str, urdf_path: Path) -> tuple[tuple[float, ...], ...]:
+    """``xyz`` [m] and ``rpy`` [rad] of an element's ``<origin>`` (zeros when absent)."""
+    origin = elem.find("origin")
+    if origin is None:
+        return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+    xyz = _floats(origin.get("xyz", "0 0 0"), 3, f"{what} origin xyz", urdf_path)
+    rpy = _floats(origin.get("rpy", "0 0 0"), 3, f"{what} origin rpy", urdf_path)
+    return xyz, rpy
+
+
 def _parse_chain(root: ET.Element, urdf_path: Path) -> list[UrdfJoint]:
     joints = []
     for j in root.findall("joint"):
         name, kind = j.get("name"), j.get("type")
-        origin = j.find("origin")
-        xyz = (
-            _floats(origin.get("xyz", "0 0 0"), 3, f"joint {name} origin xyz", urdf_path)
-            if (origin is not None)
-            else (0.0, 0.0, 0.0)
-        )
-        rpy = (
-            _floats(origin.get("rpy", "0 0 0"), 3, f"joint {name} origin rpy", urdf_path)
-            if (origin is not None)
-            else (0.0, 0.0, 0.0)
-        )
+        xyz, rpy = _origin(j, f"joint {name}", urdf_path)
         axis = np.zeros(3)
         if kind in ("revolute", "continuous"):
             ax = j.find("axis")
@@ -317,17 +317,7 @@ def _parse_shapes(root: ET.Element, urdf_path: Path) -> list[CollisionShape]:
     for link in root.findall("link"):
         name = link.get("name")
         for col in link.findall("collision"):
-            origin = col.find("origin")
-            xyz = (
-                _floats(origin.get("xyz", "0 0 0"), 3, f"{name} origin xyz", urdf_path)
-                if (origin is not None)
-                else (0.0, 0.0, 0.0)
-            )
-            rpy = (
-                _floats(origin.get("rpy", "0 0 0"), 3, f"{name} origin rpy", urdf_path)
-                if (origin is not None)
-                else (0.0, 0.0, 0.0)
-            )
+            xyz, rpy = _origin(col, name, urdf_path)
             geom = col.find("geometry")
             if geom is None or len(geom) != 1:
                 raise RobotModelError(f"{urdf_path}: link {name!r} collision needs one geometry")

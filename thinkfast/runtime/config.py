@@ -21,7 +21,11 @@ class ThrowConfig:
     """When a throw starts and ends."""
 
     min_approach_speed: float = spec(
-        3.0, unit="m/s", lo=0.0, doc="ball speed towards the plane that starts a throw"
+        3.0,
+        unit="m/s",
+        lo=0.0,
+        doc="a throw starts when the approach speed exceeds this with ~93 % confidence "
+        "(mean - 1.5 sigma), so a ball held still never starts one",
     )
     max_tau: float = spec(
         1.5, unit="s", lo=0.0, lo_open=True, doc="crossing must be predicted within this time"
@@ -29,7 +33,9 @@ class ThrowConfig:
     region_margin: float = spec(
         0.6, unit="m", lo=0.0, doc="crossing point may lie this far outside the goal region"
     )
-    confirm_updates: int = spec(3, lo=1, doc="consecutive approaching beliefs to start a throw")
+    confirm_updates: int = spec(
+        2, lo=1, doc="approaching beliefs (net of non-approaching ones) that start a throw"
+    )
     detection_timeout: float = spec(
         0.25, unit="s", lo=0.0, lo_open=True, doc="no detection this long ends a throw"
     )
@@ -73,7 +79,15 @@ class RunConfig:
     robot: str = spec("", doc="robot.toml path (default: the robot the tree names, else default)")
     camera: CameraExtrinsic = spec(CameraExtrinsic())
     detections: DetectionLimits = spec(DetectionLimits())
-    filter: FilterConfig = spec(FilterConfig())
+    filter: FilterConfig = spec(
+        FilterConfig(
+            stereo_depth=0.0027,
+            stereo_lateral=0.00094,
+            r0_std=(0.01, 0.01, 0.01),
+            reset_after=2,
+            reset_all_axes=True,
+        )
+    )
     value: ValueConfig = spec(ValueConfig())
     throw: ThrowConfig = spec(ThrowConfig())
     execution: ExecutionConfig = spec(ExecutionConfig())

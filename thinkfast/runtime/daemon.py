@@ -5,10 +5,18 @@ setpoint for now, passed through the safety supervisor (the last stage before th
 two EGM packets (4 ms) it drains the zenoh detection queue (filter, crossing, values, backup),
 publishes the mirrored setpoints and the status. Signals only set a flag: the loop brakes
 smoothly while the controller still talks to it, then exits 0.
+
+Nothing may delay a reply, so the other work runs right after one: the first queued detection
+is taken at once after a reply, further ones only while, at the cost of the slowest recent one,
+they end ``WORK_GUARD`` before the next ``EgmRobot`` is due (a controller silent for ``SILENT``
+leaves the whole time free). The mirrored setpoints and the status go out in the same place,
+and so do garbage collections (automatic collection is off while serving; the interpreter's own
+thresholds decide).
 """
 
 from __future__ import annotations
 
+import collections
 import gc
 import json
 import logging
@@ -34,6 +42,9 @@ from thinkfast.runtime.zenoh_io import ZenohIO
 
 log = logging.getLogger("thinkfast.run")
 BALL_RADIUS = 0.0335  # m, tennis ball (FACTS.md); counts towards the blocking radius
+WORK_GUARD = 0.0005  # s: work between replies ends this long before the next EgmRobot is due
+SILENT = 0.02  # s without an EgmRobot: the controller is not cycling, work at any time
+STATUS_COST = 0.001  # s set aside for a status message (JSON, timing percentiles)
 
 
 @dataclass(frozen=True)
@@ -71,7 +82,7 @@ class Daemon:
         )
         self.supervisor = SafetySupervisor(self.limits, cfg.safety, robot.home)
         self.intake = Intake(cfg.camera, cfg.detections)
-        self.egm = EgmServer(endpoints.egm_bind, self._reply, endpoints.egm_controller)
+        self.egm = EgmServer(endpoints.egm_bind, self._reply, endpoints.egm_controller, timing=True)
         self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix)
         self.recorder = Recorder(
             endpoints.record,
@@ -88,6 +99,8 @@ class Daemon:
         self.outbox: list[tuple[float, np.ndarray, np.ndarray, str]] = []
         self.decision_ms = 0.0
         self.planner_errors = 0
+        self.pending: collections.deque[bytes] = collections.deque()  # drained, not yet taken
+        self.detection_cost = 0.001  # s, decaying maximum of recent detection handling times
 
     # -------------------------------------------------------------- EGM path
     def _reply(self, fb) -> tuple[np.ndarray, np.ndarray]:
@@ -122,22 +135,24 @@ class Daemon:
         poller.register(self.egm.fileno(), select.POLLIN)
         gc.collect()
         gc.freeze()  # nothing allocated so far is ever collected: shorter GC pauses
+        gc.disable()  # collections run after replies (_collect_garbage), never inside one
         status_period = 1.0 / self.cfg.status_rate
         next_status = time.time()
         log.info("serving EGM on %s:%d, planner %s", *self.egm.address, self.planner)
         try:
             while True:
-                poller.poll(2)  # ms; EGM packets come every 4 ms
-                self.egm.poll(16)
+                replied = bool(poller.poll(1)) and self.egm.poll(16) > 0  # replies at once
                 self._flush_outbox()
-                self._take_detections()
+                self._take_detections(replied)
                 now = time.time()
-                if now >= next_status:
+                if now >= next_status and self._time_left(now) > STATUS_COST:
                     self.zio.publish_status(self.status(now))
                     next_status = now + status_period
+                self._collect_garbage(now)
                 if self.stop_reason is not None and self._may_exit(now):
                     break
         finally:
+            gc.enable()
             gc.unfreeze()
             self.zio.publish_status(
                 {
@@ -164,34 +179,62 @@ class Daemon:
             self.zio.publish_setpoint(stamp, q, qd, mode)
         self.outbox.clear()
 
-    def _take_detections(self) -> None:
-        for payload in self.zio.drain():
+    def _time_left(self, now: float) -> float:
+        """Seconds of work that still end ``WORK_GUARD`` before the next EgmRobot is due."""
+        since = now - self.last_rx
+        if since > SILENT:
+            return math.inf
+        return self.cfg.safety.dt - WORK_GUARD - since
+
+    def _collect_garbage(self, now: float) -> None:
+        """Collect as the interpreter would (same thresholds), where it cannot delay a reply."""
+        counts, limits = gc.get_count(), gc.get_threshold()
+        if counts[0] < limits[0] or self._time_left(now) < 0.001:
+            return
+        gc.collect(0 if counts[1] < limits[1] else 1 if counts[2] < limits[2] else 2)
+
+    def _take_detections(self, replied: bool) -> None:
+        """Take queued detections: the first at once if a reply just left, the others while
+        each still fits before the next EgmRobot (see the module doc)."""
+        pending = self.pending
+        pending.extend(self.zio.drain())
+        while pending:
             now = time.time()
-            self.recorder.raw(now, payload)
-            det = self.intake.take(payload, now)
-            if det is None:
-                continue
-            self.recorder.detection(now, det.stamp, det.position, det.seq)
+            if not replied and self._time_left(now) < self.detection_cost:
+                return
+            replied = False
             t0 = time.perf_counter()
-            ex = self.executor
-            try:
-                ex.on_detection(now, det.stamp, det.position)
-            except Exception:  # a planner bug must not stop the EGM loop: stop the arm instead
-                self.planner_errors += 1
-                if self.planner_errors == 1 or self.planner_errors % 100 == 0:
-                    log.exception("planner error %d: braking", self.planner_errors)
-                self.supervisor.request_brake("nonfinite")
-                continue
-            self.decision_ms = 1e3 * (time.perf_counter() - t0)
-            if ex.belief.n_meas >= 2:
-                c = ex.tree.crossing(ex.belief.mean, ex.belief.cov, self.cfg.filter.gravity)
-                self.recorder.belief(now, ex.belief, c)
-            d = ex.decision
-            if d is not None and d.backup is not None:
-                node = ex.node
-                self.recorder.decision(
-                    now, ex.mode, node, float(d.backup.value[node]), int(d.backup.best_goal)
-                )
+            self._take(pending.popleft(), now)
+            spent = time.perf_counter() - t0
+            self.detection_cost = max(spent, 0.99 * self.detection_cost, 1e-4)
+
+    def _take(self, payload: bytes, now: float) -> None:
+        """One detection payload received at ``now``: intake, recorder, filter and planner."""
+        self.recorder.raw(now, payload)
+        det = self.intake.take(payload, now)
+        if det is None:
+            return
+        self.recorder.detection(now, det.stamp, det.position, det.seq)
+        t0 = time.perf_counter()
+        ex = self.executor
+        try:
+            ex.on_detection(now, det.stamp, det.position)
+        except Exception:  # a planner bug must not stop the EGM loop: stop the arm instead
+            self.planner_errors += 1
+            if self.planner_errors == 1 or self.planner_errors % 100 == 0:
+                log.exception("planner error %d: braking", self.planner_errors)
+            self.supervisor.request_brake("nonfinite")
+            return
+        self.decision_ms = 1e3 * (time.perf_counter() - t0)
+        if self.recorder.enabled and ex.belief.n_meas >= 2:  # the crossing only for the record
+            c = ex.tree.crossing(ex.belief.mean, ex.belief.cov, self.cfg.filter.gravity)
+            self.recorder.belief(now, ex.belief, c)
+        d = ex.decision
+        if d is not None and d.backup is not None:
+            node = ex.node
+            self.recorder.decision(
+                now, ex.mode, node, float(d.backup.value[node]), int(d.backup.best_goal)
+            )
 
     def status(self, now: float) -> dict:
         """The status message (INTERFACES.md: at least stamp and state)."""
@@ -212,6 +255,7 @@ class Daemon:
             "safety": {k: v for k, v in self.supervisor.counts.items() if v},
             "braking": self.supervisor.braking,
             "planner_errors": self.planner_errors,
+            "egm_timing": self.egm.timing.summary(),
         }
 
 

@@ -11,14 +11,19 @@ safety supervisor's output). Two ways to drive it:
 
 ``poll`` never raises for anything that arrives on the wire: foreign senders, malformed packets,
 failing ``reply_fn`` calls and socket errors are dropped and counted in :class:`EgmCounters`.
+With ``timing=True`` it also keeps :class:`ReplyTimes`: how long each request waited in the
+socket (from the kernel's arrival time stamp) and how long the reply took to leave.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import ipaddress
+import math
 import select
 import socket
+import struct
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -34,9 +39,12 @@ from thinkfast.runtime.egm_proto import (
     decode_robot,
     encode_sensor,
 )
+from thinkfast.runtime.reply_times import ReplyTimes
 
 ReplyFn = Callable[[RobotFeedback], "tuple[np.ndarray, np.ndarray]"]
 MAX_DATAGRAM = 65535
+SO_TIMESTAMPNS = 35  # Linux <asm-generic/socket.h> (also SCM_TIMESTAMPNS); Python lacks the name
+_TIMESPEC = struct.Struct("@qq")  # struct timespec on 64-bit Linux: seconds, nanoseconds
 
 
 class EgmAddressError(ThinkfastError):
@@ -110,12 +118,14 @@ class EgmServer:
         clock: monotonic clock [s] for the ``tm`` field (milliseconds since the server started)
             and for :attr:`last_rx_time`.
         rcvbuf_bytes: requested kernel receive buffer size [bytes].
+        timing: keep :attr:`timing` (reply times; kernel arrival stamps where the OS has them).
 
     Attributes:
         counters: :class:`EgmCounters`.
         seqno: sequence number of the last ``EgmSensor`` sent (0 before the first).
         last_feedback: the last valid :class:`RobotFeedback`, or None.
         last_rx_time: ``clock()`` when it arrived [s] (for loss-of-traffic checks), or None.
+        timing: :class:`ReplyTimes`, or None without ``timing``.
 
     Raises:
         EgmAddressError: bad address strings, or the socket cannot be bound (message says why).
@@ -128,6 +138,7 @@ class EgmServer:
         controller_ip: str | None = None,
         clock: Callable[[], float] = time.perf_counter,
         rcvbuf_bytes: int = 1 << 20,
+        timing: bool = False,
     ):
         host, port = parse_hostport(bind) if isinstance(bind, str) else bind
         self.controller_ip = _check_ip(controller_ip)
@@ -147,6 +158,14 @@ class EgmServer:
             self._sock.close()
             raise EgmAddressError(f"cannot bind EGM socket to {host}:{port} ({exc})") from None
         self._sock.setblocking(False)
+        self.timing = ReplyTimes() if timing else None
+        self._stamped = False
+        if timing and sys.platform == "linux":
+            try:
+                self._sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                self._stamped = True
+            except OSError:
+                pass
 
     @property
     def address(self) -> tuple[str, int]:
@@ -168,14 +187,21 @@ class EgmServer:
         """
         sent = 0
         c = self.counters
+        timing = self.timing
         for _ in range(max_packets):
             try:
-                data, addr = self._sock.recvfrom(MAX_DATAGRAM)
+                if self._stamped:
+                    data, anc, _, addr = self._sock.recvmsg(MAX_DATAGRAM, 64)
+                else:
+                    data, addr = self._sock.recvfrom(MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:
                 c.socket_errors += 1
                 continue
+            if timing is not None:
+                t_read = time.perf_counter()
+                wait = _arrival_age(anc) if self._stamped else math.nan
             c.received += 1
             if (
                 self.controller_ip is not None
@@ -199,6 +225,8 @@ class EgmServer:
             except Exception:  # a failing setpoint source must never stop the I/O loop
                 c.reply_errors += 1
                 continue
+            if timing is not None:
+                work = time.perf_counter() - t_read
             try:
                 self._sock.sendto(payload, addr)
             except OSError:
@@ -207,6 +235,8 @@ class EgmServer:
             self.seqno = (self.seqno + 1) & UINT32
             c.replied += 1
             sent += 1
+            if timing is not None:
+                timing.add(wait, work)
         return sent
 
     def serve(self, stop: threading.Event, wait_s: float = 0.05) -> None:
@@ -232,3 +262,12 @@ class EgmServer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _arrival_age(ancdata) -> float:
+    """Seconds since the kernel stamped the datagram (``SCM_TIMESTAMPNS``), NaN if absent."""
+    for level, kind, raw in ancdata:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(raw)
+            return time.time() - (sec + 1e-9 * nsec)
+    return math.nan

@@ -11,9 +11,12 @@ time. States:
   at least ``min_move_value`` and is not "stay"; the naive planner leaves at once.
 - ``executing``: tree planner: every ``eps`` the robot takes the best child of the node it reaches
   (a primitive in progress is finished), or commits to the node's best terminal edge when that is
-  worth more; when a terminal edge ends while measurements still arrive, Ruckig steers to the
-  most probable goal at every belief update. Naive planner: at every belief update, Ruckig from
-  the commanded state to the goal nearest the most likely crossing point.
+  worth more. Once committed, every belief update re-targets Ruckig to the most probable goal
+  when it differs from the committed one (the tree is exhausted: the paper's fallback). When no
+  branch at home blocks with at least ``min_move_value`` (the ball comes too fast for any edge to
+  arrive in time), the robot rushes to the most probable goal anyway, re-targeted at every
+  belief: a shield on its way may still catch the ball. Naive planner: at every belief update, Ruckig from the commanded state to the goal
+  nearest the most likely crossing point.
 - ``returning``: after the crossing (plus ``after_crossing``) or when detections stop, a move to
   home within the limits; then ``idle``.
 - ``fault``: set by the daemon (the supervisor's brake); left only by a restart.
@@ -78,12 +81,14 @@ class Executor:
         )
         self.wrist = WristTracker(robot, cfg.execution.wrist_max_tilt, cfg.safety.position_margin)
         self.lag = cfg.execution.controller_lag
+        self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
         self.mode = IDLE
         self.belief = kf.empty(cfg.filter)
         self.decision: Decision | None = None
         self.segment = hold(np.r_[robot.home[:3], np.zeros(6)], -np.inf)
         self.node = 0
         self.confirm = 0
+        self.settled = 0
         self.t_last_det = -np.inf
         self.episode = EpisodeLog()
         self.episodes = 0
@@ -97,10 +102,14 @@ class Executor:
         if stamp - self.t_last_det > self.cfg.throw.detection_timeout:
             self.belief = kf.empty(self.cfg.filter)  # a new ball: start the filter afresh
             self.confirm = 0
-        self.belief, info = kf.update(self.belief, stamp, p_base, self.cfg.filter)
+        self.belief, info = kf.update(self.belief, stamp, p_base, self.cfg.filter, self.sensor)
         if info.status == "late":
             return
         self.t_last_det = max(self.t_last_det, stamp)
+        # updates absorbed since the filter last (re)started from two measurements: before 2,
+        # one outlier among those two can fake any velocity
+        restarted = info.status in ("first", "init") or bool(np.any(info.reset))
+        self.settled = 0 if restarted else self.settled + 1
         if self.mode == IDLE:
             self.mode = TRACKING
         if self.belief.n_meas < 2:
@@ -109,7 +118,10 @@ class Executor:
         if c.ok:
             self.episode.t_cross = stamp + float(c.mean[2])
         if self.mode == TRACKING:
-            self.confirm = self.confirm + 1 if self._approaching(c) else 0
+            if self.settled >= 2 and self._approaching(c):
+                self.confirm += 1
+            else:  # one outlier frame costs one step, not the whole count
+                self.confirm = max(self.confirm - 1, 0)
             if self.confirm < self.cfg.throw.confirm_updates:
                 return
             if math.isnan(self.episode.t_confirmed):
@@ -121,12 +133,13 @@ class Executor:
             self._naive(t_now, c)
         elif self.mode == TRACKING:
             self._maybe_leave_home(t_now)
-        elif self.segment.kind in (TERMINAL, STEER) and t_now >= self.segment.t_end:
-            self._fallback(t_now)
+        elif self.segment.kind in (STEER, TERMINAL):
+            self._fallback(t_now)  # committed: follow the most probable goal as beliefs improve
 
     def _approaching(self, c) -> bool:
         th = self.cfg.throw
-        if not c.ok or -self.belief.mean[3] < th.min_approach_speed or c.mean[2] > th.max_tau:
+        speed_lo = -self.belief.mean[3] - 2.0 * np.sqrt(self.belief.cov[3, 3])
+        if not c.ok or speed_lo < th.min_approach_speed or c.mean[2] > th.max_tau:
             return False
         y, z = c.mean[0], c.mean[1]
         lo, hi = self.tree.goal_yz.min(axis=0), self.tree.goal_yz.max(axis=0)
@@ -140,6 +153,13 @@ class Executor:
             return
         b = d.backup
         if b.value[0] < self.cfg.execution.min_move_value:
+            # no branch arrives in time with any chance: nothing to lose by rushing to the most
+            # probable goal (a rim may still catch the ball), re-targeted at every belief
+            if b.best_goal >= 0:
+                self.mode = EXECUTING
+                self.episode.t_start = t_now
+                self.episode.chosen_value = float(b.value[0])
+                self._steer_to(int(b.best_goal), t_now)
             return
         first = self._next_from(0, t_now, t_now)
         if first is None or (first.kind == EDGE and self._is_stay(first)):
@@ -194,7 +214,10 @@ class Executor:
         if d is None or d.backup is None or d.backup.best_goal < 0:
             return
         goal = d.backup.best_goal
-        if self.segment.kind == STEER and self.segment.ref == goal:
+        current = self.segment.ref
+        if self.segment.kind == TERMINAL:
+            current = int(self.tree.tree.term_goal[current])
+        if current == goal:
             return
         self._steer_to(goal, t_now)
 
@@ -223,14 +246,23 @@ class Executor:
         if self.planner == "tree" and self.mode == EXECUTING:
             self._advance_tree(t)
         s = self.segment.state(t)
-        ball_v = None
-        if self.mode in (TRACKING, EXECUTING) and self.belief.n_meas >= 2:
+        ball_v = None  # the shield turns towards the ball only in a confirmed throw
+        if (
+            self.mode in (TRACKING, EXECUTING)
+            and self.confirm >= self.cfg.throw.confirm_updates
+            and self.belief.n_meas >= 2
+        ):
             v_std = np.sqrt(np.max(np.diag(self.belief.cov)[3:]))
-            if v_std < self.cfg.execution.wrist_confident_speed_std:
+            fast = -self.belief.mean[3] > self.cfg.throw.min_approach_speed
+            if fast and v_std < self.cfg.execution.wrist_confident_speed_std:
                 ball_v = self.belief.mean[3:]
         w = self.wrist.step(t, s[:3], self.wrist.normal_for(ball_v))
-        if self.mode == RETURNING and t >= self.segment.t_end and self.wrist.settled(1e-4):
-            self._finish_return(t)  # the whole arm is home and at rest
+        if self.mode == RETURNING and t >= self.segment.t_end:
+            home = np.all(np.abs(w[3:6]) < 1e-4) and np.all(
+                np.abs(w[:3] - self.robot.home[3:]) < 1e-3
+            )
+            if home or t > self.segment.t_end + 2.0:  # (an equivalent wrist branch: give up)
+                self._finish_return(t)  # the whole arm is home and at rest: ready
         return np.r_[s[:3], w[:3]], np.r_[s[3:6], w[3:6]]
 
     def _end_of_throw(self, t: float) -> None:

@@ -132,7 +132,11 @@ def velocity_bounds(q_p, v_p, lim: SafetyLimits, dt: float) -> tuple[np.ndarray,
 
 def recoverable(q, v, lim: SafetyLimits, dt: float) -> np.ndarray:
     """Per joint: inside the limits and able to brake at ``a_max`` without leaving them."""
-    end = q + v * (np.abs(v) / (2.0 * lim.a_max) + 0.5 * dt)  # where braking now would stop
+    return _recoverable(q, v, lim, _TickConstants.of(lim, dt))
+
+
+def _recoverable(q, v, lim: SafetyLimits, k: _TickConstants) -> np.ndarray:
+    end = q + v * (np.abs(v) / k.two_a + k.half_dt)  # where braking now would stop
     return (np.minimum(q, end) >= lim.q_min) & (np.maximum(q, end) <= lim.q_max)
 
 
@@ -192,20 +196,43 @@ def filter_step(q_p, v_p, q_req, v_req, lim: SafetyLimits, dt: float) -> StepRes
         which checks the request failed (empty when it passed).
     """
     with np.errstate(over="ignore", invalid="ignore"):  # 1e300-sized requests: inf compares fine
-        return _filter_step(q_p, v_p, q_req, v_req, lim, dt)
+        return _filter_step(q_p, v_p, q_req, v_req, lim, dt, _TickConstants.of(lim, dt))
 
 
-def _filter_step(q_p, v_p, q_req, v_req, lim: SafetyLimits, dt: float) -> StepResult:
+class _TickConstants(NamedTuple):
+    """Products of the limits and the tick that every step uses (computed once, same floats)."""
+
+    a_dt: np.ndarray  # a_max dt: largest velocity change per tick
+    step_tol: np.ndarray  # largest position error of an admissible request
+    two_a: np.ndarray
+    half_dt: float
+
+    @classmethod
+    def of(cls, lim: SafetyLimits, dt: float) -> _TickConstants:
+        a_dt = lim.a_max * dt
+        return cls(a_dt, 0.25 * a_dt * dt * (1.0 + 1e-9), 2.0 * lim.a_max, 0.5 * dt)
+
+
+def _any(mask: np.ndarray) -> bool:
+    """``mask.any()`` without its Python-level overhead (a sixth of the time on 6 joints)."""
+    return _count_nonzero(mask) > 0
+
+
+_count_nonzero = np.count_nonzero
+
+
+def _filter_step(
+    q_p, v_p, q_req, v_req, lim: SafetyLimits, dt: float, k: _TickConstants
+) -> StepResult:
     kinds = []
-    a_dt = lim.a_max * dt
-    if (np.abs(v_req) > lim.v_max).any():
+    if _any(np.abs(v_req) > lim.v_max):
         kinds.append("velocity")
-    if (np.abs(v_req - v_p) > a_dt).any():
+    if _any(np.abs(v_req - v_p) > k.a_dt):
         kinds.append("acceleration")
     err = q_req - (q_p + 0.5 * (v_p + v_req) * dt)
-    if (np.abs(err) > 0.25 * a_dt * dt * (1.0 + 1e-9)).any():
+    if _any(np.abs(err) > k.step_tol):
         kinds.append("position_step")
-    if not recoverable(q_req, v_req, lim, dt).all():
+    if _any(~_recoverable(q_req, v_req, lim, k)):
         kinds.append("position_limit")
     if not kinds:
         return StepResult(np.array(q_req, dtype=float), np.array(v_req, dtype=float), ())
@@ -249,6 +276,7 @@ class SafetySupervisor:
         self.limits = limits
         self.config = config
         self.counts = dict.fromkeys(KINDS, 0)
+        self._k = _TickConstants.of(limits, config.dt)
         self.reset(q0)
 
     def reset(self, q0) -> None:
@@ -295,7 +323,7 @@ class SafetySupervisor:
         kinds: tuple[str, ...] = ()
         if q_meas is not None:
             dev = _vector(q_meas, n)
-            if dev is None or (np.abs(dev - self.q) > cfg.max_deviation).any():
+            if dev is None or _any(np.abs(dev - self.q) > cfg.max_deviation):
                 self.request_brake("deviation")
         if egm_age is not None:
             try:
@@ -315,7 +343,8 @@ class SafetySupervisor:
             # is exactly zero, never a reversal
             v = np.where(np.abs(v) < 1e-9, 0.0, v)
         else:
-            q, v, kinds = filter_step(self.q, self.qd, q_r, v_r, lim, cfg.dt)
+            with np.errstate(over="ignore", invalid="ignore"):  # as in filter_step
+                q, v, kinds = _filter_step(self.q, self.qd, q_r, v_r, lim, cfg.dt, self._k)
         for k in kinds:
             self.counts[k] += 1
         self.qdd = (v - self.qd) / cfg.dt
@@ -331,6 +360,6 @@ def _vector(x, n: int) -> np.ndarray | None:
         a = np.array(x, dtype=float).reshape(-1)
     except (TypeError, ValueError, OverflowError):
         return None
-    if a.size != n or not np.isfinite(a).all():
+    if a.size != n or _count_nonzero(np.isfinite(a)) != n:
         return None
     return a

@@ -4,6 +4,7 @@ wrist tracker for joints 4-6. Time comes in as an argument (wall-clock seconds).
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -64,22 +65,23 @@ class Steering:
         self._inp.max_velocity = [float(x) for x in v_max]
         self._inp.max_acceleration = [float(x) for x in a_max]
         self._inp.max_jerk = [float(x) for x in j_max]
+        self._inp.target_velocity = [0.0] * n  # every move ends at rest
+        self._inp.target_acceleration = [0.0] * n
 
     def to_rest(self, state: np.ndarray, target: np.ndarray) -> Trajectory | None:
         """Trajectory from ``state`` (3n,) = p, v, a to rest at ``target`` (n,); None on failure."""
         n, inp = self.n, self._inp
-        inp.current_position = [float(x) for x in state[:n]]
-        inp.current_velocity = [float(x) for x in state[n : 2 * n]]
-        inp.current_acceleration = [float(x) for x in state[2 * n : 3 * n]]
-        inp.target_position = [float(x) for x in target]
-        inp.target_velocity = [0.0] * n
-        inp.target_acceleration = [0.0] * n
+        state = _floats(state)
+        inp.current_position = state[:n]
+        inp.current_velocity = state[n : 2 * n]
+        inp.current_acceleration = state[2 * n : 3 * n]
+        inp.target_position = _floats(target)
         traj = Trajectory(n)
         try:
             result = self._otg.calculate(inp, traj)
-        except RuntimeError:  # Ruckig raises on invalid input (e.g. a state beyond its limits)
+        except Exception:  # ruckig.RuckigError: invalid input or a numerically hard case
             return None
-        if result not in (Result.Working, Result.Finished) or not np.isfinite(traj.duration):
+        if result not in _OK or not math.isfinite(traj.duration):
             return None
         return traj
 
@@ -99,7 +101,9 @@ class WristTracker:
     then it points against the ball's velocity, tilted at most ``max_tilt`` from +x. The wrist
     angles for that normal come from the closed-form x-y-x wrist (:class:`CoplanarWrist`) at the
     commanded joints 1-3; every tick a minimum-time Ruckig move towards them is sampled one tick
-    ahead, so the wrist follows with bounded velocity, acceleration and jerk.
+    ahead, so the wrist follows with bounded velocity, acceleration and jerk. A tick that starts
+    at rest on the goal of the same inputs as the last one (the arm standing still) reuses that
+    tick's result: the solve and Ruckig would give it again, bit for bit.
     """
 
     def __init__(self, robot: Robot, max_tilt: float, margin: float):
@@ -111,16 +115,20 @@ class WristTracker:
         self.state = np.r_[robot.home[3:], np.zeros(6)]  # p, v, a of joints 4-6
         self.goal = robot.home[3:].copy()
         self.t = -np.inf
+        self._traj, self._t0 = None, 0.0
+        self._rest: tuple | None = None  # (inputs, state, goal, traj) of the last standstill
 
     def reset(self, q: np.ndarray, t: float) -> None:
         """Start at rest at wrist angles ``q`` (3,) at time ``t``."""
         self.state = np.r_[q, np.zeros(6)]
         self.goal = np.array(q, dtype=float)
         self.t = t
+        self._traj, self._t0 = None, t
+        self._rest = None
 
     def normal_for(self, ball_velocity: np.ndarray | None) -> np.ndarray:
-        """Shield normal (3,) facing a ball moving with ``ball_velocity`` (None: +x)."""
-        x = np.array([1.0, 0.0, 0.0])
+        """Shield normal (3,) facing a ball moving with ``ball_velocity`` (None: +x, read-only)."""
+        x = _PLUS_X
         if ball_velocity is None or not np.all(np.isfinite(ball_velocity)):
             return x
         speed = np.linalg.norm(ball_velocity)
@@ -136,7 +144,7 @@ class WristTracker:
 
     def target(self, q123: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """Wrist angles (3,) for ``normal`` at joints 1-3 ``q123``, nearest the current wrist."""
-        w = self.rule.solve(q123[None], self.state[:3], normal)[0]
+        w = self.rule.solve_one(q123, self.state[:3], normal)
         return np.clip(w, self.lo, self.hi)
 
     def settled(self, tol: float) -> bool:
@@ -152,9 +160,41 @@ class WristTracker:
         self.t = t
         if not dt > 0.0 or dt > 0.1:
             return self.state
-        self.goal = self.target(q123, normal)
-        traj = self.steer.to_rest(self.state, self.goal)
+        inputs = _bits(q123) + _bits(normal)
+        rest = self._rest
+        if rest is not None and rest[0] == inputs and rest[1] is self.state:
+            _, _, self.goal, self._traj = rest  # same inputs, same state: same empty move
+            self._t0 = t - dt
+            return self.state
+        start = self.state
+        goal = self.target(q123, normal)
+        traj = self.steer.to_rest(start, goal)
         if traj is not None:
-            p, v, a = traj.at_time(min(dt, traj.duration))
-            self.state = np.array([*p, *v, *a])
+            self.goal, self._traj, self._t0 = goal, traj, t - dt
+        elif self._traj is None:  # nothing to follow: stay (already at rest when no traj yet)
+            return self.state
+        s = min(t - self._t0, self._traj.duration)  # else: go on along the last valid move
+        p, v, a = self._traj.at_time(s)
+        state = np.array([*p, *v, *a])
+        if traj is not None and traj.duration == 0.0 and state.tobytes() == start.tobytes():
+            self._rest = (inputs, start, goal, traj)  # a standstill: keep the same state object
+            return start
+        self.state = state
         return self.state
+
+
+_PLUS_X = np.array([1.0, 0.0, 0.0])
+_PLUS_X.setflags(write=False)
+_OK = (Result.Working, Result.Finished)
+
+
+def _floats(a) -> list[float]:
+    """``a`` as a list of Python floats (``tolist`` when it already is a float64 array)."""
+    if isinstance(a, np.ndarray) and a.dtype == np.float64:
+        return a.tolist()
+    return [float(x) for x in a]
+
+
+def _bits(a) -> bytes:
+    """The exact float64 bits of ``a`` (tells -0.0 from 0.0; NaN equals its own bits)."""
+    return np.asarray(a, dtype=np.float64).tobytes()

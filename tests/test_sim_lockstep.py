@@ -1,0 +1,108 @@
+"""Lockstep simulation and statistics: deterministic, paired, the oracle is the physical limit."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.conftest import ROBOT_TOML, assert_one_line_error, compile_small_tree, run_cli
+from thinkfast.sim.bench import run_bench, summarize
+from thinkfast.sim.lockstep import World, simulate, wilson
+
+
+@pytest.fixture(scope="module")
+def tree_path(tmp_path_factory):
+    return compile_small_tree(tmp_path_factory.mktemp("lockstep"))
+
+
+class _Factory:
+    def __init__(self, path):
+        self.path = path
+
+    def __call__(self):
+        from thinkfast.compile.treefile import load_tree
+        from thinkfast.robot.model import load_robot
+        from thinkfast.runtime.config import RunConfig
+        from thinkfast.sim.camera import CameraModelConfig
+        from thinkfast.sim.controller import ServoConfig
+
+        return World(
+            load_tree(self.path),
+            load_robot(ROBOT_TOML),
+            RunConfig(),
+            ServoConfig(),
+            CameraModelConfig(),
+        )
+
+
+def _central_slow_throw():
+    from thinkfast.sim.throws import ThrowConfig, make_throw
+
+    return make_throw(ThrowConfig(), np.array([7.8, 0.1, 1.4]), (0.15, 1.1), 0.8, 0.5, "central")
+
+
+def test_every_planner_blocks_a_slow_throw_near_home(tree_path):
+    world = _Factory(tree_path)()
+    throw = _central_slow_throw()
+    for planner in ("oracle", "naive", "tree"):
+        out = simulate(world, throw, planner, seed=3)
+        assert out.blocked, (planner, out)
+        if planner != "oracle":
+            assert out.start > 0.0  # never before the release
+    far = simulate(world, throw._replace(aim=np.array([0.9, 0.3])), "oracle", seed=3)
+    assert far.throw_id == "central"
+
+
+def test_lockstep_runs_are_deterministic_and_paired(tree_path):
+    from thinkfast.sim.throws import ThrowConfig, sample_throws
+
+    throws = sample_throws(ThrowConfig(), 6, seed=4)
+    a = run_bench(_Factory(tree_path), throws, ["tree", "naive", "oracle"], seed=4, jobs=1)
+    b = run_bench(_Factory(tree_path), throws, ["tree", "naive", "oracle"], seed=4, jobs=2)
+    assert str(a) == str(b)  # same results for any number of processes (NaN-safe compare)
+    assert [o.throw_id for o in a[::3]] == [t.id for t in throws]
+    s = summarize(a, ["tree", "naive", "oracle"])
+    assert s["throws"] == 6
+    for entry in s["planners"].values():
+        assert entry["blocked"] == sum(x["blocked"] for x in entry["by_flight_time"])
+        assert 0.0 <= entry["rate_of_feasible"] <= 1.0
+    assert s["planners"]["oracle"]["rate_of_feasible"] == 1.0
+
+
+def test_wilson_interval_matches_the_textbook_values():
+    lo, hi = wilson(74, 100)  # centre (p + z^2/2n) / (1 + z^2/n) = 0.7311, half-width 0.0848
+    assert abs(lo - 0.6463) < 1e-4 and abs(hi - 0.8160) < 1e-4
+    assert wilson(0, 10)[0] == 0.0 and wilson(10, 10)[1] == pytest.approx(1.0)
+
+
+def test_bench_command_prints_one_json_object(tree_path):
+    proc = run_cli(
+        "thinkfast-sim",
+        "bench",
+        "--tree",
+        str(tree_path),
+        "--throws",
+        "4",
+        "--seed",
+        "2",
+        "--json",
+        "--jobs",
+        "1",
+    )
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["throws"] == 4
+    for p in ("tree", "naive", "oracle"):
+        assert {"blocked", "rate", "rate_of_feasible"} <= set(out["planners"][p])
+
+
+def test_bench_command_refuses_bad_planners_and_files(tree_path, tmp_path):
+    assert_one_line_error(
+        run_cli("thinkfast-sim", "bench", "--tree", str(tree_path), "--planners", "magic"),
+        "--planners",
+    )
+    bad = tmp_path / "x.h5"
+    bad.write_text("no")
+    assert_one_line_error(run_cli("thinkfast-sim", "bench", "--tree", str(bad)), str(bad))

@@ -1,0 +1,163 @@
+"""Lockstep simulation: the daemon's own kernels stepped in simulated time, one process, no sockets.
+
+Per throw: the camera model makes the detections (delivered at their delivery times); every 4 ms
+the executor gives a setpoint, the safety supervisor filters it, the simulated controller (servo
+model with transport delay) follows it; detections reach the intake and the executor between
+ticks, exactly as in the daemon's loop. The judge decides from the controller's joint history.
+
+Planners: ``tree`` and ``naive`` (the daemon's executor) and ``oracle``: it knows the true crossing
+point at release and goes there as fast as the arm allows, so the throws it blocks are the ones
+this arm can block at all ("feasible").
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.compile.ik import solve_shield_ik
+from thinkfast.robot.kinematics import Kinematics
+from thinkfast.robot.model import Robot
+from thinkfast.runtime.config import RunConfig
+from thinkfast.runtime.daemon import BALL_RADIUS
+from thinkfast.runtime.executor import Executor
+from thinkfast.runtime.intake import Intake
+from thinkfast.runtime.planner import RuntimeTree
+from thinkfast.runtime.safety import SafetySupervisor, make_limits
+from thinkfast.runtime.segments import Steering, WristTracker
+from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
+from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.judge import judge
+from thinkfast.sim.throws import Throw, plane_crossing
+
+DT = 0.004
+LEAD = 0.5  # s of simulated time before the first detection
+
+
+class Outcome(NamedTuple):
+    """Result of one simulated throw with one planner."""
+
+    throw_id: str
+    planner: str
+    blocked: bool
+    why: str
+    miss_distance: float
+    flight_time: float
+    crossing_y: float
+    crossing_z: float
+    decisions: int
+    moved: bool
+    start: float  # when the arm was first commanded to move, relative to release [s] (nan: never)
+
+
+class World:
+    """Everything shared by all throws of a run (built once per process)."""
+
+    def __init__(
+        self, tree, robot: Robot, cfg: RunConfig, servo: ServoConfig, camera: CameraModelConfig
+    ):
+        self.tree = RuntimeTree(tree, cfg.value, robot.shield_radius + BALL_RADIUS)
+        self.robot, self.cfg, self.servo, self.camera = robot, cfg, servo, camera
+        self.kin = Kinematics(robot)
+        self.limits = make_limits(
+            robot.q_lower,
+            robot.q_upper,
+            robot.v_max,
+            robot.a_max,
+            robot.j_max,
+            cfg.safety.position_margin,
+        )
+
+
+def simulate(world: World, throw: Throw, planner: str, seed: int) -> Outcome:
+    """Fly one throw against one planner; ``seed`` drives the camera noise (same for all
+    planners on the same throw)."""
+    robot, cfg = world.robot, world.cfg
+    t_rel = LEAD + throw.t_release  # simulated wall time of release
+    dets = observe(throw, world.camera, cfg.camera, np.random.default_rng(seed), t_rel)
+    cross = plane_crossing(throw)
+    t_end = t_rel + cross.t + cfg.throw.after_crossing + 0.15
+    sim = SimController(world.servo, q0=robot.home)
+    sup = SafetySupervisor(world.limits, cfg.safety, robot.home)
+    if planner == "oracle":
+        step_fn = _oracle(world, throw, cross, t_rel)
+        ex = None
+    else:
+        ex = Executor(world.tree, robot, cfg, planner)
+        ex.start_from(robot.home, 0.0)
+        intake = Intake(cfg.camera, cfg.detections)
+        step_fn = ex.setpoint
+    k_det, t = 0, 0.0
+    moved, t_move = False, math.nan
+    while t <= t_end:
+        if ex is not None:
+            while k_det < len(dets) and dets[k_det].delivery_time <= t:
+                acc = intake.take(detection_payload(dets[k_det]), None)
+                if acc is not None:
+                    ex.on_detection(t, acc.stamp, acc.position)
+                k_det += 1
+        q_req, qd_req = step_fn(t)
+        cmd = sup.step(q_req, qd_req)
+        if not moved and np.any(np.abs(cmd.qd) > 1e-6):
+            moved, t_move = True, t - t_rel
+        sim.command(cmd.q, cmd.qd, t)
+        sim.step(DT)
+        t += DT
+    hist = sim.history()
+    v = judge(throw, hist.t, hist.q, world.kin, throw.plane_x, BALL_RADIUS, t_release_wall=t_rel)
+    return Outcome(
+        throw.id,
+        planner,
+        bool(v.blocked),
+        v.why,
+        float(v.miss_distance),
+        float(throw.flight_time),
+        float(cross.y),
+        float(cross.z),
+        0 if ex is None else ex.episode.decisions + ex.episodes,
+        moved,
+        t_move,
+    )
+
+
+def _oracle(world: World, throw: Throw, cross, t_rel: float):
+    """Setpoint function of the oracle: at release, a minimum-time move to the exact crossing."""
+    robot = world.robot
+    goal = int(np.argmin(np.sum(np.square(world.tree.goal_yz - [cross.y, cross.z]), axis=1)))
+    seed = world.tree.goal_q[goal]
+    target = np.array([throw.plane_x, cross.y, cross.z])
+    ik = solve_shield_ik(world.kin, target, (1.0, 0.0, 0.0), seed)
+    q_goal = ik.q if ik.converged and _inside(robot, ik.q) else seed
+    steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
+    traj = steer.to_rest(np.r_[robot.home[:3], np.zeros(6)], q_goal[:3])
+    wrist = WristTracker(robot, 0.0, world.cfg.safety.position_margin)
+    wrist.reset(robot.home[3:], 0.0)
+    normal = np.array([1.0, 0.0, 0.0])
+
+    def setpoint(t: float):
+        s = t - t_rel
+        if traj is None or s <= 0.0:
+            p, v = robot.home[:3], np.zeros(3)
+        else:
+            p, v, _ = traj.at_time(min(s, traj.duration))
+        w = wrist.step(t, np.asarray(p), normal)
+        return np.r_[p, w[:3]], np.r_[v, w[3:6]]
+
+    return setpoint
+
+
+def _inside(robot: Robot, q: np.ndarray) -> bool:
+    return bool(np.all(q >= robot.q_lower) and np.all(q <= robot.q_upper))
+
+
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95 % Wilson score interval of a success rate k / n."""
+    if n == 0:
+        return (math.nan, math.nan)
+    p = k / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(centre - half, 0.0), min(centre + half, 1.0))

@@ -1,0 +1,184 @@
+"""Real-time end to end: the daemon process, the simulated controller over UDP, detections over
+zenoh, one throw after another, judged from the controller's joint history.
+
+The daemon is started here (or an already running one is used: ``egm`` and ``zenoh`` endpoints
+given); the controller simulator stamps every joint sample with the wall clock so the judge can
+compare it with the throw's true flight.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.robot.kinematics import Kinematics
+from thinkfast.robot.model import Robot
+from thinkfast.runtime.daemon import BALL_RADIUS
+from thinkfast.runtime.detections import CameraExtrinsic
+from thinkfast.sim.camera import CameraModelConfig, observe
+from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
+from thinkfast.sim.judge import judge
+from thinkfast.sim.publisher import free_tcp_port, open_session, publish_detections
+from thinkfast.sim.throws import Throw, plane_crossing
+
+GAP = 3.5  # s between throws: crossing + return home + the contract's 3 s
+
+
+class WallClockSim(SimController):
+    """A simulated controller whose history also records the wall clock of every sample."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.wall: list[tuple[float, np.ndarray]] = []
+
+    def step(self, dt: float) -> None:
+        super().step(dt)
+        self.wall.append((time.time(), self.q.copy()))
+
+    def joint_history(self, since: float) -> tuple[np.ndarray, np.ndarray]:
+        rows = [r for r in list(self.wall) if r[0] >= since]
+        return np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+
+
+class RealtimeResult(NamedTuple):
+    throw_id: str
+    blocked: bool
+    why: str
+    miss_distance: float
+    flight_time: float
+
+
+def start_daemon(
+    tree: Path,
+    planner: str,
+    egm_port: int,
+    zenoh_port: int,
+    prefix: str,
+    record: Path | None,
+    config: Path | None,
+) -> subprocess.Popen:
+    """Start ``thinkfast-run`` with loopback endpoints."""
+    exe = Path(sys.executable).parent / "thinkfast-run"
+    cmd = [
+        str(exe),
+        "--tree",
+        str(tree),
+        "--planner",
+        planner,
+        "--egm-bind",
+        f"127.0.0.1:{egm_port}",
+        "--zenoh-listen",
+        f"tcp/127.0.0.1:{zenoh_port}",
+        "--key-prefix",
+        prefix,
+    ]
+    if record:
+        cmd += ["--record", str(record)]
+    if config:
+        cmd += ["--config", str(config)]
+    log = tempfile.TemporaryFile(mode="w+")  # its log: read back only if it fails
+    proc = subprocess.Popen(cmd, stderr=log, text=True)
+    proc.log = log  # type: ignore[attr-defined]
+    return proc
+
+
+def run_throws(
+    robot: Robot,
+    throws: list[Throw],
+    egm: tuple[str, int],
+    zenoh_endpoint: str,
+    prefix: str,
+    seed: int,
+    extrinsic: CameraExtrinsic,
+    report=print,
+    camera: CameraModelConfig = CameraModelConfig(),
+) -> list[RealtimeResult]:
+    """Throw every ball at a running daemon and judge it; ``report`` gets one line per throw."""
+    kin = Kinematics(robot)
+    sim = WallClockSim(ServoConfig(), q0=robot.home)
+    runner = ControllerRunner(sim, egm).start()
+    session = open_session(connect=[zenoh_endpoint])
+    results = []
+    try:
+        time.sleep(1.0)  # EGM exchange running, zenoh routes up
+        for i, th in enumerate(throws):
+            dets = observe(th, camera, extrinsic, np.random.default_rng(seed * 100_003 + i), 0.0)
+            t0 = time.time() + 0.3
+            publish_detections(session, f"{prefix}/detections", dets, t0_wall=t0)
+            cross = plane_crossing(th)
+            time.sleep(max(0.0, t0 + cross.t + 0.3 - time.time()))
+            t_hist, q_hist = sim.joint_history(t0 - 1.0)
+            v = judge(th, t_hist, q_hist, kin, th.plane_x, BALL_RADIUS, t_release_wall=t0)
+            results.append(
+                RealtimeResult(
+                    th.id, bool(v.blocked), v.why, float(v.miss_distance), float(th.flight_time)
+                )
+            )
+            report(
+                f"throw {i + 1:3d}/{len(throws)} {th.id:>10}: flight {th.flight_time:.2f} s, "
+                f"crossing ({cross.y:+.2f}, {cross.z:.2f}) m -> "
+                f"{'BLOCKED' if v.blocked else v.why} (miss {v.miss_distance:.3f} m)"
+            )
+            time.sleep(max(0.0, t0 + cross.t + GAP - time.time()))
+    finally:
+        runner.stop()
+        runner.join(2.0)
+        session.close()
+    return results
+
+
+def run_with_daemon(
+    tree: Path,
+    planner: str,
+    robot: Robot,
+    throws,
+    seed: int,
+    extrinsic: CameraExtrinsic,
+    prefix: str = "thinkfast",
+    record: Path | None = None,
+    config: Path | None = None,
+    report=print,
+):
+    """Start a daemon, throw, stop it (SIGINT: it brakes and exits 0); returns the results."""
+    egm_port, zport = free_tcp_port(), free_tcp_port()
+    proc = start_daemon(tree, planner, egm_port, zport, prefix, record, config)
+    try:
+        _wait_port(proc, zport)
+        return run_throws(
+            robot,
+            throws,
+            ("127.0.0.1", egm_port),
+            f"tcp/127.0.0.1:{zport}",
+            prefix,
+            seed,
+            extrinsic,
+            report,
+        )
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def _wait_port(proc: subprocess.Popen, port: int, timeout: float = 30.0) -> None:
+    import socket
+
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if proc.poll() is not None:
+            proc.log.seek(0)
+            raise RuntimeError(f"thinkfast-run exited: {proc.log.read().strip()}")
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.1)
+    raise RuntimeError("thinkfast-run did not open its zenoh port")
