@@ -15,8 +15,8 @@ time. States:
   when it differs from the committed one (the tree is exhausted: the paper's fallback). When no
   branch at home blocks with at least ``min_move_value`` (the ball comes too fast for any edge to
   arrive in time), the robot rushes to the most probable goal anyway, re-targeted at every
-  belief: a shield on its way may still catch the ball. Naive planner: at every belief update, Ruckig from the commanded state to the goal
-  nearest the most likely crossing point.
+  belief: a shield on its way may still catch the ball. Naive planner: at every belief update,
+  Ruckig from the commanded state to the goal nearest the most likely crossing point.
 - ``returning``: after the crossing (plus ``after_crossing``) or when detections stop, a move to
   home within the limits; then ``idle``.
 - ``fault``: set by the daemon (the supervisor's brake); left only by a restart.
