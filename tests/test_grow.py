@@ -70,8 +70,9 @@ def test_terminals_end_at_their_goal_at_rest(small_trees, steer):
     for k in range(0, t.n_terminals, 7):
         traj = steer.steer(t.node_state[t.term_node[k]], t.goal_q[t.term_goal[k], :3])
         end = state_at(traj, traj.duration)
-        assert np.allclose(end[:3], t.goal_q[t.term_goal[k], :3], atol=1e-12)
-        assert np.allclose(end[3:], 0.0, atol=1e-12)
+        # at the goal at rest to Ruckig's precision (its solver lands within ~1e-8 rad)
+        assert np.allclose(end[:3], t.goal_q[t.term_goal[k], :3], atol=1e-7)
+        assert np.allclose(end[3:], 0.0, atol=1e-7)
         assert traj.duration == t.term_duration[k]
 
 

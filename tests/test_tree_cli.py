@@ -117,3 +117,27 @@ def test_damaged_files_are_refused_with_path_and_reason(trees, how, needle):
     proc = run_cli("thinkfast-compile", "diff", str(trees["a"]), str(bad))
     assert proc.returncode == 2
     assert_one_line_error(proc, needle)
+
+
+def test_verify_catches_edges_that_do_not_recompute(trees):
+    """A tree re-saved with valid checksums but one state and one duration altered fails verify."""
+    import dataclasses
+
+    import numpy as np
+
+    from thinkfast.compile.treefile import load_tree, save_tree
+
+    t = load_tree(trees["a"])
+    state = np.array(t.node_state)
+    state[3, 0] += 1e-6  # a node 1 urad off its primitive's end
+    duration = np.array(t.term_duration)
+    duration[5] += 1e-3
+    arrival = np.array(t.term_arrival)
+    arrival[5] += 1e-3  # kept consistent: only the recomputation can tell
+    bad = dataclasses.replace(t, node_state=state, term_duration=duration, term_arrival=arrival)
+    path = trees["tmp"] / "altered.h5"
+    save_tree(bad, path)
+    proc = run_cli("thinkfast-compile", "verify", str(path), "--jobs", "1")
+    assert proc.returncode == 1, proc.stdout
+    assert "node 3: state differs" in proc.stdout
+    assert "terminal 5: duration" in proc.stdout

@@ -24,6 +24,7 @@ from thinkfast.robot.model import Robot
 from thinkfast.robot.wrist import CoplanarWrist
 
 MAX_SAMPLES = 200_000
+POINT_SPEED_MAX = 50.0  # m/s: no point of this arm moves a tenth of this fast
 
 
 class PathResult(NamedTuple):
@@ -99,6 +100,10 @@ class PathChecker:
             poses = self.batch.fk.link_poses(q)
             step = step_motion(poses, self.extent)
             worst = float(step.max()) if len(step) else 0.0
+            if worst > POINT_SPEED_MAX * (t[1] - t[0] if len(t) > 1 else dt):
+                # the coplanar wrist rule passing (near) its singularity: it would whip the wrist
+                # round faster than any arm moves; a physical test, the same at every resolution
+                return PathResult(False, "wrist_singularity", q[-1, 3:], 0, "wrist flips")
             if worst <= 0.5 * self.resolution:
                 break
             dt = dt / np.ceil(2.0 * worst / self.resolution)

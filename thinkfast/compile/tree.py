@@ -14,25 +14,7 @@ from typing import Any
 import numpy as np
 
 EDGE_CUT = 0  # primitive cut at the maximum duration eps
-EDGE_REACHED = 1  # primitive reached its steering target (at rest) before eps
-TERMINAL = 2  # full primitive from a node to a goal, ending at rest
-
-NODE_ARRAYS = (
-    "node_parent",
-    "node_depth",
-    "node_ttc",
-    "node_state",
-    "node_q",
-    "edge_kind",
-    "edge_duration",
-    "edge_target",
-    "child_start",
-    "child_count",
-    "term_start",
-    "term_count",
-)
-TERMINAL_ARRAYS = ("term_node", "term_goal", "term_duration", "term_arrival")
-GOAL_ARRAYS = ("goal_q", "goal_yz", "goal_grid_index", "subgoal_goal")
+EDGE_REACHED = 1  # primitive reached its steering target before eps, then held there at rest
 
 
 @dataclass(frozen=True)

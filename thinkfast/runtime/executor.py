@@ -79,7 +79,11 @@ class Executor:
         self.steer_home = Steering(
             robot.v_max[:3] * scale, robot.a_max[:3] * scale, robot.j_max[:3] * scale
         )
-        self.wrist = WristTracker(robot, cfg.execution.wrist_max_tilt, cfg.safety.position_margin)
+        # wrist targets stay 0.02 rad further inside the limits than the supervisor's margin, so
+        # a wrist still moving at its target never trips the supervisor's position clamp
+        self.wrist = WristTracker(
+            robot, cfg.execution.wrist_max_tilt, cfg.safety.position_margin + 0.02
+        )
         self.lag = cfg.execution.controller_lag
         self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
         self.mode = IDLE

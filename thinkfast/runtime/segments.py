@@ -147,13 +147,6 @@ class WristTracker:
         w = self.rule.solve_one(q123, self.state[:3], normal)
         return np.clip(w, self.lo, self.hi)
 
-    def settled(self, tol: float) -> bool:
-        """At rest within ``tol`` [rad] of the last target."""
-        return bool(
-            np.all(np.abs(self.state[3:]) < tol)
-            and np.all(np.abs(self.state[:3] - self.goal) < tol)
-        )
-
     def step(self, t: float, q123: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """Advance to wall time ``t``; returns the wrist state (9,) = p, v, a."""
         dt = t - self.t
