@@ -35,13 +35,12 @@ from thinkfast.runtime.config import RunConfig
 from thinkfast.runtime.egm_server import EgmServer
 from thinkfast.runtime.executor import FAULT, IDLE, Executor
 from thinkfast.runtime.intake import Intake
-from thinkfast.runtime.planner import RuntimeTree
+from thinkfast.runtime.planner import runtime_tree
 from thinkfast.runtime.recorder import Recorder
-from thinkfast.runtime.safety import SafetySupervisor, make_limits
+from thinkfast.runtime.safety import SafetySupervisor, robot_limits
 from thinkfast.runtime.zenoh_io import ZenohIO
 
 log = logging.getLogger("thinkfast.run")
-BALL_RADIUS = 0.0335  # m, tennis ball (FACTS.md); counts towards the blocking radius
 WORK_GUARD = 0.0005  # s: work between replies ends this long before the next EgmRobot is due
 SILENT = 0.02  # s without an EgmRobot: the controller is not cycling, work at any time
 STATUS_COST = 0.001  # s set aside for a status message (JSON, timing percentiles)
@@ -70,16 +69,8 @@ class Daemon:
         zenoh_conf,
     ):
         self.cfg, self.robot, self.planner = cfg, robot, planner
-        rt = RuntimeTree(tree, cfg.value, robot.shield_radius + BALL_RADIUS)
-        self.executor = Executor(rt, robot, cfg, planner)
-        self.limits = make_limits(
-            robot.q_lower,
-            robot.q_upper,
-            robot.v_max,
-            robot.a_max,
-            robot.j_max,
-            cfg.safety.position_margin,
-        )
+        self.executor = Executor(runtime_tree(tree, robot, cfg), robot, cfg, planner)
+        self.limits = robot_limits(robot, cfg.safety.position_margin)
         self.supervisor = SafetySupervisor(self.limits, cfg.safety, robot.home)
         self.intake = Intake(cfg.camera, cfg.detections)
         self.egm = EgmServer(endpoints.egm_bind, self._reply, endpoints.egm_controller, timing=True)

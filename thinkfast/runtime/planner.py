@@ -22,6 +22,8 @@ from thinkfast.runtime import backup as bk
 from thinkfast.runtime import delta
 from thinkfast.runtime import values as vl
 
+BALL_RADIUS = 0.0335  # m, tennis ball (FACTS.md); counts towards the blocking radius
+
 
 class Decision(NamedTuple):
     """One evaluation of the tree under a belief.
@@ -85,3 +87,8 @@ class RuntimeTree:
     def nearest_goal(self, yz: np.ndarray) -> int:
         """Goal nearest the plane point ``yz`` (2,) [m]."""
         return int(np.argmin(np.sum(np.square(self.goal_yz - yz), axis=1)))
+
+
+def runtime_tree(tree: ActionTree, robot, cfg) -> RuntimeTree:
+    """The runtime view of ``tree`` for ``robot``: blocks within shield + ball radius."""
+    return RuntimeTree(tree, cfg.value, robot.shield_radius + BALL_RADIUS)

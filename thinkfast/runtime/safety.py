@@ -107,6 +107,11 @@ def make_limits(q_lower, q_upper, v_max, a_max, j_max, margin: float = 0.0) -> S
     return SafetyLimits(*out)
 
 
+def robot_limits(robot, margin: float) -> SafetyLimits:
+    """:func:`make_limits` from a loaded robot's URDF and robot.toml limits."""
+    return make_limits(robot.q_lower, robot.q_upper, robot.v_max, robot.a_max, robot.j_max, margin)
+
+
 def _room_speed(r: np.ndarray, a: np.ndarray, dt: float) -> np.ndarray:
     """Largest next speed towards a limit at distance ``r`` (after half a tick at the old speed)
     that can still be braked at ``a`` without passing it."""

@@ -21,11 +21,10 @@ from thinkfast.compile.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.runtime.config import RunConfig
-from thinkfast.runtime.daemon import BALL_RADIUS
 from thinkfast.runtime.executor import Executor
 from thinkfast.runtime.intake import Intake
-from thinkfast.runtime.planner import RuntimeTree
-from thinkfast.runtime.safety import SafetySupervisor, make_limits
+from thinkfast.runtime.planner import BALL_RADIUS, runtime_tree
+from thinkfast.runtime.safety import SafetySupervisor, robot_limits
 from thinkfast.runtime.segments import Steering, WristTracker
 from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
 from thinkfast.sim.controller import ServoConfig, SimController
@@ -58,17 +57,10 @@ class World:
     def __init__(
         self, tree, robot: Robot, cfg: RunConfig, servo: ServoConfig, camera: CameraModelConfig
     ):
-        self.tree = RuntimeTree(tree, cfg.value, robot.shield_radius + BALL_RADIUS)
+        self.tree = runtime_tree(tree, robot, cfg)
         self.robot, self.cfg, self.servo, self.camera = robot, cfg, servo, camera
         self.kin = Kinematics(robot)
-        self.limits = make_limits(
-            robot.q_lower,
-            robot.q_upper,
-            robot.v_max,
-            robot.a_max,
-            robot.j_max,
-            cfg.safety.position_margin,
-        )
+        self.limits = robot_limits(robot, cfg.safety.position_margin)
 
 
 def simulate(world: World, throw: Throw, planner: str, seed: int) -> Outcome:

@@ -20,8 +20,8 @@ import numpy as np
 
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
-from thinkfast.runtime.daemon import BALL_RADIUS
 from thinkfast.runtime.detections import CameraExtrinsic
+from thinkfast.runtime.planner import BALL_RADIUS
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
 from thinkfast.sim.judge import judge
