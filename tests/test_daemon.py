@@ -157,3 +157,41 @@ def test_sigint_during_motion_brakes_within_limits_then_exits_0(tree_file, tmp_p
     assert np.all(speed.max(axis=0) <= speed[0] + overshoot)
     turn = int(np.ceil(np.max(2 * robot.a_max / robot.j_max) / DT)) + 2
     assert np.all(np.diff(speed[turn:], axis=0) <= 1e-9)
+
+
+def test_a_failing_planner_still_answers_every_packet_and_brakes(tree_file, robot, monkeypatch):
+    """Executor.setpoint raising: one EgmSensor per EgmRobot all the same, braking, no crash."""
+    from thinkfast.compile.treefile import load_tree
+    from thinkfast.runtime.config import RunConfig
+    from thinkfast.runtime.daemon import Daemon, Endpoints
+    from thinkfast.runtime.egm_proto import decode_sensor, encode_robot
+    from thinkfast.runtime.zenoh_io import session_config
+
+    d = Daemon(
+        load_tree(tree_file),
+        robot,
+        RunConfig(),
+        "tree",
+        Endpoints("127.0.0.1:0"),
+        session_config(listen=[f"tcp/127.0.0.1:{socket_port()}"]),
+    )
+    try:
+        monkeypatch.setattr(d.executor, "setpoint", lambda t: 1 / 0)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.settimeout(1.0)
+            for k in range(5):
+                s.sendto(encode_robot(k + 1, 4 * k, robot.home), d.egm.address)
+                d.egm.poll()
+                reply = decode_sensor(s.recv(1024))
+                assert np.all(np.isfinite(reply.q_rad))
+        assert d.planner_errors == 5 and d.supervisor.braking
+        assert d.egm.counters.replied == 5 and d.egm.counters.reply_errors == 0
+    finally:
+        d.egm.close()
+        d.zio.close()
+
+
+def socket_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]

@@ -103,7 +103,13 @@ class Daemon:
             self.executor.start_from(np.array(fb.q_rad), now)
             self.synced = True
             gap = 0.0
-        q_req, qd_req = self.executor.setpoint(now)
+        try:
+            q_req, qd_req = self.executor.setpoint(now)
+        except Exception:  # a planner bug must cost a smooth stop, never a missing reply
+            q_req = qd_req = None  # the supervisor brakes on a non-finite request
+            self.planner_errors += 1
+            if self.planner_errors == 1 or self.planner_errors % 100 == 0:
+                log.exception("setpoint error %d: braking", self.planner_errors)
         if self.stop_reason is not None:
             self.supervisor.request_brake("signal")
         cmd = self.supervisor.step(q_req, qd_req, q_meas=fb.q_rad, egm_age=gap)
