@@ -10,7 +10,6 @@ import json
 import signal
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,8 +18,7 @@ import numpy as np
 import zenoh
 
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
-
-ROOT = Path(__file__).resolve().parents[1]
+from thinkfast.sim.realtime import daemon_log, start_daemon
 
 
 def free_port(kind=socket.SOCK_DGRAM) -> int:
@@ -53,24 +51,9 @@ class DaemonRun:
         self.zport = free_port(socket.SOCK_STREAM)
         self.record = record
         self.prefix = prefix
-        exe = Path(sys.executable).parent / "thinkfast-run"
-        cmd = [
-            str(exe),
-            "--tree",
-            str(tree),
-            "--planner",
-            planner,
-            "--egm-bind",
-            f"127.0.0.1:{self.egm_port}",
-            "--zenoh-listen",
-            f"tcp/127.0.0.1:{self.zport}",
-            "--record",
-            str(record),
-            "--key-prefix",
-            prefix,
-            *extra,
-        ]
-        self.proc = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, text=True)
+        self.proc = start_daemon(
+            tree, planner, self.egm_port, self.zport, prefix, record, None, tuple(extra)
+        )
         self.session = None
         self.status: list[dict] = []
         self.setpoints: list[dict] = []
@@ -85,7 +68,7 @@ class DaemonRun:
         deadline = time.time() + timeout
         while time.time() < deadline:
             if self.proc.poll() is not None:
-                raise RuntimeError(f"daemon exited: {self.proc.stderr.read()}")
+                raise RuntimeError(f"daemon exited: {daemon_log(self.proc)}")
             try:
                 self.session = zenoh_session(f"tcp/127.0.0.1:{self.zport}")
                 break
@@ -125,7 +108,7 @@ class DaemonRun:
             code = -9
         self.runner.stop()
         self.runner.join(2.0)
-        err = self.proc.stderr.read()
+        err = daemon_log(self.proc)
         self.session.close()
         return code, err
 

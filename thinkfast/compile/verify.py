@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 from collections import Counter
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -159,7 +159,7 @@ def verify_tree(
         problems.append("root is not at rest at time 0")
     if np.max(np.abs(tree.node_state[0, :3] - robot.home[:3])) > TOL:
         problems.append("root is not at home")
-    inputs = _Inputs(robot, replace(config), factor, tree)
+    inputs = _Inputs(robot, config, factor, tree)
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
     pool = ctx.Pool(jobs, _init, (inputs,)) if jobs > 1 else None
     if pool is None:

@@ -206,11 +206,6 @@ def load_robot(toml_path: str | Path | None = None) -> Robot:
     )
 
 
-def with_limits(robot: Robot, **arrays: np.ndarray) -> Robot:
-    """A copy of ``robot`` with some limit arrays replaced (``v_max=...``, ``a_max=...``)."""
-    return dataclasses.replace(robot, **{k: frozen(v) for k, v in arrays.items()})
-
-
 def pose(xyz, rpy) -> np.ndarray:
     """Homogeneous transform (4, 4) from translation [m] and roll-pitch-yaw [rad]."""
     T = np.eye(4)

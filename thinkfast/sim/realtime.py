@@ -63,8 +63,12 @@ def start_daemon(
     prefix: str,
     record: Path | None,
     config: Path | None,
+    extra: tuple[str, ...] = (),
 ) -> subprocess.Popen:
-    """Start ``thinkfast-run`` with loopback endpoints."""
+    """Start ``thinkfast-run`` with loopback endpoints (``extra``: more options).
+
+    Its stderr goes to ``proc.log`` (a temporary file), read back when it fails.
+    """
     exe = Path(sys.executable).parent / "thinkfast-run"
     cmd = [
         str(exe),
@@ -83,10 +87,17 @@ def start_daemon(
         cmd += ["--record", str(record)]
     if config:
         cmd += ["--config", str(config)]
+    cmd += list(extra)
     log = tempfile.TemporaryFile(mode="w+")  # its log: read back only if it fails
     proc = subprocess.Popen(cmd, stderr=log, text=True)
     proc.log = log  # type: ignore[attr-defined]
     return proc
+
+
+def daemon_log(proc: subprocess.Popen) -> str:
+    """What a daemon started by :func:`start_daemon` wrote to stderr so far."""
+    proc.log.seek(0)
+    return proc.log.read()
 
 
 def run_throws(
@@ -175,8 +186,7 @@ def _wait_port(proc: subprocess.Popen, port: int, timeout: float = 30.0) -> None
     deadline = time.time() + timeout
     while time.time() < deadline:
         if proc.poll() is not None:
-            proc.log.seek(0)
-            raise RuntimeError(f"thinkfast-run exited: {proc.log.read().strip()}")
+            raise RuntimeError(f"thinkfast-run exited: {daemon_log(proc).strip()}")
         with socket.socket() as s:
             if s.connect_ex(("127.0.0.1", port)) == 0:
                 return
