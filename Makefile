@@ -40,6 +40,7 @@ bench: $(STAMP) $(TREE)
 	$(PY) bench/decision.py --tree $(TREE)
 	$(VENV)/bin/thinkfast-sim bench --tree $(TREE) --throws 500 --seed 1
 	$(PY) bench/egm_latency.py --n 20000
+	$(PY) bench/detect.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -3,7 +3,9 @@
 The measuring side is the simulated ABB controller of ``thinkfast.sim.controller``: each cycle
 it sends an ``EgmRobot`` and times the ``EgmSensor`` reply (round trip on ``perf_counter``,
 client send -> client receive). A cycle with no reply before the next one is ``missed``; a
-reply that comes after its cycle is ``late``.
+reply that comes after its cycle is ``late``; ``in_time_unread`` counts the missed cycles whose
+reply had reached the controller's socket in time (kernel arrival stamp) but was read late
+because the measuring process itself was stalled.
 
 The server side runs in a separate process: by default this script starts itself with
 ``--serve`` (an ``EgmServer`` in a dedicated loop whose setpoints go through the safety
@@ -20,11 +22,24 @@ exchanges take 400 s; ``--rate 0`` runs flat out (next request as soon as a repl
 after a 4 ms time-out), which measures the same round trip in a fraction of the time but keeps
 the server busier than a real controller would.
 
+The measuring side is a *hot* client by default: it wakes ``--lead-ms`` (1) before each send
+and busy-waits to it, then busy-waits up to ``--spin-ms`` (1) for the reply. A real controller
+is not a Python process waking from a sleep; on a virtual machine that wake-up costs several
+times the work, and it would be charged to the sensor. ``--lead-ms 0 --spin-ms 0`` is the cold
+client of the earlier figures.
+
+The daemon runs with its deployment settings (``thinkfast-run --spin-ahead-ms 1 --cpu 1``:
+spin on the EGM socket from 1 ms before each packet is due, EGM loop on CPU 1, zenoh's threads
+and this controller on the others); ``--busy-poll`` spins all the time instead, ``--cpu -1``
+does not pin. ``--realtime`` puts this controller and the daemon's EGM thread (``--fifo 50``)
+under SCHED_FIFO (CAP_SYS_NICE). The ``--serve`` loop honours ``--busy-poll`` and ``--cpu``
+(it has no executor, so nothing to prepare ahead).
+
 The first ``--warmup`` exchanges (default 250) are not counted. Round trips include any
 scheduling delay of either process, so a loaded machine shows in the tail (``load_1min``).
 
     python bench/egm_latency.py --n 20000 --rate 0 --json
-    python bench/egm_latency.py --daemon --json    # 10^5 exchanges through the daemon: ~7 min
+    python bench/egm_latency.py --daemon --realtime --json   # 10^5 exchanges: ~7 min
 """
 
 from __future__ import annotations
@@ -47,6 +62,7 @@ import numpy as np
 
 from thinkfast.errors import ThinkfastError
 from thinkfast.runtime.egm_server import EgmServer, parse_hostport
+from thinkfast.runtime.rt_thread import pin_thread
 from thinkfast.runtime.safety import SafetyConfig, SafetySupervisor, make_limits
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
 
@@ -62,8 +78,10 @@ def set_realtime(priority: int = 50) -> bool:
     return True
 
 
-def serve(bind: str, realtime: bool) -> None:
-    """Server side: reply to every EgmRobot until stdin closes, then print counters as JSON."""
+def serve(bind: str, realtime: bool, busy: bool, cpu: int) -> None:
+    """Server side: reply to every EgmRobot until stdin closes, then print counters as JSON.
+    ``busy``: spin on the socket instead of sleeping in ``select`` (as ``thinkfast-run
+    --busy-poll``); ``cpu`` >= 0: run on that CPU."""
     servo = ServoConfig()
     cfg = SafetyConfig()
     limits = make_limits(
@@ -83,18 +101,28 @@ def serve(bind: str, realtime: bool) -> None:
         cmd = sup.step(q, 0.4 * np.sin(2.0 * t) * np.ones(6), q_meas=fb.q_rad)
         return cmd.q, cmd.qd
 
+    if cpu >= 0:
+        pin_thread(cpu)
     with EgmServer(bind, reply) as server:
         rt = set_realtime() if realtime else False
         gc.freeze()  # set-up objects out of the collector's way, as a daemon would
         print(f"PORT {server.address[1]} {int(rt)}", flush=True)
         fds = [server.fileno(), sys.stdin.fileno()]
+        wait = 0.0 if busy else 1.0  # busy: never sleep, spin on both descriptors
         while True:
-            ready, _, _ = select.select(fds, [], [], 1.0)
+            ready, _, _ = select.select(fds, [], [], wait)
             if server.fileno() in ready:
                 server.poll()
             if sys.stdin.fileno() in ready and not os.read(sys.stdin.fileno(), 4096):
                 break
-        print(json.dumps({**vars(server.counters), "realtime": rt}), flush=True)
+        print(json.dumps({**vars(server.counters), "realtime": rt, "busy_poll": busy}), flush=True)
+
+
+def _pin_client(cpu: int) -> None:
+    """Keep this (measuring) process off the sensor's CPU ``cpu`` (when >= 0)."""
+    others = os.sched_getaffinity(0) - {cpu}
+    if cpu >= 0 and others:
+        os.sched_setaffinity(0, others)
 
 
 def machine_info() -> dict:
@@ -119,7 +147,14 @@ def machine_info() -> dict:
 
 
 def measure(
-    target: tuple[str, int], n: int, rate: float, warmup: int, spin: float, q0=None, on_start=None
+    target: tuple[str, int],
+    n: int,
+    rate: float,
+    warmup: int,
+    spin: float,
+    lead: float = 0.0,
+    q0=None,
+    on_start=None,
 ) -> dict:
     """Run ``warmup`` uncounted exchanges, then ``n`` counted ones, on one simulated controller.
 
@@ -127,15 +162,17 @@ def measure(
     lists grow to 10^5 entries and a full collection would be charged to the server.
 
     Args:
+        spin, lead: the controller's busy-waits [s] for a reply and before a send (see
+            :class:`ControllerRunner`).
         q0: the simulated arm's starting joints [rad] (6,); zeros by default.
         on_start: called between the warm-up and the counted exchanges.
     """
     sim = SimController(q0=q0)
     if warmup:
-        ControllerRunner(sim, target, rate_hz=rate, n=warmup, spin=spin).run()
+        ControllerRunner(sim, target, rate_hz=rate, n=warmup, spin=spin, lead=lead).run()
     if on_start is not None:
         on_start()
-    runner = ControllerRunner(sim, target, rate_hz=rate, n=n, spin=spin)
+    runner = ControllerRunner(sim, target, rate_hz=rate, n=n, spin=spin, lead=lead)
     gc.collect()
     gc.disable()
     try:
@@ -153,6 +190,7 @@ def measure(
         "replies": st.replies,
         "missed": st.missed,
         "late": st.late,
+        "in_time_unread": st.in_time_unread,
         "malformed": st.malformed,
         "p50_ms": round(float(p50), 4),
         "p90_ms": round(float(p90), 4),
@@ -183,6 +221,10 @@ def run_daemon(args) -> dict:
     cmd = [exe, "--tree", str(tree), "--planner", args.planner, "--egm-bind",
            f"127.0.0.1:{egm_port}", "--zenoh-listen", zenoh_ep, "--key-prefix", prefix,
            "--log-level", "warning", *config, *record]  # fmt: skip
+    if args.busy_poll or args.spin_ahead_ms > 0:
+        cmd += ["--busy-poll"] if args.busy_poll else ["--spin-ahead-ms", str(args.spin_ahead_ms)]
+    cmd += ["--cpu", str(args.cpu)] if args.cpu >= 0 else []
+    cmd += ["--fifo", "50"] if args.realtime else []  # the EGM thread only, not zenoh's
     n_throws = int((args.n + args.warmup) / args.rate / args.throw_period) + 3
     stream_cmd = [sys.executable, str(Path(__file__).with_name("throw_stream.py")), "--connect",
                   zenoh_ep, "--prefix", prefix, "--period", str(args.throw_period), "--throws",
@@ -191,13 +233,13 @@ def run_daemon(args) -> dict:
     daemon = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log)
     stream = subprocess.Popen(stream_cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     result = {"target": f"127.0.0.1:{egm_port}", "mode": "daemon", "planner": args.planner,
-              "tree": str(tree), "throw_period_s": args.throw_period}  # fmt: skip
+              "tree": str(tree), "throw_period_s": args.throw_period,
+              "daemon_options": cmd[cmd.index("--log-level") + 2:]}  # fmt: skip
     try:
         if stream.stdout.readline().strip() != "READY":
             raise ThinkfastError(f"the daemon did not come up: {_tail(log, daemon)}")
+        _pin_client(args.cpu)
         rt = set_realtime() if args.realtime else False
-        if rt:
-            os.sched_setscheduler(daemon.pid, os.SCHED_FIFO, os.sched_param(50))  # main thread
 
         def start_throws() -> None:
             stream.stdin.write("go\n")
@@ -206,7 +248,8 @@ def run_daemon(args) -> dict:
         result["realtime"] = rt
         result["load_avg_start"] = [round(x, 2) for x in os.getloadavg()]
         result.update(measure(("127.0.0.1", egm_port), args.n, args.rate, args.warmup,
-                              args.spin_ms / 1e3, q0=home, on_start=start_throws))  # fmt: skip
+                              args.spin_ms / 1e3, args.lead_ms / 1e3, q0=home,
+                              on_start=start_throws))  # fmt: skip
         stream.stdin.close()
         published = json.loads(stream.stdout.readline() or "{}")
         status = published.pop("status", None) or {}
@@ -252,8 +295,35 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--spin-ms",
         type=float,
-        default=0.0,
-        help="controller busy-waits this long per reply (default 0; needs a spare core)",
+        default=1.0,
+        help="controller busy-waits up to this long for each reply before blocking "
+        "(default 1; 0 blocks at once)",
+    )
+    ap.add_argument(
+        "--lead-ms",
+        type=float,
+        default=1.0,
+        help="controller wakes this long before each send and busy-waits to it (default 1; "
+        "0 sleeps to the send: with --spin-ms 0, the cold client of earlier figures)",
+    )
+    ap.add_argument(
+        "--busy-poll",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="the sensor never sleeps: thinkfast-run --busy-poll, or the --serve loop",
+    )
+    ap.add_argument(
+        "--spin-ahead-ms",
+        type=float,
+        default=1.0,
+        help="--daemon: thinkfast-run --spin-ahead-ms (default 1)",
+    )
+    ap.add_argument(
+        "--cpu",
+        type=int,
+        default=1,
+        help="the sensor's CPU (thinkfast-run --cpu, or the --serve loop's), this controller "
+        "on the others (default 1; -1: no pinning)",
     )
     ap.add_argument("--target", help="HOST:PORT of a running EGM sensor (default: start one)")
     ap.add_argument("--daemon", action="store_true", help="measure thinkfast-run under throws")
@@ -268,16 +338,22 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--realtime",
         action="store_true",
-        help="SCHED_FIFO for both sides (needs CAP_SYS_NICE and --rate > 0)",
+        help="SCHED_FIFO for both sides: this controller and the daemon's EGM thread "
+        "(--fifo 50) or the --serve loop (needs CAP_SYS_NICE, --rate > 0, no --busy-poll)",
     )
     ap.add_argument("--serve", metavar="HOST:PORT", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     try:
         if args.serve:
-            serve(args.serve, args.realtime)
+            serve(args.serve, args.realtime, args.busy_poll, args.cpu)
             return 0
-        if args.n < 1 or args.rate < 0 or args.warmup < 0:
-            raise ThinkfastError("--n must be >= 1, --rate >= 0 and --warmup >= 0")
+        if args.n < 1 or args.rate < 0 or args.warmup < 0 or min(args.spin_ms, args.lead_ms) < 0:
+            raise ThinkfastError("--n must be >= 1, --rate, --warmup, --spin-ms and --lead-ms >= 0")
+        if args.realtime and args.busy_poll and not args.target:
+            raise ThinkfastError(
+                "--realtime needs --no-busy-poll (a spinning SCHED_FIFO thread starves its core "
+                "and the kernel throttles it: sched_rt_runtime_us)"
+            )
         if args.realtime and args.rate <= 0:
             raise ThinkfastError(
                 "--realtime needs --rate > 0 (flat out it would starve the machine)"
@@ -295,14 +371,19 @@ def main(argv=None) -> int:
         else:
             child = subprocess.Popen(
                 [sys.executable, os.path.abspath(__file__), "--serve", "127.0.0.1:0"]
-                + ["--realtime"] * args.realtime,
+                + ["--realtime"] * args.realtime + ["--busy-poll"] * args.busy_poll
+                + ["--cpu", str(args.cpu)],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
             )  # fmt: skip
             target = ("127.0.0.1", int(child.stdout.readline().split()[1]))
+            _pin_client(args.cpu)
         if target is not None:
             result = {"target": f"{target[0]}:{target[1]}"}
             result["realtime"] = set_realtime() if args.realtime else False
-            result.update(measure(target, args.n, args.rate, args.warmup, args.spin_ms / 1e3))
+            result.update(
+                measure(target, args.n, args.rate, args.warmup, args.spin_ms / 1e3,
+                        args.lead_ms / 1e3)
+            )  # fmt: skip
         if child is not None:
             child.stdin.close()
             result["server"] = json.loads(child.stdout.readline())
@@ -316,8 +397,8 @@ def main(argv=None) -> int:
         print(json.dumps(result))
         return 0
     print(f"EGM exchange latency, {args.n} exchanges at {args.rate:g} Hz -> {result['target']}")
-    for key in ("realtime", "replies", "missed", "late", "malformed", "p50_ms", "p90_ms", "p99_ms",
-                "p999_ms", "max_ms", "wall_s", "throws_published"):  # fmt: skip
+    for key in ("realtime", "replies", "missed", "late", "in_time_unread", "malformed", "p50_ms",
+                "p90_ms", "p99_ms", "p999_ms", "max_ms", "wall_s", "throws_published"):  # fmt: skip
         if key in result:
             print(f"  {key:<10} {result[key]}")
     daemon = result.get("daemon") or {}

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
 import socket
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -34,13 +37,21 @@ def _check_limits(rows: np.ndarray, robot, margin: float = 0.005) -> None:
     assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT + 1e-9)
 
 
-@pytest.mark.parametrize("planner", ["tree", "naive"])
-def test_a_throw_aimed_at_a_goal_is_blocked(tree_file, tmp_path, robot, kin, planner):
+# the deployment settings of docs/BENCHMARKS.md: spin from 1 ms ahead, EGM loop on its own CPU
+DEPLOY = ("--spin-ahead-ms", "1", "--cpu", str(max(os.sched_getaffinity(0))))
+
+
+@pytest.mark.parametrize(
+    "planner, extra",
+    [("tree", ()), ("naive", ()), ("tree", DEPLOY)],
+    ids=["tree", "naive", "tree-spin-pinned"],
+)
+def test_a_throw_aimed_at_a_goal_is_blocked(tree_file, tmp_path, robot, kin, planner, extra):
     from thinkfast.sim.judge import judge
     from thinkfast.sim.throws import ThrowConfig, make_throw
 
     aim, flight, release = (0.25, 1.25), 0.8, (7.8, -0.2, 1.5)  # 0.3 m from home
-    run = DaemonRun(tree_file, tmp_path / "rec.h5", planner, q0=robot.home)
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", planner, q0=robot.home, extra=extra)
     try:
         t_release = time.time() + 0.8
         _, _, at = ballistic_throw(aim, flight, t_release, release)
@@ -161,20 +172,9 @@ def test_sigint_during_motion_brakes_within_limits_then_exits_0(tree_file, tmp_p
 
 def test_a_failing_planner_still_answers_every_packet_and_brakes(tree_file, robot, monkeypatch):
     """Executor.setpoint raising: one EgmSensor per EgmRobot all the same, braking, no crash."""
-    from thinkfast.compile.treefile import load_tree
-    from thinkfast.runtime.config import RunConfig
-    from thinkfast.runtime.daemon import Daemon, Endpoints
     from thinkfast.runtime.egm_proto import decode_sensor, encode_robot
-    from thinkfast.runtime.zenoh_io import session_config
 
-    d = Daemon(
-        load_tree(tree_file),
-        robot,
-        RunConfig(),
-        "tree",
-        Endpoints("127.0.0.1:0"),
-        session_config(listen=[f"tcp/127.0.0.1:{socket_port()}"]),
-    )
+    d = _in_process_daemon(tree_file, robot)
     try:
         monkeypatch.setattr(d.executor, "setpoint", lambda t: 1 / 0)
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -195,3 +195,74 @@ def socket_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def _in_process_daemon(tree_file, robot):
+    from thinkfast.compile.treefile import load_tree
+    from thinkfast.runtime.config import RunConfig
+    from thinkfast.runtime.daemon import Daemon, Endpoints
+    from thinkfast.runtime.zenoh_io import session_config
+
+    return Daemon(
+        load_tree(tree_file),
+        robot,
+        RunConfig(),
+        "tree",
+        Endpoints("127.0.0.1:0"),
+        session_config(listen=[f"tcp/127.0.0.1:{socket_port()}"]),
+    )
+
+
+def test_a_prepared_reply_is_the_setpoint_for_when_the_packet_is_due_through_the_supervisor(
+    tree_file, robot, monkeypatch
+):
+    """_prepare() computes the next setpoint for last_rx + dt and the supervisor's filter of it;
+    the reply sends exactly that, without asking the executor again. A detection voids it."""
+    from thinkfast.runtime.egm_proto import decode_sensor, encode_robot
+    from thinkfast.runtime.safety import filter_step
+
+    d = _in_process_daemon(tree_file, robot)
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.settimeout(1.0)
+            s.sendto(encode_robot(1, 0, robot.home), d.egm.address)
+            d.egm.poll()
+            decode_sensor(s.recv(1024))
+            d.last_rx -= 0.0035  # the next EgmRobot is due in 0.5 ms: the window is open
+            assert d.cycle.in_window(time.time() - d.last_rx)
+            d._prepare()
+            t_due, q_req, qd_req = d.next_req
+            assert t_due == d.last_rx + d.cfg.safety.dt
+            calls = []
+            monkeypatch.setattr(d.executor, "setpoint", lambda t: calls.append(t) or 1 / 0)
+            q_prev, qd_prev = d.supervisor.q, d.supervisor.qd
+            s.sendto(encode_robot(2, 4, robot.home), d.egm.address)
+            d.egm.poll()
+            reply = decode_sensor(s.recv(1024))
+            assert not calls and d.planner_errors == 0 and d.next_req is None
+            want = filter_step(q_prev, qd_prev, q_req, qd_req, d.limits, d.cfg.safety.dt)
+            np.testing.assert_allclose(reply.q_rad, want.q, rtol=1e-14, atol=1e-15)
+            np.testing.assert_allclose(reply.qd_rad_s, want.qd, rtol=1e-14, atol=1e-15)
+            monkeypatch.undo()
+            d.last_rx -= 0.0035
+            d._prepare()
+            assert d.next_req is not None
+            det = {"stamp": time.time(), "position": [5.0, 0.1, 1.0], "frame": "camera"}
+            d._take(json.dumps(det).encode(), time.time())
+            assert d.next_req is None  # the plan may have changed: prepared again later
+    finally:
+        d.egm.close()
+        d.zio.close()
+
+
+def test_fifo_with_busy_poll_and_an_unusable_cpu_are_one_line_errors(tree_file):
+    exe = os.path.join(os.path.dirname(sys.executable), "thinkfast-run")
+    base = [exe, "--tree", str(tree_file), "--egm-bind", "127.0.0.1:0"]
+    zenoh = ["--zenoh-listen", f"tcp/127.0.0.1:{socket_port()}"]
+    for extra, words in (
+        (["--busy-poll", "--fifo", "50"], "--fifo: not with --busy-poll"),
+        (["--cpu", "999"], "--cpu: 999 is not one of the usable CPUs"),
+    ):
+        p = subprocess.run(base + zenoh + extra, capture_output=True, text=True, timeout=60)
+        assert p.returncode == 1 and words in p.stderr, p.stderr
+        assert len(p.stderr.strip().splitlines()) <= 2 and "Traceback" not in p.stderr

@@ -165,3 +165,30 @@ def test_random_mutations_only_ever_raise_egm_decode_error():
         except egm.EgmDecodeError:
             continue
         assert fb.q_rad.shape == (6,) and np.isfinite(fb.q_rad).all()
+
+
+def _runtime_sensor_bytes(seqno, tm, q, qd, mtype):
+    """The same EgmSensor serialized by the protobuf runtime."""
+    msg = egm.EgmSensor()
+    msg.header.seqno, msg.header.tm, msg.header.mtype = seqno & egm.UINT32, tm & egm.UINT32, mtype
+    msg.planned.joints.joints.extend(np.degrees(q).tolist())
+    msg.speedRef.joints.joints.extend(np.degrees(qd).tolist())
+    return msg.SerializeToString()
+
+
+def test_sensor_bytes_are_the_protobuf_runtimes_own():
+    rng = np.random.default_rng(3)
+    edges = [0, 1, 127, 128, 16383, 16384, 2**31, 2**32 - 1, 2**32, 2**40 + 5]
+    for k in range(3000):
+        q = rng.uniform(-7, 7, 6) * 10.0 ** rng.integers(-300, 3, 6)
+        q[rng.random(6) < 0.1] = -0.0
+        qd = rng.uniform(-10, 10, 6)
+        seq = edges[k % len(edges)] if k < 100 else int(rng.integers(0, 2**33))
+        tm, mtype = int(rng.integers(0, 2**33)), int(rng.integers(0, 5))
+        data = egm.encode_sensor(seq, tm, q, qd, mtype=mtype)
+        assert data == _runtime_sensor_bytes(seq, tm, q, qd, mtype)
+
+
+def test_unknown_message_type_is_refused():
+    with pytest.raises(egm.EgmEncodeError):
+        egm.encode_sensor(1, 1, np.zeros(6), np.zeros(6), mtype=9)

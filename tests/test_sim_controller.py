@@ -147,3 +147,60 @@ def test_silent_or_garbage_sensor_counts_missed_and_malformed_and_the_arm_holds(
     assert (st.sent, st.replies, st.missed) == (20, 0, 20)
     assert st.malformed == sim.malformed == 10
     np.testing.assert_array_equal(sim.history().q[-1], np.full(6, 0.1))
+
+
+def test_a_hot_controller_sends_on_its_cycle_and_spins_for_the_replies():
+    """lead/spin: the sends keep the 4 ms cycle (busy-waited, not slept to) and every reply of a
+    sensor in another process (no shared GIL) is received."""
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    bench = Path(__file__).resolve().parents[1] / "bench" / "egm_latency.py"
+    proc = subprocess.Popen(
+        [sys.executable, str(bench), "--serve", "127.0.0.1:0"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        port = int(proc.stdout.readline().split()[1])
+        sends = []
+
+        class Timed(SimController):
+            def robot_message(self):
+                sends.append(time.perf_counter())
+                return super().robot_message()
+
+        runner = ControllerRunner(
+            Timed(), ("127.0.0.1", port), rate_hz=250.0, n=200, spin=0.001, lead=0.001
+        )
+        runner.run()
+        runner.join()
+    finally:
+        proc.stdin.close()
+        proc.wait(5)
+    st = runner.stats
+    assert st.sent == 200 and st.replies >= 190  # CI machines are shared
+    gaps = np.diff(sends[1:])  # from the second send on, the cycle is kept
+    assert np.median(np.abs(gaps - DT)) < 1e-4
+
+
+@pytest.mark.parametrize("deadline_offset, in_time", [(1.0, 1), (-1.0, 0)])
+def test_a_missed_reply_that_had_arrived_in_time_is_told_apart(deadline_offset, in_time):
+    """in_time_unread: the kernel's arrival stamp of a late reply against the missed cycle's
+    deadline (the measuring side was stalled, not the sensor)."""
+    import time
+
+    sensor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sensor.bind(("127.0.0.1", 0))
+    runner = ControllerRunner(SimController(), sensor.getsockname(), rate_hz=0, n=1)
+    sensor.sendto(egm.encode_sensor(1, 0, np.zeros(6), np.zeros(6)), runner.address)
+    time.sleep(0.01)  # queued: the reply to a cycle this side missed
+    runner._miss_deadline = time.perf_counter() + deadline_offset
+    runner.run()  # reads it as late, then one cycle the silent sensor misses
+    runner.join()
+    sensor.close()
+    st = runner.stats
+    assert (st.late, st.missed, st.in_time_unread) == (1, 1, in_time)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -33,6 +34,22 @@ def run(
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="zenoh JSON5 config"),
     record: Path | None = typer.Option(None, "--record", help="flight recorder file (HDF5)"),
     log_level: str = typer.Option("info", "--log-level", help="debug, info, warning or error"),
+    busy_poll: bool = typer.Option(
+        False,
+        "--busy-poll",
+        help="never sleep: spin on the EGM socket (hot CPU for every reply; costs one core)",
+    ),
+    spin_ahead: float = typer.Option(
+        0.0,
+        "--spin-ahead-ms",
+        help="spin on the EGM socket from this long before each EgmRobot is due (ms; 0 sleeps)",
+    ),
+    cpu: int | None = typer.Option(
+        None, "--cpu", help="run the EGM loop on this CPU, zenoh's threads on the others"
+    ),
+    fifo: int | None = typer.Option(
+        None, "--fifo", help="run the EGM loop under SCHED_FIFO at this priority (1-99)"
+    ),
 ) -> None:
     """Run until SIGINT/SIGTERM, then brake smoothly and exit 0."""
     from thinkfast.compile.treefile import load_tree
@@ -53,6 +70,13 @@ def run(
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
     parse_hostport(egm_bind)
+    if not 0.0 <= spin_ahead < math.inf:
+        raise ConfigError("--spin-ahead-ms", None, f"{spin_ahead} is not a duration >= 0")
+    if fifo is not None and busy_poll:
+        raise ConfigError(
+            "--fifo", None, "not with --busy-poll: the kernel throttles a SCHED_FIFO thread "
+            "that never sleeps (use --spin-ahead-ms)",
+        )  # fmt: skip
     cfg = load_run_config(config)
     t = load_tree(tree)
     robot_path = Path(cfg.robot) if cfg.robot else _tree_robot(t) or default_robot_path()
@@ -65,7 +89,8 @@ def run(
         )
     conf = session_config(zenoh_connect or (), zenoh_listen or (), zenoh_config)
     ends = Endpoints(egm_bind, egm_controller, key_prefix, record)
-    daemon = Daemon(t, robot, cfg, planner, ends, conf)
+    spin = math.inf if busy_poll else spin_ahead / 1e3
+    daemon = Daemon(t, robot, cfg, planner, ends, conf, spin_ahead=spin, cpu=cpu, fifo=fifo)
     sys.exit(daemon.run())
 
 

@@ -1,7 +1,6 @@
 """Runtime configuration of ``thinkfast-run`` (one TOML file, every table optional).
 
-Defaults describe the default cell; assumed numbers are labelled in the field docs and in
-``config/run_default.toml``.
+Defaults describe the default cell; assumed numbers are labelled ASSUMED in the field docs.
 """
 
 from __future__ import annotations
@@ -12,6 +11,7 @@ from pathlib import Path
 from thinkfast.config import from_dict, load_toml, spec
 from thinkfast.runtime.detections import CameraExtrinsic, DetectionLimits
 from thinkfast.runtime.filter import FilterConfig
+from thinkfast.runtime.launch import LaunchConfig
 from thinkfast.runtime.safety import SafetyConfig
 from thinkfast.runtime.values import ValueConfig
 
@@ -24,8 +24,17 @@ class ThrowConfig:
         3.0,
         unit="m/s",
         lo=0.0,
-        doc="a throw starts when the approach speed exceeds this with ~93 % confidence "
-        "(mean - 1.5 sigma), so a ball held still never starts one",
+        doc="a throw starts when the approach speed exceeds this with confidence "
+        "(mean - approach_sigmas sigma), so a ball held still never starts one",
+    )
+    approach_sigmas: float = spec(
+        2.0, unit="sigma", lo=0.0, doc="confidence of the approach-speed test (2: ~98 %)"
+    )
+    settle_updates: int = spec(
+        2,
+        lo=0,
+        doc="filter updates since its last (re)start before a belief may confirm a throw "
+        "(one outlier among the two starting measurements can fake any velocity)",
     )
     max_tau: float = spec(
         1.5, unit="s", lo=0.0, lo_open=True, doc="crossing must be predicted within this time"
@@ -88,6 +97,7 @@ class RunConfig:
             reset_all_axes=True,
         )
     )
+    launch: LaunchConfig = spec(LaunchConfig())
     value: ValueConfig = spec(ValueConfig())
     throw: ThrowConfig = spec(ThrowConfig())
     execution: ExecutionConfig = spec(ExecutionConfig())

@@ -8,10 +8,19 @@ smoothly while the controller still talks to it, then exits 0.
 
 Nothing may delay a reply, so the other work runs right after one: the first queued detection
 is taken at once after a reply, further ones only while, at the cost of the slowest recent one,
-they end ``WORK_GUARD`` before the next ``EgmRobot`` is due (a controller silent for ``SILENT``
-leaves the whole time free). The mirrored setpoints and the status go out in the same place,
-and so do garbage collections (automatic collection is off while serving; the interpreter's own
-thresholds decide).
+they end before the next ``EgmRobot``'s window opens (:mod:`thinkfast.runtime.cycle`). The
+mirrored setpoints and the status go out in the same place, and so do garbage collections
+(automatic collection is off while serving; the interpreter's own thresholds decide).
+
+When the window opens, shortly before the next ``EgmRobot`` is due, the reply is prepared: the
+executor's setpoint for the time the packet is due, filtered by the supervisor ahead, and the
+EGM codec warmed up; the reply itself then only decodes, runs the supervisor's checks on the
+feedback and the traffic, and encodes. By default the loop sleeps in ``poll`` (1 ms at a time)
+until a packet comes; with ``spin_ahead`` it spins on the socket inside the window (on a
+virtual machine Python runs several times slower right after a sleep), and with ``spin_ahead
+>= dt`` (busy polling) all the time, at the cost of a whole core. ``cpu`` pins the loop's thread
+to one core (and zenoh's threads to the others), ``fifo`` puts it under SCHED_FIFO
+(:mod:`thinkfast.runtime.rt_thread`). docs/BENCHMARKS.md has the figures.
 """
 
 from __future__ import annotations
@@ -32,17 +41,17 @@ import numpy as np
 from thinkfast.compile.tree import ActionTree
 from thinkfast.robot.model import Robot
 from thinkfast.runtime.config import RunConfig
+from thinkfast.runtime.cycle import SPIN_LATE, Cycle
 from thinkfast.runtime.egm_server import EgmServer
 from thinkfast.runtime.executor import FAULT, IDLE, Executor
 from thinkfast.runtime.intake import Intake
 from thinkfast.runtime.planner import runtime_tree
 from thinkfast.runtime.recorder import Recorder
+from thinkfast.runtime.rt_thread import pin_thread, set_fifo
 from thinkfast.runtime.safety import SafetySupervisor, robot_limits
 from thinkfast.runtime.zenoh_io import ZenohIO
 
 log = logging.getLogger("thinkfast.run")
-WORK_GUARD = 0.0005  # s: work between replies ends this long before the next EgmRobot is due
-SILENT = 0.02  # s without an EgmRobot: the controller is not cycling, work at any time
 STATUS_COST = 0.001  # s set aside for a status message (JSON, timing percentiles)
 
 
@@ -67,8 +76,12 @@ class Daemon:
         planner: str,
         endpoints: Endpoints,
         zenoh_conf,
+        spin_ahead: float = 0.0,
+        cpu: int | None = None,
+        fifo: int | None = None,
     ):
         self.cfg, self.robot, self.planner = cfg, robot, planner
+        self.cycle, self.cpu, self.fifo = Cycle(cfg.safety.dt, spin_ahead), cpu, fifo
         self.executor = Executor(runtime_tree(tree, robot, cfg), robot, cfg, planner)
         self.limits = robot_limits(robot, cfg.safety.position_margin)
         self.supervisor = SafetySupervisor(self.limits, cfg.safety, robot.home)
@@ -92,6 +105,8 @@ class Daemon:
         self.planner_errors = 0
         self.pending: collections.deque[bytes] = collections.deque()  # drained, not yet taken
         self.detection_cost = 0.001  # s, decaying maximum of recent detection handling times
+        self.next_req: tuple[float, np.ndarray, np.ndarray] | None = None  # see _prepare
+        self.prepared_for = -math.inf  # last_rx of the cycle _prepare ran in
 
     # -------------------------------------------------------------- EGM path
     def _reply(self, fb) -> tuple[np.ndarray, np.ndarray]:
@@ -103,8 +118,12 @@ class Daemon:
             self.executor.start_from(np.array(fb.q_rad), now)
             self.synced = True
             gap = 0.0
+        prepared, self.next_req = self.next_req, None
         try:
-            q_req, qd_req = self.executor.setpoint(now)
+            if prepared is not None and now <= prepared[0] + SPIN_LATE:
+                _, q_req, qd_req = prepared  # see _prepare
+            else:
+                q_req, qd_req = self.executor.setpoint(now)
         except Exception:  # a planner bug must cost a smooth stop, never a missing reply
             q_req = qd_req = None  # the supervisor brakes on a non-finite request
             self.planner_errors += 1
@@ -135,10 +154,23 @@ class Daemon:
         gc.disable()  # collections run after replies (_collect_garbage), never inside one
         status_period = 1.0 / self.cfg.status_rate
         next_status = time.time()
-        log.info("serving EGM on %s:%d, planner %s", *self.egm.address, self.planner)
+        spin = "always" if self.cycle.busy else f"{1e3 * self.cycle.spin_ahead:g} ms ahead"
+        log.info(
+            "serving EGM on %s:%d, planner %s, spinning %s", *self.egm.address, self.planner,
+            spin if self.cycle.spin_ahead > 0 else "never",
+        )  # fmt: skip
+        cycle = self.cycle
         try:
+            if self.cpu is not None:  # here: zenoh's threads are running (they move away)
+                pin_thread(self.cpu)
+            if self.fifo is not None:  # this thread only
+                set_fifo(self.fifo)
             while True:
-                replied = bool(poller.poll(1)) and self.egm.poll(16) > 0  # replies at once
+                since = time.time() - self.last_rx
+                if self.prepared_for != self.last_rx and self.synced and cycle.in_window(since):
+                    self._prepare()
+                wait_ms = cycle.wait_ms(since)
+                replied = bool(poller.poll(wait_ms)) and self.egm.poll(16) > 0  # replies at once
                 self._flush_outbox()
                 self._take_detections(replied)
                 now = time.time()
@@ -176,12 +208,25 @@ class Daemon:
             self.zio.publish_setpoint(stamp, q, qd, mode)
         self.outbox.clear()
 
+    def _prepare(self) -> None:
+        """Compute the next reply's setpoint ahead, for the time its EgmRobot is due, and filter
+        it through the supervisor (:meth:`SafetySupervisor.prepare`): the reply then has only
+        the supervisor's feedback and traffic checks left to run. Taking a detection voids it.
+        Then warm the EGM codec (:meth:`EgmServer.warm`): spinning, the reply path stays in
+        the caches until the packet comes."""
+        self.prepared_for = self.last_rx
+        t_due = self.last_rx + self.cfg.safety.dt
+        try:
+            q_req, qd_req = self.executor.setpoint(t_due)
+        except Exception:  # the reply calls it again, counts the error and brakes
+            return
+        self.next_req = (t_due, q_req, qd_req)
+        self.supervisor.prepare(q_req, qd_req)
+        self.egm.warm()
+
     def _time_left(self, now: float) -> float:
-        """Seconds of work that still end ``WORK_GUARD`` before the next EgmRobot is due."""
-        since = now - self.last_rx
-        if since > SILENT:
-            return math.inf
-        return self.cfg.safety.dt - WORK_GUARD - since
+        """Seconds of work that still end before the next EgmRobot's window opens."""
+        return self.cycle.time_left(now - self.last_rx)
 
     def _collect_garbage(self, now: float) -> None:
         """Collect as the interpreter would (same thresholds), where it cannot delay a reply."""
@@ -192,8 +237,12 @@ class Daemon:
 
     def _take_detections(self, replied: bool) -> None:
         """Take queued detections: the first at once if a reply just left, the others while
-        each still fits before the next EgmRobot (see the module doc)."""
+        each still fits before the next EgmRobot (see the module doc). Zenoh is not even
+        asked when none would fit: its queue shares a lock with zenoh's own threads, which
+        run at a lower priority than a real-time EGM loop."""
         pending = self.pending
+        if not replied and self._time_left(time.time()) < self.detection_cost:
+            return
         pending.extend(self.zio.drain())
         while pending:
             now = time.time()
@@ -211,6 +260,7 @@ class Daemon:
         det = self.intake.take(payload, now)
         if det is None:
             return
+        self.next_req, self.prepared_for = None, -math.inf  # plan changes: prepare again
         self.recorder.detection(now, det.stamp, det.position, det.seq)
         t0 = time.perf_counter()
         ex = self.executor

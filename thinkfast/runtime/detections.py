@@ -110,7 +110,7 @@ class Rejection(NamedTuple):
     detail: str = ""
 
 
-def _number(v: Any) -> float | None:
+def finite_number(v: Any) -> float | None:
     """A finite float from a JSON number (never a bool), else None."""
     if isinstance(v, bool) or not isinstance(v, int | float):
         return None
@@ -124,7 +124,7 @@ def _number(v: Any) -> float | None:
 def _numbers(v: Any, n: int) -> list[float] | None:
     if not isinstance(v, list) or len(v) != n:
         return None
-    out = [_number(x) for x in v]
+    out = [finite_number(x) for x in v]
     return None if any(x is None for x in out) else out
 
 
@@ -177,7 +177,7 @@ def parse_detection(
         return Rejection("not_object", type(obj).__name__)
     if obj.get("stamp") is None:
         return Rejection("missing_stamp")
-    stamp = _number(obj["stamp"])
+    stamp = finite_number(obj["stamp"])
     if stamp is None or stamp < 0.0:
         return Rejection("bad_stamp", repr(obj["stamp"])[:80])
     if obj.get("position") is None:
@@ -192,7 +192,7 @@ def parse_detection(
         return Rejection("bad_frame", repr(frame)[:80])
     conf = obj.get("confidence")
     if conf is not None:
-        conf = _number(conf)
+        conf = finite_number(conf)
         if conf is None or not 0.0 <= conf <= 1.0:
             return Rejection("bad_confidence", repr(obj["confidence"])[:80])
     seq = obj.get("seq")

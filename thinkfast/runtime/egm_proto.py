@@ -8,11 +8,16 @@ RAPID data, ...) arrives as unknown fields and is ignored by the parser.
 Degrees live only here: the helpers take and return radians and rad/s; the wire carries degrees
 and deg/s. Header fields that ABB declares ``required`` are declared ``optional`` here, which is
 wire-identical and lets the decoders report a missing field as a clear :class:`EgmDecodeError`.
+
+:func:`encode_sensor`, on the reply path of every EGM exchange, writes its bytes with ``struct``
+(a few microseconds less than the protobuf runtime): the same bytes as the protobuf runtime
+writes for the same message (the tests compare them).
 """
 
 from __future__ import annotations
 
 import math
+import struct
 from typing import NamedTuple
 
 import numpy as np
@@ -157,7 +162,7 @@ def _wire_joints(values, what: str) -> list[float]:
         raise EgmEncodeError(f"{what}: expected {N_JOINTS} numbers ({exc})") from None
     if len(out) != N_JOINTS:
         raise EgmEncodeError(f"{what}: expected {N_JOINTS} values, got {len(out)}")
-    if not all(math.isfinite(v) for v in out):
+    if not all(map(math.isfinite, out)):
         raise EgmEncodeError(f"{what}: non-finite value in {out}")
     return out
 
@@ -165,8 +170,8 @@ def _wire_joints(values, what: str) -> list[float]:
 def _joints_from_wire(joints, what: str) -> np.ndarray:
     if len(joints) != N_JOINTS:
         raise EgmDecodeError(f"{what}: expected {N_JOINTS} joints, got {len(joints)}")
-    deg = np.array(joints, dtype=float)
-    if not (np.abs(deg) <= MAX_ABS_DEG).all():  # also false for NaN
+    deg = np.fromiter(joints, float, N_JOINTS)
+    if np.count_nonzero(np.abs(deg) <= MAX_ABS_DEG) != N_JOINTS:  # NaN compares false
         raise EgmDecodeError(f"{what}: non-finite or absurd joint value (|deg| > {MAX_ABS_DEG:g})")
     q = deg * DEG_TO_RAD
     q.setflags(write=False)
@@ -202,14 +207,49 @@ def encode_sensor(
     Raises:
         EgmEncodeError: wrong count or a non-finite value (nothing unsafe is ever serialized).
     """
-    msg = EgmSensor()
-    h = msg.header
-    h.seqno = int(seqno) & UINT32
-    h.tm = int(tm_ms) & UINT32
-    h.mtype = mtype
-    msg.planned.joints.joints.extend(_wire_joints(q_rad, "planned joints"))
-    msg.speedRef.joints.joints.extend(_wire_joints(qd_rad_s, "speedRef joints"))
-    return msg.SerializeToString()
+    if mtype not in _MTYPES:
+        raise EgmEncodeError(f"mtype {mtype!r} is not one of {list(_MTYPES)}")
+    q = _wire_joints(q_rad, "planned joints")
+    qd = _wire_joints(qd_rad_s, "speedRef joints")
+    header = b"".join(
+        (
+            b"\x08",
+            _varint(int(seqno) & UINT32),
+            b"\x10",
+            _varint(int(tm_ms) & UINT32),
+            _MTYPES[mtype],
+        )
+    )
+    return b"".join(
+        (b"\x0a", bytes((len(header),)), header, _PLANNED, _joints(q), _SPEED_REF, _joints(qd))
+    )
+
+
+# EgmSensor on the wire, field by field (tag = number << 3 | wire type), as protobuf writes it:
+# header (1, length-delimited): seqno (1, varint), tm (2, varint), mtype (3, varint); then
+# planned (2) and speedRef (3), each holding EgmJoints (1) with 6 unpacked doubles (1, 64-bit).
+_DOUBLE_TAG = 1 << 3 | 1
+_JOINTS = struct.Struct("<" + "Bd" * N_JOINTS)  # each double after its tag byte
+_JOINTS_LEN = _JOINTS.size  # 54
+_PLANNED = bytes((2 << 3 | 2, _JOINTS_LEN + 2, 1 << 3 | 2, _JOINTS_LEN))
+_SPEED_REF = bytes((3 << 3 | 2, _JOINTS_LEN + 2, 1 << 3 | 2, _JOINTS_LEN))
+_MTYPES = {m: bytes((3 << 3, m)) for m in range(5)}  # MSGTYPE_UNDEFINED .. PATH_CORRECTION
+
+
+def _joints(v: list[float]) -> bytes:
+    """The repeated ``EgmJoints.joints`` field of 6 doubles, unpacked (as proto2 writes it)."""
+    t = _DOUBLE_TAG
+    return _JOINTS.pack(t, v[0], t, v[1], t, v[2], t, v[3], t, v[4], t, v[5])
+
+
+def _varint(n: int) -> bytes:
+    """Protobuf base-128 varint of ``n`` >= 0."""
+    out = bytearray()
+    while n > 0x7F:
+        out.append(n & 0x7F | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
 
 
 def decode_robot(data: bytes) -> RobotFeedback:

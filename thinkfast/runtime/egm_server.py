@@ -147,6 +147,7 @@ class EgmServer:
         self.seqno = 0
         self.last_feedback: RobotFeedback | None = None
         self.last_rx_time: float | None = None
+        self._last_exchange: tuple | None = None  # (request bytes, q, qd) for warm()
         self._clock = clock
         self._t0 = clock()
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
@@ -201,7 +202,7 @@ class EgmServer:
                 continue
             if timing is not None:
                 t_read = time.perf_counter()
-                wait = _arrival_age(anc) if self._stamped else math.nan
+                wait = arrival_age(anc) if self._stamped else math.nan
             c.received += 1
             if (
                 self.controller_ip is not None
@@ -233,11 +234,28 @@ class EgmServer:
                 c.socket_errors += 1
                 continue
             self.seqno = (self.seqno + 1) & UINT32
+            self._last_exchange = (data, q, qd)
             c.replied += 1
             sent += 1
             if timing is not None:
                 timing.add(wait, work)
         return sent
+
+    def warm(self) -> None:
+        """Decode the last request and encode the last reply again, discarding both.
+
+        Keeps the reply path's code and data in the CPU caches: on a virtual machine Python runs
+        several times slower when it wakes up cold. A loop that spins before the next request is
+        due calls it there. No state changes; nothing is sent.
+        """
+        if self._last_exchange is None:
+            return
+        data, q, qd = self._last_exchange
+        try:
+            decode_robot(data)
+            encode_sensor(self.seqno, 0, q, qd, mtype=MSGTYPE_CORRECTION)
+        except Exception:  # it was served once: cannot fail, but warming must never raise
+            pass
 
     def serve(self, stop: threading.Event, wait_s: float = 0.05) -> None:
         """Reply to packets as they arrive until ``stop`` is set (body of a dedicated thread).
@@ -264,7 +282,7 @@ class EgmServer:
         self.close()
 
 
-def _arrival_age(ancdata) -> float:
+def arrival_age(ancdata) -> float:
     """Seconds since the kernel stamped the datagram (``SCM_TIMESTAMPNS``), NaN if absent."""
     for level, kind, raw in ancdata:
         if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:

@@ -32,6 +32,7 @@ import numpy as np
 from thinkfast.robot.model import Robot
 from thinkfast.runtime import filter as kf
 from thinkfast.runtime.config import RunConfig
+from thinkfast.runtime.launch import LaunchDetector
 from thinkfast.runtime.planner import Decision, RuntimeTree
 from thinkfast.runtime.segments import (
     EDGE,
@@ -86,6 +87,7 @@ class Executor:
         )
         self.lag = cfg.execution.controller_lag
         self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
+        self.launch = LaunchDetector(cfg.launch, cfg.filter, self.sensor)
         self.mode = IDLE
         self.belief = kf.empty(cfg.filter)
         self.decision: Decision | None = None
@@ -106,6 +108,7 @@ class Executor:
         if stamp - self.t_last_det > self.cfg.throw.detection_timeout:
             self.belief = kf.empty(self.cfg.filter)  # a new ball: start the filter afresh
             self.confirm = 0
+            self.launch.reset()
         self.belief, info = kf.update(self.belief, stamp, p_base, self.cfg.filter, self.sensor)
         if info.status == "late":
             return
@@ -114,6 +117,13 @@ class Executor:
         # one outlier among those two can fake any velocity
         restarted = info.status in ("first", "init") or bool(np.any(info.reset))
         self.settled = 0 if restarted else self.settled + 1
+        launched = False
+        if self.mode in (IDLE, TRACKING) and self.cfg.launch.enabled:
+            fit = self.launch.add(stamp, p_base)
+            if fit is not None:  # the launch fit replaces the filter's slower restart
+                self.belief = kf.restart(self.belief, fit.t, fit.mean, fit.cov, fit.z)
+                self.settled = max(self.settled, self.cfg.throw.settle_updates)
+                launched = True
         if self.mode == IDLE:
             self.mode = TRACKING
         if self.belief.n_meas < 2:
@@ -122,8 +132,8 @@ class Executor:
         if c.ok:
             self.episode.t_cross = stamp + float(c.mean[2])
         if self.mode == TRACKING:
-            if self.settled >= 2 and self._approaching(c):
-                self.confirm += 1
+            if self.settled >= self.cfg.throw.settle_updates and self._approaching(c):
+                self.confirm = self.cfg.throw.confirm_updates if launched else self.confirm + 1
             else:  # one outlier frame costs one step, not the whole count
                 self.confirm = max(self.confirm - 1, 0)
             if self.confirm < self.cfg.throw.confirm_updates:
@@ -142,7 +152,7 @@ class Executor:
 
     def _approaching(self, c) -> bool:
         th = self.cfg.throw
-        speed_lo = -self.belief.mean[3] - 2.0 * np.sqrt(self.belief.cov[3, 3])
+        speed_lo = -self.belief.mean[3] - th.approach_sigmas * np.sqrt(self.belief.cov[3, 3])
         if not c.ok or speed_lo < th.min_approach_speed or c.mean[2] > th.max_tau:
             return False
         y, z = c.mean[0], c.mean[1]
@@ -260,12 +270,14 @@ class Executor:
             fast = -self.belief.mean[3] > self.cfg.throw.min_approach_speed
             if fast and v_std < self.cfg.execution.wrist_confident_speed_std:
                 ball_v = self.belief.mean[3:]
-        w = self.wrist.step(t, s[:3], self.wrist.normal_for(ball_v))
+        # on the way back the wrist goes to its home angles, never to the equivalent branch
+        home = self.robot.home[3:] if self.mode in (RETURNING, IDLE) else None
+        w = self.wrist.step(t, s[:3], self.wrist.normal_for(ball_v), home)
         if self.mode == RETURNING and t >= self.segment.t_end:
             home = np.all(np.abs(w[3:6]) < 1e-4) and np.all(
                 np.abs(w[:3] - self.robot.home[3:]) < 1e-3
             )
-            if home or t > self.segment.t_end + 2.0:  # (an equivalent wrist branch: give up)
+            if home or t > self.segment.t_end + 2.0:  # (a wrist that cannot get home: give up)
                 self._finish_return(t)  # the whole arm is home and at rest: ready
         return np.r_[s[:3], w[:3]], np.r_[s[3:6], w[3:6]]
 

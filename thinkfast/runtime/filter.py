@@ -383,6 +383,28 @@ def update(
     return new, UpdateInfo(STATUS_UPDATED, innov, weight, nis, reset)
 
 
+def restart(belief: Belief, t: float, mean: np.ndarray, cov: np.ndarray, z: np.ndarray) -> Belief:
+    """Restart the belief from an outside state estimate at time ``t`` [s] (e.g. a launch fit).
+
+    The adapted measurement noise R is kept; the innovations in the window are forgotten (they
+    belong to the motion before the restart) and the outlier counters start afresh.
+    """
+    window = np.zeros_like(belief.window)
+    wm = None if belief.window_model is None else np.zeros_like(belief.window_model)
+    return belief._replace(
+        t=float(t),
+        mean=np.array(mean, dtype=float),
+        cov=0.5 * (cov + cov.T),
+        window=window,
+        window_model=wm,
+        t_meas=float(t),
+        z_meas=np.array(z, dtype=float),
+        gated=np.zeros(3, dtype=np.intp),
+        n_meas=max(belief.n_meas, 2),
+        n_resets=belief.n_resets + 3,
+    )
+
+
 def adapted_r(c_diag: np.ndarray, hph_diag: np.ndarray, n: int, cfg: FilterConfig) -> np.ndarray:
     """R from the innovation window (eq. 5, diagonal, blended with R0; see the module doc).
 

@@ -147,20 +147,26 @@ class WristTracker:
         w = self.rule.solve_one(q123, self.state[:3], normal)
         return np.clip(w, self.lo, self.hi)
 
-    def step(self, t: float, q123: np.ndarray, normal: np.ndarray) -> np.ndarray:
-        """Advance to wall time ``t``; returns the wrist state (9,) = p, v, a."""
+    def step(
+        self, t: float, q123: np.ndarray, normal: np.ndarray, goal: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Advance to wall time ``t``; returns the wrist state (9,) = p, v, a.
+
+        ``goal``: wrist angles (3,) to go to instead of the ones for ``normal`` (e.g. home on
+        the way back, which must not end on the equivalent wrist branch).
+        """
         dt = t - self.t
         self.t = t
         if not dt > 0.0 or dt > 0.1:
             return self.state
-        inputs = _bits(q123) + _bits(normal)
+        inputs = _bits(q123) + _bits(normal) + (b"" if goal is None else _bits(goal))
         rest = self._rest
         if rest is not None and rest[0] == inputs and rest[1] is self.state:
             _, _, self.goal, self._traj = rest  # same inputs, same state: same empty move
             self._t0 = t - dt
             return self.state
         start = self.state
-        goal = self.target(q123, normal)
+        goal = self.target(q123, normal) if goal is None else np.clip(goal, self.lo, self.hi)
         traj = self.steer.to_rest(start, goal)
         if traj is not None:
             self.goal, self._traj, self._t0 = goal, traj, t - dt

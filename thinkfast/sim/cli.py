@@ -12,7 +12,7 @@ import typer
 from thinkfast.cli_util import make_app, run_app
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
-PLANNERS = ("tree", "naive", "oracle")
+PLANNERS = ("tree", "naive", "oracle", "oracle_seen")
 
 
 @app.callback()
@@ -54,8 +54,21 @@ def run(
     key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
     record: Path | None = typer.Option(None, "--record", help="daemon flight record (HDF5)"),
     config: Path | None = typer.Option(None, "--config", help="daemon runtime config (TOML)"),
+    frames: bool = typer.Option(
+        False, "--frames", help="publish rendered camera frames to a thinkfast-detect process"
+    ),
+    frames_resolution: str = typer.Option(
+        "hd720", "--frames-resolution", help="hd720 or vga (with --frames)"
+    ),
+    detect_config: Path | None = typer.Option(
+        None, "--detect-config", help="thinkfast-detect config (TOML, with --frames)"
+    ),
 ) -> None:
-    """Real time, end to end: daemon process, EGM over UDP, detections over zenoh."""
+    """Real time, end to end: daemon process, EGM over UDP, detections over zenoh.
+
+    With --frames the simulator renders the ZED's left and XYZ images of every frame instead
+    (docs/CAMERA_FRAMES.md) and a thinkfast-detect process turns them into detections.
+    """
     from thinkfast.errors import ConfigError
     from thinkfast.robot.model import load_robot
     from thinkfast.runtime.config import load_run_config
@@ -64,23 +77,44 @@ def run(
 
     if planner not in ("tree", "naive"):
         raise ConfigError("--planner", None, f"{planner!r} is not one of tree, naive")
+    if frames_resolution not in ("hd720", "vga"):
+        raise ConfigError("--frames-resolution", None, f"{frames_resolution!r}: hd720 or vga")
+    if frames and detect_config is not None:
+        from thinkfast.perception.config import load_detect_config
+
+        load_detect_config(detect_config)  # fail here, with the key, not in the child
     import logging
 
     logging.getLogger("thinkfast.sim.controller").setLevel(logging.ERROR)  # overrun chatter
     cfg = load_run_config(config)
     robot = load_robot()
     balls = _throws(n, seed, throw_set)
-    print(f"{len(balls)} throws at the {planner} planner (real time, seed {seed})")
+    via = f", camera frames ({frames_resolution}) via thinkfast-detect" if frames else ""
+    print(f"{len(balls)} throws at the {planner} planner (real time, seed {seed}{via})")
     if egm is not None or zenoh_endpoint is not None:
         if egm is None or zenoh_endpoint is None:
             raise ConfigError("--egm/--zenoh", None, "give both to use a running daemon")
-        res = run_throws(
-            robot, balls, parse_hostport(egm, "--egm"), zenoh_endpoint, key_prefix, seed, cfg.camera
-        )
+        hostport = parse_hostport(egm, "--egm")
+        pipeline = None
+        if frames:
+            from thinkfast.sim.frame_stream import FramePipeline
+
+            pipeline = FramePipeline(
+                key_prefix, zenoh_endpoint, frames_resolution, seed, detect_config
+            )
+        try:
+            res = run_throws(
+                robot, balls, hostport, zenoh_endpoint, key_prefix, seed, cfg.camera,
+                frames=pipeline.stream if pipeline else None,
+            )  # fmt: skip
+        finally:
+            if pipeline is not None:
+                print(f"thinkfast-detect: {pipeline.close()}")
     else:
         res = run_with_daemon(
-            tree, planner, robot, balls, seed, cfg.camera, key_prefix, record, config
-        )
+            tree, planner, robot, balls, seed, cfg.camera, key_prefix, record, config,
+            frames=frames_resolution if frames else None, detect_config=detect_config,
+        )  # fmt: skip
     k = sum(r.blocked for r in res)
     print(f"{planner}: blocked {k} / {len(res)} ({100 * k / max(len(res), 1):.0f} %)")
 

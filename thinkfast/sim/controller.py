@@ -27,6 +27,7 @@ import dataclasses
 import logging
 import math
 import socket
+import sys
 import threading
 import time
 from typing import NamedTuple
@@ -35,6 +36,7 @@ import numpy as np
 
 from thinkfast.config import spec
 from thinkfast.runtime.egm_proto import EgmDecodeError, decode_sensor, encode_robot
+from thinkfast.runtime.egm_server import SO_TIMESTAMPNS, arrival_age
 
 log = logging.getLogger(__name__)
 _DEG = math.pi / 180.0
@@ -180,13 +182,18 @@ class SimController:
 
 @dataclasses.dataclass
 class ExchangeStats:
-    """Counts and round-trip times of the UDP exchanges (``rtt_s``: one entry per reply in time)."""
+    """Counts and round-trip times of the UDP exchanges (``rtt_s``: one entry per reply in time).
+
+    ``in_time_unread``: missed cycles whose reply had reached the socket before the cycle's
+    deadline (kernel arrival stamp, Linux): this side, not the sensor, was late to read it.
+    """
 
     sent: int = 0
     replies: int = 0
     missed: int = 0
     late: int = 0
     malformed: int = 0
+    in_time_unread: int = 0
     rtt_s: list[float] = dataclasses.field(default_factory=list)
 
 
@@ -208,6 +215,12 @@ class ControllerRunner:
         spin: busy-wait this long [s] for each reply before blocking (a real controller does
             not sleep between send and receive; the OS wake-up latency would otherwise be
             charged to the sensor). 0 blocks at once.
+        lead: wake this long [s] before each cycle's send and busy-wait to it, so that the
+            send and the timing run on a hot CPU (on a virtual machine a Python process runs
+            several times slower right after a sleep). 0 sleeps to the send time.
+
+    Busy-waiting holds the GIL: use ``spin`` and ``lead`` only where no other Python thread of
+    the process has work to do (a sensor in the same process would be starved).
     """
 
     def __init__(
@@ -219,13 +232,22 @@ class ControllerRunner:
         reply_timeout=None,
         bind=("127.0.0.1", 0),
         spin=0.0,
+        lead=0.0,
     ):
-        self.sim, self.target, self.n, self.spin = sim, tuple(target), n, spin
+        self.sim, self.target, self.n, self.spin, self.lead = sim, tuple(target), n, spin, lead
         self.period = 1.0 / rate_hz if rate_hz > 0 else 0.0
         self.reply_timeout = reply_timeout or (self.period or sim.config.dt)
         self.stats = ExchangeStats()
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.bind(bind)
+        self._stamped = False  # kernel arrival stamps, to tell who was late (in_time_unread)
+        self._miss_deadline: float | None = None
+        if sys.platform == "linux":
+            try:
+                self._sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                self._stamped = True
+            except OSError:
+                pass
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self.run, name="sim-egm-controller", daemon=True)
         self._last_warn = -math.inf
@@ -256,10 +278,17 @@ class ControllerRunner:
             sock.setblocking(False)
             while True:  # replies that missed their cycle
                 try:
-                    data = sock.recv(65535)
+                    if self._stamped:
+                        data, anc, _, _ = sock.recvmsg(65535, 64)
+                    else:
+                        data = sock.recv(65535)
                 except OSError:
                     break
                 st.late += 1
+                if self._stamped and self._miss_deadline is not None:
+                    arrived = time.perf_counter() - arrival_age(anc)  # NaN compares False
+                    st.in_time_unread += arrived <= self._miss_deadline
+                self._miss_deadline = None  # only the first late reply answers the missed cycle
                 if not sim.handle_sensor(data):
                     st.malformed += 1
             payload = sim.robot_message()
@@ -277,29 +306,37 @@ class ControllerRunner:
                 t_next += self.period
                 now = time.perf_counter()
                 if now < t_next:
-                    time.sleep(t_next - now)
+                    if t_next - now > self.lead:
+                        time.sleep(t_next - self.lead - now)
+                    while time.perf_counter() < t_next:  # hot: busy-wait the last ``lead``
+                        pass
                 elif now > t_next + self.period:
                     self._warn(f"controller loop overrun by {1e3 * (now - t_next):.1f} ms")
                     t_next = now
 
     def _await_reply(self, t_send: float, deadline: float) -> None:
         st, sock = self.stats, self._sock
-        spin_end = t_send + self.spin
+        spin_end = t_send + self.spin  # busy-wait until then: no wake-up latency measured
+        spinning = self.spin > 0
+        if spinning:
+            sock.setblocking(False)
         while True:
             now = time.perf_counter()
             if now >= deadline:
                 st.missed += 1
+                self._miss_deadline = deadline
                 return
             try:
-                if now < spin_end:  # busy-wait: no wake-up latency in the measurement
-                    sock.setblocking(False)
-                else:
+                if spinning and now >= spin_end:
+                    spinning = False  # spun long enough: block for the rest
+                if not spinning:
                     sock.settimeout(deadline - now)
                 data = sock.recv(65535)
             except (BlockingIOError, InterruptedError):
                 continue
             except TimeoutError:
                 st.missed += 1
+                self._miss_deadline = deadline
                 return
             except OSError:
                 continue

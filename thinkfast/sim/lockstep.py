@@ -7,7 +7,9 @@ ticks, exactly as in the daemon's loop. The judge decides from the controller's 
 
 Planners: ``tree`` and ``naive`` (the daemon's executor) and ``oracle``: it knows the true crossing
 point at release and goes there as fast as the arm allows, so the throws it blocks are the ones
-this arm can block at all ("feasible").
+this arm can block at all ("feasible"). ``oracle_seen`` knows the same but leaves only when the
+first detection of the flight is delivered: no planner that waits for evidence of the flight can
+start earlier, so it bounds what any of them can block with this camera's latency.
 """
 
 from __future__ import annotations
@@ -73,8 +75,12 @@ def simulate(world: World, throw: Throw, planner: str, seed: int) -> Outcome:
     t_end = t_rel + cross.t + cfg.throw.after_crossing + 0.15
     sim = SimController(world.servo, q0=robot.home)
     sup = SafetySupervisor(world.limits, cfg.safety, robot.home)
-    if planner == "oracle":
-        step_fn = _oracle(world, throw, cross, t_rel)
+    if planner in ("oracle", "oracle_seen"):
+        t_go = t_rel
+        if planner == "oracle_seen":
+            seen = [d.delivery_time for d in dets if d.capture_stamp > t_rel]
+            t_go = min(seen) if seen else math.inf
+        step_fn = _oracle(world, throw, cross, t_go)
         ex = None
     else:
         ex = Executor(world.tree, robot, cfg, planner)
@@ -114,8 +120,9 @@ def simulate(world: World, throw: Throw, planner: str, seed: int) -> Outcome:
     )
 
 
-def _oracle(world: World, throw: Throw, cross, t_rel: float):
-    """Setpoint function of the oracle: at release, a minimum-time move to the exact crossing."""
+def _oracle(world: World, throw: Throw, cross, t_go: float):
+    """Setpoint function of the oracle: from ``t_go`` on, a minimum-time move to the exact
+    crossing."""
     robot = world.robot
     goal = int(np.argmin(np.sum(np.square(world.tree.goal_yz - [cross.y, cross.z]), axis=1)))
     seed = world.tree.goal_q[goal]
@@ -129,7 +136,7 @@ def _oracle(world: World, throw: Throw, cross, t_rel: float):
     normal = np.array([1.0, 0.0, 0.0])
 
     def setpoint(t: float):
-        s = t - t_rel
+        s = t - t_go
         if traj is None or s <= 0.0:
             p, v = robot.home[:3], np.zeros(3)
         else:

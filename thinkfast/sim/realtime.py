@@ -110,8 +110,13 @@ def run_throws(
     extrinsic: CameraExtrinsic,
     report=print,
     camera: CameraModelConfig = CameraModelConfig(),
+    frames=None,
 ) -> list[RealtimeResult]:
-    """Throw every ball at a running daemon and judge it; ``report`` gets one line per throw."""
+    """Throw every ball at a running daemon and judge it; ``report`` gets one line per throw.
+
+    ``frames``: a :class:`~thinkfast.sim.frame_stream.FrameStream` to publish rendered camera
+    frames (for a detector) instead of detections.
+    """
     kin = Kinematics(robot)
     sim = WallClockSim(ServoConfig(), q0=robot.home)
     runner = ControllerRunner(sim, egm).start()
@@ -120,9 +125,15 @@ def run_throws(
     try:
         time.sleep(1.0)  # EGM exchange running, zenoh routes up
         for i, th in enumerate(throws):
-            dets = observe(th, camera, extrinsic, np.random.default_rng(seed * 100_003 + i), 0.0)
-            t0 = time.time() + 0.3
-            publish_detections(session, f"{prefix}/detections", dets, t0_wall=t0)
+            if frames is not None:  # frames in real time from the ball's appearance in the hand
+                t0 = time.time() + 0.3 + th.t_release
+                frames.publish_throw(th, extrinsic, np.random.default_rng(seed * 100_003 + i), t0)
+            else:
+                dets = observe(
+                    th, camera, extrinsic, np.random.default_rng(seed * 100_003 + i), 0.0
+                )
+                t0 = time.time() + 0.3
+                publish_detections(session, f"{prefix}/detections", dets, t0_wall=t0)
             cross = plane_crossing(th)
             time.sleep(max(0.0, t0 + cross.t + 0.3 - time.time()))
             t_hist, q_hist = sim.joint_history(t0 - 1.0)
@@ -156,12 +167,24 @@ def run_with_daemon(
     record: Path | None = None,
     config: Path | None = None,
     report=print,
+    frames: str | None = None,
+    detect_config: Path | None = None,
 ):
-    """Start a daemon, throw, stop it (SIGINT: it brakes and exits 0); returns the results."""
+    """Start a daemon, throw, stop it (SIGINT: it brakes and exits 0); returns the results.
+
+    ``frames`` (``"hd720"`` or ``"vga"``): publish rendered camera frames to a ``thinkfast-detect``
+    process (configured by ``detect_config``) instead of detections to the daemon.
+    """
     egm_port, zport = free_tcp_port(), free_tcp_port()
     proc = start_daemon(tree, planner, egm_port, zport, prefix, record, config)
+    pipeline = None
     try:
         _wait_port(proc, zport)
+        if frames is not None:
+            from thinkfast.sim.frame_stream import FramePipeline
+
+            ep = f"tcp/127.0.0.1:{zport}"
+            pipeline = FramePipeline(prefix, ep, frames, seed, detect_config)
         return run_throws(
             robot,
             throws,
@@ -171,8 +194,11 @@ def run_with_daemon(
             seed,
             extrinsic,
             report,
+            frames=pipeline.stream if pipeline is not None else None,
         )
     finally:
+        if pipeline is not None:
+            report(f"thinkfast-detect: {pipeline.close()}")
         proc.send_signal(signal.SIGINT)
         try:
             proc.wait(10)

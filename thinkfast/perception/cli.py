@@ -1,0 +1,80 @@
+"""``thinkfast-detect``: camera frames over zenoh in, ball detections over zenoh out."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+import typer
+
+from thinkfast.cli_util import make_app, run_app
+
+app = make_app("thinkfast perception: ball detections from ZED frames (zenoh in, zenoh out).")
+app.info.no_args_is_help = False  # every option has a default: run with them
+
+
+@app.command()
+def run(
+    config: Path | None = typer.Option(None, "--config", help="detector configuration (TOML)"),
+    key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
+    zenoh_connect: list[str] | None = typer.Option(
+        None, "--zenoh-connect", help="zenoh endpoint to connect to (repeatable)"
+    ),
+    zenoh_listen: list[str] | None = typer.Option(
+        None, "--zenoh-listen", help="zenoh endpoint to listen on (repeatable)"
+    ),
+    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="zenoh JSON5 config"),
+    frame: str | None = typer.Option(
+        None, "--frame", help="frame of the detections: camera or base (default: the config's)"
+    ),
+    source: str | None = typer.Option(
+        None, "--source", help="colour, boxes or auto (default: the config's)"
+    ),
+    threads: int = typer.Option(1, "--threads", help="OpenCV threads (1: one core)"),
+) -> None:
+    """Run until SIGINT/SIGTERM, then print the counts (one JSON line) and exit 0."""
+    import dataclasses
+
+    import cv2
+
+    from thinkfast.errors import ConfigError
+    from thinkfast.perception.config import SOURCES, load_detect_config
+    from thinkfast.perception.node import DetectorNode
+    from thinkfast.runtime.zenoh_io import session_config
+
+    cfg = load_detect_config(config)
+    if frame is not None:
+        if frame not in ("camera", "base"):
+            raise ConfigError("--frame", None, f"{frame!r} is not one of camera, base")
+        cfg = dataclasses.replace(cfg, frame=frame)
+    if source is not None:
+        if source not in SOURCES:
+            raise ConfigError("--source", None, f"{source!r} is not one of {', '.join(SOURCES)}")
+        cfg = dataclasses.replace(cfg, source=source)
+    if threads < 1:
+        raise ConfigError("--threads", None, f"must be >= 1, got {threads}")
+    cv2.setNumThreads(threads)
+    conf = session_config(zenoh_connect or (), zenoh_listen or (), zenoh_config)
+    node = DetectorNode(cfg, conf, key_prefix)
+    stop = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, _f: stop.append(signum))
+    print(
+        f"thinkfast-detect: {cfg.source} -> {key_prefix}/detections ({cfg.frame})", file=sys.stderr
+    )
+    try:
+        while not stop:
+            if not node.step():
+                time.sleep(0.0005)
+        node.publish_status(time.time())
+    finally:
+        node.close()
+    print(json.dumps(node.counters.as_dict()), flush=True)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point."""
+    sys.exit(run_app(app, "thinkfast-detect", argv))
