@@ -23,12 +23,10 @@ from thinkfast.compile.treefile import load_tree
 from thinkfast.machine import machine_info
 from thinkfast.robot.model import load_robot
 from thinkfast.runtime.config import RunConfig
-from thinkfast.runtime.planner import BALL_RADIUS
 from thinkfast.sim import lockstep as ls
 from thinkfast.sim.camera import CameraModelConfig, observe
-from thinkfast.sim.controller import ServoConfig, SimController
-from thinkfast.sim.judge import judge
-from thinkfast.sim.throws import ThrowConfig, plane_crossing, sample_throws
+from thinkfast.sim.controller import ServoConfig
+from thinkfast.sim.throws import ThrowConfig, sample_throws
 
 DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"
 _W: dict = {}
@@ -40,23 +38,6 @@ def _init(tree: str) -> None:
     )
 
 
-def _oracle_from(th, t_go: float) -> bool:
-    w = _W["world"]
-    t_rel = ls.LEAD + th.t_release
-    cross = plane_crossing(th)
-    step = ls._oracle(w, th, cross, t_go)
-    sim = SimController(w.servo, q0=w.robot.home)
-    t = 0.0
-    while t <= t_rel + cross.t + 0.3:
-        q, qd = step(t)
-        sim.command(q, qd, t)
-        sim.step(ls.DT)
-        t += ls.DT
-    h = sim.history()
-    v = judge(th, h.t, h.q, w.kin, th.plane_x, BALL_RADIUS, t_release_wall=t_rel)
-    return bool(v.blocked)
-
-
 def _one(job) -> dict:
     i, th, seed = job
     w = _W["world"]
@@ -64,11 +45,14 @@ def _one(job) -> dict:
     cam_seed = seed * 100_003 + i  # the bench's camera noise for throw i
     dets = observe(th, w.camera, w.cfg.camera, np.random.default_rng(cam_seed), t_rel)
     seen = sorted(d.delivery_time for d in dets if d.capture_stamp > t_rel)
-    out = {"seen": [_oracle_from(th, seen[k]) if k < len(seen) else False for k in range(5)]}
+
+    def oracle_from(delay: float) -> bool:
+        return ls.simulate(w, th, "oracle", cam_seed, oracle_start=delay).blocked
+
+    out = {"seen": [k < len(seen) and oracle_from(seen[k] - t_rel) for k in range(5)]}
     for p in ("tree", "naive"):
         o = ls.simulate(w, th, p, cam_seed)
-        same = _oracle_from(th, t_rel + o.start) if math.isfinite(o.start) else False
-        out[p] = (bool(o.blocked), same)
+        out[p] = (o.blocked, math.isfinite(o.start) and oracle_from(o.start))
     return out
 
 

@@ -51,7 +51,7 @@ def test_one_gross_outlier_in_a_flight_window_is_dropped():
     pts[:, 2] -= 0.5 * G * dt * dt
     pts[2] += [-1.2, 0.0, 0.0]  # a stereo mismatch: 1.2 m nearer, the middle of the window
     for ti, p in zip(t, pts, strict=True):
-        det.points.append((ti, p))
+        det.add(ti, p)
     fit = det.fit()
     assert fit.n == 5  # refitted without it
     assert abs(fit.mean[3] - v0[0]) < 0.05 and fit.chi2 < 1e-9

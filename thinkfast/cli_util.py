@@ -7,10 +7,21 @@ from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
 
 import typer
 
 from thinkfast.errors import ThinkfastError
+
+# zenoh options shared by every long-running command (INTERFACES.md names them)
+KEY_PREFIX = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix")
+ZENOH_CONNECT = typer.Option(
+    None, "--zenoh-connect", help="zenoh endpoint to connect to (repeatable)"
+)
+ZENOH_LISTEN = typer.Option(None, "--zenoh-listen", help="zenoh endpoint to listen on (repeatable)")
+ZENOH_CONFIG = typer.Option(None, "--zenoh-config", help="zenoh JSON5 config")
+ZenohEndpoints = list[str] | None
+ZenohConfigFile = Path | None
 
 
 def make_app(help_text: str) -> typer.Typer:

@@ -10,7 +10,16 @@ from pathlib import Path
 
 import typer
 
-from thinkfast.cli_util import make_app, run_app
+from thinkfast.cli_util import (
+    KEY_PREFIX,
+    ZENOH_CONFIG,
+    ZENOH_CONNECT,
+    ZENOH_LISTEN,
+    ZenohConfigFile,
+    ZenohEndpoints,
+    make_app,
+    run_app,
+)
 
 app = make_app("thinkfast perception: ball detections from ZED frames (zenoh in, zenoh out).")
 app.info.no_args_is_help = False  # every option has a default: run with them
@@ -19,14 +28,10 @@ app.info.no_args_is_help = False  # every option has a default: run with them
 @app.command()
 def run(
     config: Path | None = typer.Option(None, "--config", help="detector configuration (TOML)"),
-    key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
-    zenoh_connect: list[str] | None = typer.Option(
-        None, "--zenoh-connect", help="zenoh endpoint to connect to (repeatable)"
-    ),
-    zenoh_listen: list[str] | None = typer.Option(
-        None, "--zenoh-listen", help="zenoh endpoint to listen on (repeatable)"
-    ),
-    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="zenoh JSON5 config"),
+    key_prefix: str = KEY_PREFIX,
+    zenoh_connect: ZenohEndpoints = ZENOH_CONNECT,
+    zenoh_listen: ZenohEndpoints = ZENOH_LISTEN,
+    zenoh_config: ZenohConfigFile = ZENOH_CONFIG,
     frame: str | None = typer.Option(
         None, "--frame", help="frame of the detections: camera or base (default: the config's)"
     ),

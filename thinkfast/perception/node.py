@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from thinkfast.errors import ConfigError
 from thinkfast.perception.boxes import (
     BOX_REJECT_REASONS,
     BoxRejection,
@@ -32,6 +31,7 @@ from thinkfast.perception.boxes import (
 from thinkfast.perception.config import DetectConfig
 from thinkfast.perception.detect import MISS_REASONS, Found, detect, detection_payload
 from thinkfast.perception.frame import FRAME_REJECT_REASONS, FrameRejection, parse_frame
+from thinkfast.runtime.zenoh_io import close_session, drain, open_session
 
 FRAME_RING = 4  # frames buffered between two drains
 BOX_QUEUE = 256
@@ -102,10 +102,7 @@ class DetectorNode:
         self.pending: collections.deque = collections.deque()
         self.recent_boxes: collections.deque = collections.deque(maxlen=64)
         self.last_seq: int | None = None
-        try:
-            self.session = zenoh.open(conf)
-        except Exception as exc:
-            raise ConfigError("zenoh", None, f"cannot open a session ({exc})") from None
+        self.session = open_session(conf)
         ring = zenoh.handlers.RingChannel(FRAME_RING)
         self.sub_frames = self.session.declare_subscriber(frame_key(prefix), ring)
         self.sub_boxes = None
@@ -116,24 +113,11 @@ class DetectorNode:
         self.pub_status = self.session.declare_publisher(status_key(prefix))
         self.next_status = 0.0
 
-    @staticmethod
-    def _drain(sub, limit: int) -> list[bytes]:
-        out = []
-        for _ in range(limit):
-            try:
-                sample = sub.try_recv()
-            except Exception:  # channel closed while shutting down
-                break
-            if sample is None:
-                break
-            out.append(sample.payload.to_bytes())
-        return out
-
     def step(self) -> bool:
         """Take what arrived, work on every frame that is ready; whether anything happened."""
         busy = False
         if self.sub_boxes is not None:
-            for payload in self._drain(self.sub_boxes, BOX_QUEUE):
+            for payload in drain(self.sub_boxes, BOX_QUEUE):
                 busy = True
                 self.counters.boxes["received"] += 1
                 b = parse_boxes(payload)
@@ -141,7 +125,7 @@ class DetectorNode:
                     self.counters.boxes["rejected"][b.reason] += 1
                 else:
                     self.recent_boxes.append(b)
-        for payload in self._drain(self.sub_frames, FRAME_RING):
+        for payload in drain(self.sub_frames, FRAME_RING):
             busy = True
             self._receive(payload)
         busy |= self._work()
@@ -233,7 +217,4 @@ class DetectorNode:
         self.pub_status.put(json.dumps(status).encode())
 
     def close(self) -> None:
-        try:
-            self.session.close()
-        except Exception:
-            pass
+        close_session(self.session)

@@ -10,7 +10,16 @@ from pathlib import Path
 
 import typer
 
-from thinkfast.cli_util import make_app, run_app
+from thinkfast.cli_util import (
+    KEY_PREFIX,
+    ZENOH_CONFIG,
+    ZENOH_CONNECT,
+    ZENOH_LISTEN,
+    ZenohConfigFile,
+    ZenohEndpoints,
+    make_app,
+    run_app,
+)
 
 app = make_app("thinkfast runtime daemon: ball detections over zenoh in, EGM setpoints out.")
 
@@ -24,14 +33,10 @@ def run(
     egm_controller: str | None = typer.Option(
         None, "--egm-controller", help="serve only this controller IP"
     ),
-    key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
-    zenoh_connect: list[str] | None = typer.Option(
-        None, "--zenoh-connect", help="zenoh endpoint to connect to (repeatable)"
-    ),
-    zenoh_listen: list[str] | None = typer.Option(
-        None, "--zenoh-listen", help="zenoh endpoint to listen on (repeatable)"
-    ),
-    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="zenoh JSON5 config"),
+    key_prefix: str = KEY_PREFIX,
+    zenoh_connect: ZenohEndpoints = ZENOH_CONNECT,
+    zenoh_listen: ZenohEndpoints = ZENOH_LISTEN,
+    zenoh_config: ZenohConfigFile = ZENOH_CONFIG,
     record: Path | None = typer.Option(None, "--record", help="flight recorder file (HDF5)"),
     log_level: str = typer.Option("info", "--log-level", help="debug, info, warning or error"),
     busy_poll: bool = typer.Option(

@@ -199,7 +199,10 @@ class LaunchDetector:
         self.cfg, self.fcfg = cfg, fcfg
         self.sensor = np.asarray(sensor, dtype=float)
         # the window, and before it the detections that show where the ball was held
-        self.points: deque[tuple[float, np.ndarray]] = deque(maxlen=cfg.window + HOLD_POINTS)
+        # (stamp, position, noise covariance) of each detection
+        self.points: deque[tuple[float, np.ndarray, np.ndarray]] = deque(
+            maxlen=cfg.window + HOLD_POINTS
+        )
         self.passed = 0
         self.fits = 0
         self.launches = 0
@@ -214,7 +217,8 @@ class LaunchDetector:
         cfg = self.cfg
         if self.points and t <= self.points[-1][0]:
             return None  # late or duplicated: the filter has rejected it too
-        self.points.append((float(t), np.asarray(z, dtype=float)))
+        z = np.asarray(z, dtype=float)
+        self.points.append((float(t), z, self._cov(z)))
         fit = self.fit()
         if fit is None or not self.passes(fit):
             self.passed = 0
@@ -228,28 +232,33 @@ class LaunchDetector:
     def fit(self) -> FlightFit | None:
         """The free-flight fit of the newest detections (up to ``window`` of them, within
         ``max_span``); None with fewer than 4."""
-        cfg = self.cfg
-        t_new = self.points[-1][0] if self.points else 0.0
-        recent = [p for p in self.points if t_new - p[0] <= cfg.max_span][-cfg.window :]
-        if len(recent) < 4:
+        if not self.points:
             return None
-        times = np.array([p[0] for p in recent])
-        pts = np.array([p[1] for p in recent])
-        self.fits += 1
-        return self._robust_fit(times, pts, self._covs(pts))
+        fit = self._robust_fit(self._window(list(self.points), self.points[-1][0]))
+        self.fits += fit is not None
+        return fit
 
-    def _covs(self, pts: np.ndarray) -> np.ndarray:
-        """Noise covariance of each point [m^2] (N, 3, 3): scaled stereo model plus floor."""
+    def _window(self, points: list, t_new: float) -> list:
+        """The newest of ``points`` (up to ``window``) no older than ``max_span`` before
+        ``t_new``."""
+        return [p for p in points if t_new - p[0] <= self.cfg.max_span][-self.cfg.window :]
+
+    def _cov(self, z: np.ndarray) -> np.ndarray:
+        """Noise covariance of a detection at ``z`` [m^2] (3, 3): scaled stereo model + floor."""
         cfg = self.cfg
-        scale2 = cfg.noise_scale * cfg.noise_scale
-        floor = cfg.floor_std * cfg.floor_std * np.eye(3)
-        return np.array([scale2 * stereo_r(p, self.sensor, self.fcfg) + floor for p in pts])
+        r = stereo_r(z, self.sensor, self.fcfg)
+        return cfg.noise_scale * cfg.noise_scale * r + cfg.floor_std * cfg.floor_std * np.eye(3)
 
-    def _robust_fit(self, times, pts, covs) -> FlightFit:
+    def _robust_fit(self, window: list) -> FlightFit | None:
         """The fit at ``times[-1]`` over the subset (dropping up to ``max_drop`` points) with the
         lowest residual chi-square plus the 3-dof ``1 - alpha`` quantile per dropped point: a
         point is called a gross outlier only when leaving it out explains the rest better by
-        that much."""
+        that much. None with fewer than 4 detections."""
+        if len(window) < 4:
+            return None
+        times = np.array([p[0] for p in window])
+        pts = np.array([p[1] for p in window])
+        covs = np.array([p[2] for p in window])
         cfg = self.cfg
         masks, dropped = _subsets(len(pts), cfg.max_drop)
         x, cov, c2 = fit_free_flight(times, pts, covs, self.fcfg.gravity, masks)
@@ -262,11 +271,11 @@ class LaunchDetector:
         """The newest detection is nearer the plane than where the ball was held, by more than
         ``sigmas`` of its depth noise (where the hold was seen: the median of the detections
         before the window, at least ``HOLD_POINTS // 2`` of them)."""
-        before = [p for t, p in self.points if fit.t - t > self.cfg.max_span]
+        before = [p[1] for p in self.points if fit.t - p[0] > self.cfg.max_span]
         if len(before) < HOLD_POINTS // 2:
             return True  # first seen in flight: nothing to compare with
         hold = np.median(np.array(before), axis=0)
-        sd_x = math.sqrt(self._covs(fit.z[None])[0, 0, 0])
+        sd_x = math.sqrt(self.points[-1][2][0, 0])
         return bool(hold[0] - fit.z[0] > self.cfg.sigmas * sd_x)
 
     def _consistent(self, fit: FlightFit) -> bool:
@@ -278,19 +287,12 @@ class LaunchDetector:
 
     def passes(self, fit: FlightFit) -> bool:
         """Residual and approach-speed tests, on the fit and (``check_without_newest``) on the
-        window without its newest point, carried to the same time (see the module doc)."""
+        window without its newest point (see the module doc)."""
         if not (fit.uses_newest and self._consistent(fit) and self._approaching(fit)):
             return False
         if self.cfg.check_hold and not self._left_hold(fit):
             return False
         if not self.cfg.check_without_newest:
             return True
-        t_new = self.points[-1][0]
-        recent = [p for p in list(self.points)[:-1] if t_new - p[0] <= self.cfg.max_span]
-        recent = recent[-self.cfg.window :]
-        if len(recent) < 4:
-            return False
-        times = np.array([p[0] for p in recent])
-        pts = np.array([p[1] for p in recent])
-        older = self._robust_fit(times, pts, self._covs(pts))
-        return self._consistent(older) and self._approaching(older)
+        older = self._robust_fit(self._window(list(self.points)[:-1], fit.t))
+        return older is not None and self._consistent(older) and self._approaching(older)

@@ -18,6 +18,36 @@ from thinkfast.errors import ConfigError
 QUEUE = 4096  # detections buffered between two drains (80 s at 50 Hz)
 
 
+def open_session(conf: zenoh.Config) -> zenoh.Session:
+    """A zenoh session; a failure becomes a one-line :class:`ConfigError`."""
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:
+        raise ConfigError("zenoh", None, f"cannot open a session ({exc})") from None
+
+
+def drain(sub, limit: int) -> list[bytes]:
+    """Payloads queued in the channel of subscriber ``sub`` (at most ``limit``), never blocking."""
+    out = []
+    for _ in range(limit):
+        try:
+            sample = sub.try_recv()
+        except Exception:  # channel closed while shutting down
+            break
+        if sample is None:
+            break
+        out.append(sample.payload.to_bytes())
+    return out
+
+
+def close_session(session: zenoh.Session) -> None:
+    """Close ``session``; a session already gone is not an error at shutdown."""
+    try:
+        session.close()
+    except Exception:
+        pass
+
+
 def session_config(
     connect: Sequence[str] = (),
     listen: Sequence[str] = (),
@@ -55,10 +85,7 @@ class ZenohIO:
     """
 
     def __init__(self, conf: zenoh.Config, prefix: str):
-        try:
-            self.session = zenoh.open(conf)
-        except Exception as exc:
-            raise ConfigError("zenoh", None, f"cannot open a session ({exc})") from None
+        self.session = open_session(conf)
         self.sub = self.session.declare_subscriber(
             f"{prefix}/detections", zenoh.handlers.FifoChannel(QUEUE)
         )
@@ -67,16 +94,7 @@ class ZenohIO:
 
     def drain(self, limit: int = 256) -> list[bytes]:
         """Payloads received since the last call (at most ``limit``)."""
-        out = []
-        for _ in range(limit):
-            try:
-                sample = self.sub.try_recv()
-            except Exception:  # channel closed while shutting down
-                break
-            if sample is None:
-                break
-            out.append(sample.payload.to_bytes())
-        return out
+        return drain(self.sub, limit)
 
     def publish_setpoint(self, stamp: float, q, qd, mode: str) -> None:
         msg = {
@@ -91,7 +109,4 @@ class ZenohIO:
         self.pub_status.put(json.dumps(status).encode())
 
     def close(self) -> None:
-        try:
-            self.session.close()
-        except Exception:
-            pass
+        close_session(self.session)

@@ -65,9 +65,11 @@ class World:
         self.limits = robot_limits(robot, cfg.safety.position_margin)
 
 
-def simulate(world: World, throw: Throw, planner: str, seed: int) -> Outcome:
+def simulate(
+    world: World, throw: Throw, planner: str, seed: int, oracle_start: float = 0.0
+) -> Outcome:
     """Fly one throw against one planner; ``seed`` drives the camera noise (same for all
-    planners on the same throw)."""
+    planners on the same throw). ``oracle_start``: when the oracle leaves, after release [s]."""
     robot, cfg = world.robot, world.cfg
     t_rel = LEAD + throw.t_release  # simulated wall time of release
     dets = observe(throw, world.camera, cfg.camera, np.random.default_rng(seed), t_rel)
@@ -76,7 +78,7 @@ def simulate(world: World, throw: Throw, planner: str, seed: int) -> Outcome:
     sim = SimController(world.servo, q0=robot.home)
     sup = SafetySupervisor(world.limits, cfg.safety, robot.home)
     if planner in ("oracle", "oracle_seen"):
-        t_go = t_rel
+        t_go = t_rel + oracle_start
         if planner == "oracle_seen":
             seen = [d.delivery_time for d in dets if d.capture_stamp > t_rel]
             t_go = min(seen) if seen else math.inf
