@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from thinkfast.runtime import egm_proto as egm
-from thinkfast.runtime.egm_server import EgmAddressError, EgmServer, parse_hostport
+from thinkfast.runtime.egm_server import (
+    EgmAddressError,
+    EgmServer,
+    parse_controller,
+    parse_hostport,
+)
 
 LOOPBACK = "127.0.0.1"
 
@@ -61,16 +66,31 @@ def test_parse_hostport_refuses_with_an_example_in_the_message(text):
         parse_hostport(text)
 
 
-def test_bad_controller_ip_and_busy_port_are_clear_errors():
-    with pytest.raises(EgmAddressError, match="--egm-controller"):
-        EgmServer("127.0.0.1:0", _hold, controller_ip="robot")
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        ("192.168.125.1", ("192.168.125.1", None)),
+        ("192.168.125.1:6511", ("192.168.125.1", 6511)),
+        ("[::1]:6510", ("::1", 6510)),
+        ("::1", ("::1", None)),
+        (None, None),
+    ],
+)
+def test_controller_is_an_ip_with_an_optional_port(text, expected):
+    assert parse_controller(text) == expected
+
+
+def test_bad_controller_and_busy_port_are_clear_errors():
+    for bad in ("robot", "1.2.3.4:0", "1.2.3.4:x", "1.2.3.4:70000"):
+        with pytest.raises(EgmAddressError, match="--egm-controller"):
+            EgmServer("127.0.0.1:0", _hold, controller=bad)
     with EgmServer("127.0.0.1:0", _hold) as a:
         with pytest.raises(EgmAddressError, match="cannot bind"):
             EgmServer(a.address, _hold)
 
 
-def test_one_reply_per_request_back_to_each_senders_port_with_seqno_plus_one(client):
-    a, b = client(), client()
+def test_one_reply_per_request_with_seqno_plus_one_to_the_one_peer(client):
+    a = client()
     seen = []
 
     def reply(fb):
@@ -82,40 +102,97 @@ def test_one_reply_per_request_back_to_each_senders_port_with_seqno_plus_one(cli
         rng = np.random.default_rng(2)
         qs = rng.uniform(-1, 1, (20, 6))
         for i, q in enumerate(qs):
-            (a if i % 2 == 0 else b).sendto(egm.encode_robot(i + 1, 4 * i, q), server.address)
+            a.sendto(egm.encode_robot(i + 1, 4 * i, q), server.address)
             _poll_until(server, i + 1)
-        replies = {a: [], b: []}
-        for s in (a, b):
-            for _ in range(10):
-                replies[s].append(egm.decode_sensor(s.recv(65535)))
-            s.settimeout(0.05)
-            with pytest.raises(TimeoutError):  # exactly one reply per request
-                s.recv(65535)
+        replies = [egm.decode_sensor(a.recv(65535)) for _ in range(20)]
+        a.settimeout(0.05)
+        with pytest.raises(TimeoutError):  # exactly one reply per request
+            a.recv(65535)
         assert server.counters.replied == 20 and server.counters.received == 20
-    seqnos = sorted(r.seqno for rs in replies.values() for r in rs)
-    assert seqnos == list(range(1, 21))
-    for i, r in enumerate(replies[a]):
-        assert r.seqno == 2 * i + 1 and r.mtype == egm.MSGTYPE_CORRECTION
-        np.testing.assert_allclose(r.q_rad, qs[2 * i], atol=1e-12)
+        assert server.peer == a.getsockname()
+    assert [r.seqno for r in replies] == list(range(1, 21))
+    for r, q in zip(replies, qs, strict=True):
+        assert r.mtype == egm.MSGTYPE_CORRECTION
+        np.testing.assert_allclose(r.q_rad, q, atol=1e-12)
         np.testing.assert_allclose(r.qd_rad_s, [0.1, 0, 0, 0, 0, 0], atol=1e-12)
-    tms = [r.tm_ms for r in sorted(replies[a] + replies[b], key=lambda r: r.seqno)]
-    assert tms == sorted(tms)
     assert [fb.seqno for fb in seen] == list(range(1, 21))
 
 
-def test_foreign_sender_is_dropped_and_counted(client):
-    c = client()
-    with EgmServer(f"{LOOPBACK}:0", _hold, controller_ip="127.0.0.2") as server:
-        for i in range(5):
-            c.sendto(egm.encode_robot(i, i, np.zeros(6)), server.address)
-        _poll_until(server, 5)
-        assert (server.counters.foreign, server.counters.replied) == (5, 0)
-        assert server.last_feedback is None
-    with EgmServer(f"{LOOPBACK}:0", _hold, controller_ip=LOOPBACK) as server:
-        c.sendto(egm.encode_robot(1, 1, np.zeros(6)), server.address)
+def _no_reply(sock, wait=0.05):
+    sock.settimeout(wait)
+    with pytest.raises(TimeoutError):
+        sock.recv(65535)
+
+
+def test_a_second_sender_is_never_answered_and_counted_by_source(client):
+    a, b = client(), client()
+    with EgmServer(f"{LOOPBACK}:0", _hold, handover=10.0) as server:
+        for i in range(10):
+            a.sendto(egm.encode_robot(i, 4 * i, np.zeros(6)), server.address)
+            b.sendto(egm.encode_robot(i, 4 * i, np.zeros(6)), server.address)
+            _poll_until(server, 2 * i + 2)
+        assert server.peer == a.getsockname()
+        assert server.counters.replied == 10 and server.counters.foreign == 10
+        assert server.foreign_sources == {"{}:{}".format(*b.getsockname()): 10}
+        _no_reply(b)
+
+
+def test_the_peer_is_handed_over_only_after_it_was_silent(client):
+    a, b = client(), client()
+    with EgmServer(f"{LOOPBACK}:0", _hold, handover=0.2) as server:
+        a.sendto(egm.encode_robot(1, 0, np.zeros(6)), server.address)
         _poll_until(server, 1)
-        assert (server.counters.foreign, server.counters.replied) == (0, 1)
-        egm.decode_sensor(c.recv(65535))
+        b.sendto(egm.encode_robot(1, 0, np.zeros(6)), server.address)  # a still fresh
+        _poll_until(server, 2)
+        assert server.peer == a.getsockname() and server.counters.foreign == 1
+        time.sleep(0.25)
+        b.sendto(egm.encode_robot(2, 4, np.zeros(6)), server.address)  # a silent: b takes over
+        _poll_until(server, 3)
+        assert server.peer == b.getsockname() and server.counters.handovers == 2
+        a.sendto(egm.encode_robot(2, 4, np.zeros(6)), server.address)
+        _poll_until(server, 4)
+        assert server.peer == b.getsockname() and server.counters.foreign == 2
+
+
+def test_a_named_controller_port_is_the_only_one_served(client):
+    a, b = client(), client()
+    port = a.getsockname()[1]
+    with EgmServer(f"{LOOPBACK}:0", _hold, controller=f"{LOOPBACK}:{port}") as server:
+        b.sendto(egm.encode_robot(1, 0, np.zeros(6)), server.address)  # same IP, other port
+        a.sendto(egm.encode_robot(1, 0, np.zeros(6)), server.address)
+        _poll_until(server, 2)
+        assert (server.counters.foreign, server.counters.replied) == (1, 1)
+        egm.decode_sensor(a.recv(65535))
+        _no_reply(b)
+    with EgmServer(f"{LOOPBACK}:0", _hold, controller="127.0.0.2") as server:
+        a.sendto(egm.encode_robot(1, 1, np.zeros(6)), server.address)
+        _poll_until(server, 1)
+        assert (server.counters.foreign, server.counters.replied) == (1, 0)
+
+
+def test_a_backlog_is_answered_once_with_the_newest_packet(client):
+    a, flood = client(), client()
+    flood.setblocking(False)
+    got = []
+
+    def reply(fb):
+        got.append(fb.seqno)
+        return _hold(fb)
+
+    with EgmServer(f"{LOOPBACK}:0", reply, controller=LOOPBACK) as server:
+        for i in range(5):
+            a.sendto(egm.encode_robot(i + 1, 4 * i, np.zeros(6)), server.address)
+        for _ in range(200):  # a flood from another port of the same host, garbage
+            flood.sendto(b"\x00" * 64, server.address)
+        a.sendto(egm.encode_robot(6, 20, np.zeros(6)), server.address)
+        time.sleep(0.05)
+        n = 0
+        while server.counters.received < 206:
+            n += server.poll()
+        assert got == [6] and n == 1  # the five older ones were out of date already
+        assert server.counters.superseded == 5 and server.counters.foreign == 200
+        egm.decode_sensor(a.recv(65535))
+        _no_reply(a)
 
 
 def _fuzz_packets(rng, n):
@@ -160,15 +237,15 @@ def test_ten_thousand_fuzzed_packets_are_counted_and_never_crash(client):
         except egm.EgmDecodeError:
             pass
     with EgmServer(f"{LOOPBACK}:0", _hold) as server:
-        for start in range(0, len(packets), 100):
-            for p in packets[start : start + 100]:
-                c.sendto(p, server.address)
-            _poll_until(server, start + 100)
-            while True:  # drain the replies so the client buffer never fills
-                try:
-                    egm.decode_sensor(c.recv(65535))
-                except BlockingIOError:
-                    break
+        for i, p in enumerate(packets):
+            c.sendto(p, server.address)
+            _poll_until(server, i + 1)
+            if i % 100 == 0:
+                while True:  # drain the replies so the client buffer never fills
+                    try:
+                        egm.decode_sensor(c.recv(65535))
+                    except BlockingIOError:
+                        break
         k = server.counters
     assert k.received == 10_000
     assert k.malformed == 10_000 - valid and k.replied == valid > 1000
@@ -190,7 +267,7 @@ def test_a_failing_setpoint_source_is_counted_and_the_next_request_served(client
     with EgmServer(f"{LOOPBACK}:0", reply) as server:
         for i in range(4):
             c.sendto(egm.encode_robot(i, i, np.zeros(6)), server.address)
-        _poll_until(server, 4)
+            _poll_until(server, i + 1)
         assert server.counters.reply_errors == 3 and server.counters.replied == 1
         assert egm.decode_sensor(c.recv(65535)).seqno == 1  # no seqno spent on unsent replies
 
@@ -211,7 +288,7 @@ def test_serve_thread_replies_as_packets_arrive_and_stops_on_event(client):
         th.join(1.0)
         assert not th.is_alive()
         assert server.counters.replied == 200
-        assert server.last_rx_time is not None and server.last_feedback.seqno == 199
+        assert server.last_rx_time is not None and server.peer == c.getsockname()
     assert np.median(rtts) < 0.005  # loose: CI machines are shared
 
 
@@ -222,10 +299,10 @@ def test_warm_sends_nothing_and_changes_nothing(client):
         c.sendto(egm.encode_robot(1, 1, np.zeros(6)), server.address)
         _poll_until(server, 1)
         egm.decode_sensor(c.recv(65535))
-        before = (vars(server.counters).copy(), server.seqno, server.last_feedback)
+        before = (vars(server.counters).copy(), server.seqno, server.peer)
         for _ in range(3):
             server.warm()
-        assert (vars(server.counters), server.seqno, server.last_feedback) == before
+        assert (vars(server.counters), server.seqno, server.peer) == before
         c.settimeout(0.05)
         with pytest.raises(TimeoutError):
             c.recv(65535)

@@ -31,7 +31,15 @@ def run(
     planner: str = typer.Option("tree", "--planner", help="tree (belief-space) or naive"),
     egm_bind: str = typer.Option("0.0.0.0:6510", "--egm-bind", help="UDP HOST:PORT to serve EGM"),
     egm_controller: str | None = typer.Option(
-        None, "--egm-controller", help="serve only this controller IP"
+        None,
+        "--egm-controller",
+        help="serve only this controller, IP or IP:PORT (default: the first valid sender)",
+    ),
+    egm_handover: float = typer.Option(
+        1.0,
+        "--egm-handover",
+        help="without --egm-controller: another sender may take over after the served "
+        "controller was silent this long (s)",
     ),
     key_prefix: str = KEY_PREFIX,
     zenoh_connect: ZenohEndpoints = ZENOH_CONNECT,
@@ -62,7 +70,7 @@ def run(
     from thinkfast.robot.model import default_robot_path, load_robot
     from thinkfast.runtime.config import load_run_config
     from thinkfast.runtime.daemon import Daemon, Endpoints
-    from thinkfast.runtime.egm_server import parse_hostport
+    from thinkfast.runtime.egm_server import parse_controller, parse_hostport
     from thinkfast.runtime.zenoh_io import session_config
 
     if planner not in ("tree", "naive"):
@@ -75,6 +83,9 @@ def run(
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
     parse_hostport(egm_bind)
+    parse_controller(egm_controller)
+    if not 0.0 < egm_handover < math.inf:
+        raise ConfigError("--egm-handover", None, f"{egm_handover} is not a duration > 0")
     if not 0.0 <= spin_ahead < math.inf:
         raise ConfigError("--spin-ahead-ms", None, f"{spin_ahead} is not a duration >= 0")
     if fifo is not None and busy_poll:
@@ -93,7 +104,7 @@ def run(
             f"{tree}: compiled for another robot description than {robot.toml_path}; recompile it"
         )
     conf = session_config(zenoh_connect or (), zenoh_listen or (), zenoh_config)
-    ends = Endpoints(egm_bind, egm_controller, key_prefix, record)
+    ends = Endpoints(egm_bind, egm_controller, egm_handover, key_prefix, record)
     spin = math.inf if busy_poll else spin_ahead / 1e3
     daemon = Daemon(t, robot, cfg, planner, ends, conf, spin_ahead=spin, cpu=cpu, fifo=fifo)
     sys.exit(daemon.run())

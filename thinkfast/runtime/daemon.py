@@ -1,9 +1,11 @@
 """The ``thinkfast-run`` daemon: one thread, EGM first.
 
-The loop waits on the EGM socket; every ``EgmRobot`` is answered at once with the executor's
-setpoint for now, passed through the safety supervisor (the last stage before the wire). Between
-two EGM packets (4 ms) it drains the zenoh detection queue (filter, crossing, values, backup),
-publishes the mirrored setpoints and the status. Signals only set a flag: the loop brakes
+The loop waits on the EGM socket; every ``EgmRobot`` of the one controller it serves is answered
+at once with the executor's setpoint for that packet's time on the controller's clock, passed
+through the safety supervisor (the last stage before the wire); see
+:mod:`thinkfast.runtime.egm_control`. Between two EGM packets (4 ms) it drains the zenoh
+detection queue (filter, crossing, values, backup), publishes the mirrored setpoints and the
+status. Signals only set a flag: the loop brakes
 smoothly while the controller still talks to it, then exits 0.
 
 Nothing may delay a reply, so the other work runs right after one: the first queued detection
@@ -15,7 +17,7 @@ mirrored setpoints and the status go out in the same place, and so do garbage co
 When the window opens, shortly before the next ``EgmRobot`` is due, the reply is prepared: the
 executor's setpoint for the time the packet is due, filtered by the supervisor ahead, and the
 EGM codec warmed up; the reply itself then only decodes, runs the supervisor's checks on the
-feedback and the traffic, and encodes. By default the loop sleeps in ``poll`` (1 ms at a time)
+feedback, and encodes. By default the loop sleeps in ``poll`` (1 ms at a time)
 until a packet comes; with ``spin_ahead`` it spins on the socket inside the window (on a
 virtual machine Python runs several times slower right after a sleep), and with ``spin_ahead
 >= dt`` (busy polling) all the time, at the cost of a whole core. ``cpu`` pins the loop's thread
@@ -41,7 +43,8 @@ import numpy as np
 from thinkfast.compile.tree import ActionTree
 from thinkfast.robot.model import Robot
 from thinkfast.runtime.config import RunConfig
-from thinkfast.runtime.cycle import SPIN_LATE, Cycle
+from thinkfast.runtime.cycle import Cycle
+from thinkfast.runtime.egm_control import FAULT_REASONS, EgmControl
 from thinkfast.runtime.egm_server import EgmServer
 from thinkfast.runtime.executor import FAULT, IDLE, Executor
 from thinkfast.runtime.intake import Intake
@@ -61,6 +64,7 @@ class Endpoints:
 
     egm_bind: str = "0.0.0.0:6510"
     egm_controller: str | None = None
+    egm_handover: float = 1.0
     key_prefix: str = "thinkfast"
     record: Path | None = None
 
@@ -82,12 +86,6 @@ class Daemon:
     ):
         self.cfg, self.robot, self.planner = cfg, robot, planner
         self.cycle, self.cpu, self.fifo = Cycle(cfg.safety.dt, spin_ahead), cpu, fifo
-        self.executor = Executor(runtime_tree(tree, robot, cfg), robot, cfg, planner)
-        self.limits = robot_limits(robot, cfg.safety.position_margin)
-        self.supervisor = SafetySupervisor(self.limits, cfg.safety, robot.home)
-        self.intake = Intake(cfg.camera, cfg.detections)
-        self.egm = EgmServer(endpoints.egm_bind, self._reply, endpoints.egm_controller, timing=True)
-        self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix)
         self.recorder = Recorder(
             endpoints.record,
             {
@@ -96,51 +94,72 @@ class Daemon:
                 "run_config": json.dumps(_plain(cfg)),
                 "started": time.time(),
             },
+        )  # first: a record target that cannot be written stops the start, before serving
+        self.executor = Executor(runtime_tree(tree, robot, cfg), robot, cfg, planner)
+        self.limits = robot_limits(robot, cfg.safety.position_margin)
+        self.supervisor = SafetySupervisor(self.limits, cfg.safety, robot.home)
+        self.control = EgmControl(self.executor, self.supervisor, cfg.safety, self._event)
+        self.intake = Intake(cfg.camera, cfg.detections)
+        self.egm = EgmServer(
+            endpoints.egm_bind,
+            self._reply,
+            endpoints.egm_controller,
+            timing=True,
+            handover=endpoints.egm_handover,
         )
+        self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix)
         self.stop_reason: str | None = None
-        self.synced = False  # the supervisor starts from the first measured joints
-        self.last_rx = -math.inf
+        self.last_rx = -math.inf  # receive time of the last served EgmRobot (wall clock)
         self.outbox: list[tuple[float, np.ndarray, np.ndarray, str]] = []
         self.decision_ms = 0.0
         self.planner_errors = 0
         self.pending: collections.deque[bytes] = collections.deque()  # drained, not yet taken
         self.detection_cost = 0.001  # s, decaying maximum of recent detection handling times
-        self.next_req: tuple[float, np.ndarray, np.ndarray] | None = None  # see _prepare
         self.prepared_for = -math.inf  # last_rx of the cycle _prepare ran in
+        self.last_throw: dict | None = None  # supervisor interventions in the last throw
+        self._throw_mark: tuple[int, int] | None = None  # (ticks, intervened) at its start
+        self._peer = None
 
     # -------------------------------------------------------------- EGM path
     def _reply(self, fb) -> tuple[np.ndarray, np.ndarray]:
         now = time.time()
-        gap = now - self.last_rx
         self.last_rx = now
-        if not self.synced:
-            self.supervisor.reset(fb.q_rad)
-            self.executor.start_from(np.array(fb.q_rad), now)
-            self.synced = True
-            gap = 0.0
-        prepared, self.next_req = self.next_req, None
-        try:
-            if prepared is not None and now <= prepared[0] + SPIN_LATE:
-                _, q_req, qd_req = prepared  # see _prepare
-            else:
-                q_req, qd_req = self.executor.setpoint(now)
-        except Exception:  # a planner bug must cost a smooth stop, never a missing reply
-            q_req = qd_req = None  # the supervisor brakes on a non-finite request
-            self.planner_errors += 1
-            if self.planner_errors == 1 or self.planner_errors % 100 == 0:
-                log.exception("setpoint error %d: braking", self.planner_errors)
         if self.stop_reason is not None:
-            self.supervisor.request_brake("signal")
-        cmd = self.supervisor.step(q_req, qd_req, q_meas=fb.q_rad, egm_age=gap)
-        if cmd.stopped and self.supervisor.brake_reason == "traffic" and gap <= 0.01:
-            self.supervisor.release()  # traffic is back and the arm stands: plan from here
-            self.executor.recover(np.array(cmd.q), now)
-        elif cmd.braking and self.supervisor.brake_reason in ("deviation", "nonfinite"):
-            self.executor.mode = FAULT
-        mode = "brake" if cmd.braking else self.executor.mode
-        self.outbox.append((now, cmd.q, cmd.qd, mode))
-        self.recorder.egm(now, fb.seqno, fb.q_rad, cmd.q, cmd.qd, cmd.braking)
-        return cmd.q, cmd.qd
+            self.control.brake("signal")
+        errors = self.control.errors
+        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now)
+        if self.control.errors != errors:
+            self._planner_error("setpoint", self.control.last_error)
+        self._watch_throw(r.tick.t)
+        self.outbox.append((r.tick.t, r.q, r.qd, r.mode))
+        self.recorder.egm(now, fb.seqno, fb.q_rad, r.q, r.qd, self.supervisor.braking)
+        return r.q, r.qd
+
+    def _planner_error(self, where: str, exc: BaseException | None) -> None:
+        self.planner_errors += 1
+        if self.planner_errors == 1 or self.planner_errors % 100 == 0:
+            log.error("%s error %d: braking", where, self.planner_errors, exc_info=exc)
+
+    def _event(self, t: float, kind: str, detail: dict) -> None:
+        """Something worth a log line and a record row (from the control core or here)."""
+        log.info("%s %s", kind, json.dumps(detail))
+        event = getattr(self.recorder, "event", None)
+        if event is not None:
+            event(t, kind, detail)
+
+    def _watch_throw(self, t: float) -> None:
+        """Count the supervisor's interventions per throw (status and record)."""
+        sup, busy = self.supervisor, self.executor.mode != IDLE
+        if busy and self._throw_mark is None:
+            self._throw_mark = (sup.ticks, sup.intervened)
+        elif not busy and self._throw_mark is not None:
+            ticks0, intervened0 = self._throw_mark
+            self._throw_mark = None
+            self.last_throw = {
+                "ticks": sup.ticks - ticks0,
+                "intervened": sup.intervened - intervened0,
+            }
+            self._event(t, "throw_end", {"throws": self.executor.episodes, **self.last_throw})
 
     # -------------------------------------------------------------- main loop
     def run(self) -> int:
@@ -167,11 +186,12 @@ class Daemon:
                 set_fifo(self.fifo)
             while True:
                 since = time.time() - self.last_rx
-                if self.prepared_for != self.last_rx and self.synced and cycle.in_window(since):
+                if self.prepared_for != self.last_rx and cycle.in_window(since):
                     self._prepare()
                 wait_ms = cycle.wait_ms(since)
-                replied = bool(poller.poll(wait_ms)) and self.egm.poll(16) > 0  # replies at once
+                replied = bool(poller.poll(wait_ms)) and self.egm.poll() > 0  # replies at once
                 self._flush_outbox()
+                self._watch_peer()
                 self._take_detections(replied)
                 now = time.time()
                 if now >= next_status and self._time_left(now) > STATUS_COST:
@@ -183,13 +203,7 @@ class Daemon:
         finally:
             gc.enable()
             gc.unfreeze()
-            self.zio.publish_status(
-                {
-                    **self.status(time.time()),
-                    "state": "idle" if self.executor.mode == IDLE else self.executor.mode,
-                    "exiting": True,
-                }
-            )
+            self.zio.publish_status({**self.status(time.time()), "exiting": True})
             self.recorder.close()
             self.egm.close()
             self.zio.close()
@@ -200,8 +214,16 @@ class Daemon:
         self.stop_reason = signal.Signals(signum).name
 
     def _may_exit(self, now: float) -> bool:
-        silent = now - self.last_rx > self.cfg.safety.traffic_timeout
-        return silent or not self.supervisor.qd.any()
+        return not self._connected(now) or (self.supervisor.braking and self.supervisor.stopped)
+
+    def _connected(self, now: float) -> bool:
+        """The controller talks to the daemon (a packet within the last 0.1 s)."""
+        return now - self.last_rx < max(0.1, 5.0 * self.cfg.safety.resync_after)
+
+    def _watch_peer(self) -> None:
+        if self.egm.peer != self._peer:
+            self._peer = self.egm.peer
+            self._event(self.control.clock.t, "egm_peer", {"peer": _peer_text(self._peer)})
 
     def _flush_outbox(self) -> None:
         for stamp, q, qd, mode in self.outbox:
@@ -209,19 +231,15 @@ class Daemon:
         self.outbox.clear()
 
     def _prepare(self) -> None:
-        """Compute the next reply's setpoint ahead, for the time its EgmRobot is due, and filter
-        it through the supervisor (:meth:`SafetySupervisor.prepare`): the reply then has only
-        the supervisor's feedback and traffic checks left to run. Taking a detection voids it.
-        Then warm the EGM codec (:meth:`EgmServer.warm`): spinning, the reply path stays in
-        the caches until the packet comes."""
+        """Compute the next reply's setpoint ahead, for the controller time of the next cycle,
+        and filter it through the supervisor (:meth:`EgmControl.prepare`): the reply then has
+        only the supervisor's feedback check left to run. Taking a detection voids it. Then
+        warm the EGM codec (:meth:`EgmServer.warm`): spinning, the reply path stays in the
+        caches until the packet comes."""
         self.prepared_for = self.last_rx
-        t_due = self.last_rx + self.cfg.safety.dt
-        try:
-            q_req, qd_req = self.executor.setpoint(t_due)
-        except Exception:  # the reply calls it again, counts the error and brakes
+        if self.control.last is None:
             return
-        self.next_req = (t_due, q_req, qd_req)
-        self.supervisor.prepare(q_req, qd_req)
+        self.control.prepare()
         self.egm.warm()
 
     def _time_left(self, now: float) -> float:
@@ -254,23 +272,29 @@ class Daemon:
             spent = time.perf_counter() - t0
             self.detection_cost = max(spent, 0.99 * self.detection_cost, 1e-4)
 
+    def _plan_time(self, now: float) -> float:
+        """When a plan made now takes effect: the controller time of the next cycle (a plan
+        starting later than the cycle it is first sampled at would jump), or now when the
+        controller is silent."""
+        t_next = self.control.t_next
+        return t_next if self._connected(now) and t_next >= now - 0.004 else now
+
     def _take(self, payload: bytes, now: float) -> None:
         """One detection payload received at ``now``: intake, recorder, filter and planner."""
         self.recorder.raw(now, payload)
         det = self.intake.take(payload, now)
         if det is None:
             return
-        self.next_req, self.prepared_for = None, -math.inf  # plan changes: prepare again
+        self.control.invalidate()  # plan changes: prepare again
+        self.prepared_for = -math.inf
         self.recorder.detection(now, det.stamp, det.position, det.seq)
         t0 = time.perf_counter()
         ex = self.executor
         try:
-            ex.on_detection(now, det.stamp, det.position)
-        except Exception:  # a planner bug must not stop the EGM loop: stop the arm instead
-            self.planner_errors += 1
-            if self.planner_errors == 1 or self.planner_errors % 100 == 0:
-                log.exception("planner error %d: braking", self.planner_errors)
-            self.supervisor.request_brake("nonfinite")
+            ex.on_detection(self._plan_time(now), det.stamp, det.position)
+        except Exception as exc:  # a planner bug must not stop the EGM loop: stop the arm
+            self._planner_error("planner", exc)
+            self.control.brake("nonfinite")
             return
         self.decision_ms = 1e3 * (time.perf_counter() - t0)
         if self.recorder.enabled and ex.belief.n_meas >= 2:  # the crossing only for the record
@@ -285,25 +309,41 @@ class Daemon:
 
     def status(self, now: float) -> dict:
         """The status message (INTERFACES.md: at least stamp and state)."""
-        ex = self.executor
+        ex, ctl, sup = self.executor, self.control, self.supervisor
         d = ex.decision
         value = float(d.backup.value[ex.node]) if d is not None and d.backup is not None else None
+        fault = ctl.latched or (sup.braking and sup.brake_reason in FAULT_REASONS)
+        recorder_status = getattr(self.recorder, "status", None)
         return {
             "stamp": now,
-            "state": "fault" if ex.mode == FAULT else ex.mode,
+            "state": FAULT if fault else ex.mode,
             "planner": self.planner,
             "throws": ex.episodes,
             "node": ex.node,
             "value": value,
             "decision_ms": round(self.decision_ms, 3),
             "detections": self.intake.as_dict(),
-            "egm": vars(self.egm.counters).copy(),
-            "egm_connected": now - self.last_rx < self.cfg.safety.traffic_timeout,
-            "safety": {k: v for k, v in self.supervisor.counts.items() if v},
-            "braking": self.supervisor.braking,
+            "egm": {**vars(self.egm.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},
+            "egm_peer": _peer_text(self.egm.peer),
+            "egm_foreign": dict(self.egm.foreign_sources),
+            "egm_connected": self._connected(now),
+            "safety": {k: v for k, v in sup.counts.items() if v},
+            "interventions": {
+                "ticks": sup.ticks,
+                "intervened": sup.intervened,
+                "last_throw": self.last_throw,
+            },
+            "faults": {"count": ctl.fault_count, "recent": len(ctl.faults), "latched": ctl.latched},
+            "braking": sup.braking,
+            "brake_reason": sup.brake_reason,
             "planner_errors": self.planner_errors,
+            "recorder": recorder_status() if recorder_status else None,
             "egm_timing": self.egm.timing.summary(),
         }
+
+
+def _peer_text(peer) -> str | None:
+    return None if peer is None else f"{peer[0]}:{peer[1]}"
 
 
 def _plain(obj):

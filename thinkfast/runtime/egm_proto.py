@@ -123,14 +123,14 @@ class RobotFeedback(NamedTuple):
 
     Attributes:
         seqno: controller sequence number (uint32).
-        tm_ms: controller time stamp [ms] (uint32, wraps).
+        tm_ms: controller time stamp [ms] (uint32, wraps), None when the header has none.
         q_rad: measured joint angles [rad], shape (6,), read-only.
         motors_on: ``motorState`` is ``MOTORS_ON``.
         mci_running: ``mciState`` is ``MCI_RUNNING`` (the EGM motion is active).
     """
 
     seqno: int
-    tm_ms: int
+    tm_ms: int | None
     q_rad: np.ndarray
     motors_on: bool
     mci_running: bool
@@ -271,7 +271,7 @@ def decode_robot(data: bytes) -> RobotFeedback:
     q = _joints_from_wire(msg.feedBack.joints.joints, "EgmRobot feedBack")
     return RobotFeedback(
         seqno=msg.header.seqno,
-        tm_ms=msg.header.tm,
+        tm_ms=msg.header.tm if msg.header.HasField("tm") else None,
         q_rad=q,
         motors_on=msg.motorState.state == MOTORS_ON,
         mci_running=msg.mciState.state == MCI_RUNNING,

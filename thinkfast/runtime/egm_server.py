@@ -9,6 +9,14 @@ safety supervisor's output). Two ways to drive it:
 * from a dedicated thread: :meth:`EgmServer.serve` waits on the socket and replies as each
   packet arrives (lowest latency: the reply leaves within one ``poll`` of the arrival).
 
+One peer: the server answers exactly one controller, the one named (``controller``: an address
+and optionally a port) or else the first sender of a valid ``EgmRobot``. Another sender becomes
+the peer only after the current one has been silent for ``handover`` seconds (a controller that
+restarts, or moves to another port); until then its packets are counted by source and never
+answered. Each :meth:`EgmServer.poll` drains what is pending (at most ``max_packets``: the work
+spent on a flood is bounded), and answers only the newest valid packet of the peer: older ones
+are out of date already (counted ``superseded``), and a reply is only ever computed once.
+
 ``poll`` never raises for anything that arrives on the wire: foreign senders, malformed packets,
 failing ``reply_fn`` calls and socket errors are dropped and counted in :class:`EgmCounters`.
 With ``timing=True`` it also keeps :class:`ReplyTimes`: how long each request waited in the
@@ -58,8 +66,12 @@ class EgmCounters:
     Attributes:
         received: datagrams read from the socket (all senders).
         replied: ``EgmSensor`` messages sent.
-        foreign: datagrams dropped because the sender is not ``controller_ip``.
-        malformed: datagrams dropped because they are not a usable ``EgmRobot``.
+        foreign: datagrams dropped because the sender is not the peer (by source in
+            :attr:`EgmServer.foreign_sources`).
+        malformed: datagrams of the peer (or of a would-be peer) that are not a usable
+            ``EgmRobot``.
+        superseded: valid packets of the peer left unanswered because a newer one was pending.
+        handovers: times the peer changed (the first peer included).
         reply_errors: valid requests left unanswered because ``reply_fn`` raised or returned an
             unencodable setpoint (wrong shape, non-finite).
         socket_errors: ``recvfrom``/``sendto`` failures (the datagram is lost).
@@ -69,6 +81,8 @@ class EgmCounters:
     replied: int = 0
     foreign: int = 0
     malformed: int = 0
+    superseded: int = 0
+    handovers: int = 0
     reply_errors: int = 0
     socket_errors: int = 0
 
@@ -94,15 +108,41 @@ def parse_hostport(text: str, what: str = "--egm-bind") -> tuple[str, int]:
     return host, int(port_s)
 
 
-def _check_ip(ip: str | None) -> str | None:
-    if ip is None:
+def parse_controller(text: str | None) -> tuple[str, int | None] | None:
+    """``--egm-controller`` value ``"IP"`` or ``"IP:PORT"`` (``"[IPv6]:PORT"``) -> ``(ip, port)``
+    with ``port`` None when not given; None stays None.
+
+    Raises:
+        EgmAddressError: not an IP address, or a port that is not an integer in 1..65535.
+    """
+    if text is None:
         return None
+    text = str(text).strip()
+    host, port = text, None
+    if text.startswith("["):
+        host, _, rest = text[1:].partition("]")
+        if rest:
+            port = rest.removeprefix(":")
+    elif text.count(":") == 1:
+        host, port = text.split(":")
     try:
-        return str(ipaddress.ip_address(ip.strip()))
+        ip = str(ipaddress.ip_address(host))
+        if port is not None and not (port.isdigit() and 1 <= int(port) <= 65535):
+            raise ValueError
     except ValueError:
         raise EgmAddressError(
-            f"--egm-controller: {ip!r} is not an IP address (e.g. 192.168.125.1)"
+            f"--egm-controller: {text!r} is not IP or IP:PORT (e.g. 192.168.125.1, "
+            "192.168.125.1:6510, [::1]:6510)"
         ) from None
+    return ip, None if port is None else int(port)
+
+
+def _source(addr) -> tuple[str, int]:
+    """``(ip, port)`` of a sender; an IPv4 sender on a dual-stack socket shows as ::ffff:a.b.c.d."""
+    return addr[0].removeprefix("::ffff:"), addr[1]
+
+
+MAX_SOURCES = 64  # foreign senders counted by name; the rest under "other"
 
 
 class EgmServer:
@@ -113,8 +153,9 @@ class EgmServer:
         reply_fn: ``reply_fn(feedback) -> (q_rad, qd_rad_s)``, two sequences of 6 finite values:
             the setpoint to send in answer to ``feedback``. Called once per valid request, in
             arrival order, on the thread that calls :meth:`poll`.
-        controller_ip: when set, only datagrams from this IP are served; others are counted in
-            ``counters.foreign`` and dropped.
+        controller: ``"IP"`` or ``"IP:PORT"`` of the one controller to serve; None serves the
+            first sender of a valid ``EgmRobot`` (see the module doc).
+        handover: a silent peer [s] after which another sender may become the peer.
         clock: monotonic clock [s] for the ``tm`` field (milliseconds since the server started)
             and for :attr:`last_rx_time`.
         rcvbuf_bytes: requested kernel receive buffer size [bytes].
@@ -123,8 +164,10 @@ class EgmServer:
     Attributes:
         counters: :class:`EgmCounters`.
         seqno: sequence number of the last ``EgmSensor`` sent (0 before the first).
-        last_feedback: the last valid :class:`RobotFeedback`, or None.
-        last_rx_time: ``clock()`` when it arrived [s] (for loss-of-traffic checks), or None.
+        peer: ``(ip, port)`` of the controller being served, None before the first.
+        foreign_sources: ``{"ip:port": datagrams}`` of other senders (``"other"`` past
+            :data:`MAX_SOURCES` names).
+        last_rx_time: ``clock()`` when the peer's last valid packet arrived [s], or None.
         timing: :class:`ReplyTimes`, or None without ``timing``.
 
     Raises:
@@ -135,17 +178,20 @@ class EgmServer:
         self,
         bind: str | tuple[str, int],
         reply_fn: ReplyFn,
-        controller_ip: str | None = None,
+        controller: str | None = None,
         clock: Callable[[], float] = time.perf_counter,
         rcvbuf_bytes: int = 1 << 20,
         timing: bool = False,
+        handover: float = 1.0,
     ):
         host, port = parse_hostport(bind) if isinstance(bind, str) else bind
-        self.controller_ip = _check_ip(controller_ip)
+        self.controller = parse_controller(controller)
+        self.handover = handover
         self.reply_fn = reply_fn
         self.counters = EgmCounters()
         self.seqno = 0
-        self.last_feedback: RobotFeedback | None = None
+        self.peer: tuple[str, int] | None = None
+        self.foreign_sources: dict[str, int] = {}
         self.last_rx_time: float | None = None
         self._last_exchange: tuple | None = None  # (request bytes, q, qd) for warm()
         self._clock = clock
@@ -177,18 +223,19 @@ class EgmServer:
         """Socket descriptor, for ``select``/``selectors`` in an outer loop."""
         return self._sock.fileno()
 
-    def poll(self, max_packets: int = 1000) -> int:
-        """Drain the socket: answer every valid ``EgmRobot``, drop and count the rest.
+    def poll(self, max_packets: int = 256) -> int:
+        """Drain the socket and answer the newest valid ``EgmRobot`` of the peer (module doc).
 
         Args:
-            max_packets: upper bound on datagrams handled in this call (bounds the tick time).
+            max_packets: upper bound on datagrams read in this call (bounds the time a flood
+                can take from the loop).
 
         Returns:
-            Number of replies sent.
+            Number of replies sent (0 or 1).
         """
-        sent = 0
         c = self.counters
         timing = self.timing
+        peer_packets: list[tuple[bytes, tuple, float, float]] = []  # oldest first
         for _ in range(max_packets):
             try:
                 if self._stamped:
@@ -200,46 +247,94 @@ class EgmServer:
             except OSError:
                 c.socket_errors += 1
                 continue
-            if timing is not None:
-                t_read = time.perf_counter()
-                wait = arrival_age(anc) if self._stamped else math.nan
             c.received += 1
-            if (
-                self.controller_ip is not None
-                and addr[0].removeprefix("::ffff:") != self.controller_ip
-            ):
-                c.foreign += 1  # (an IPv4 sender on a dual-stack socket shows as ::ffff:a.b.c.d)
+            src = _source(addr)
+            if not self._may_serve(src):
+                self._count_foreign(src)
                 continue
-            try:
-                fb = decode_robot(data)
-            except EgmDecodeError:
-                c.malformed += 1
-                continue
-            self.last_feedback = fb
-            self.last_rx_time = self._clock()
-            try:
-                q, qd = self.reply_fn(fb)
-                tm = int((self.last_rx_time - self._t0) * 1000.0)
-                payload = encode_sensor(
-                    (self.seqno + 1) & UINT32, tm, q, qd, mtype=MSGTYPE_CORRECTION
-                )
-            except Exception:  # a failing setpoint source must never stop the I/O loop
-                c.reply_errors += 1
-                continue
-            if timing is not None:
-                work = time.perf_counter() - t_read
-            try:
-                self._sock.sendto(payload, addr)
-            except OSError:
-                c.socket_errors += 1
-                continue
-            self.seqno = (self.seqno + 1) & UINT32
-            self._last_exchange = (data, q, qd)
-            c.replied += 1
-            sent += 1
-            if timing is not None:
-                timing.add(wait, work)
-        return sent
+            t_read = time.perf_counter() if timing is not None else 0.0
+            wait = arrival_age(anc) if self._stamped and timing is not None else math.nan
+            peer_packets.append((data, addr, t_read, wait))
+        return self._answer_newest(peer_packets)
+
+    def _may_serve(self, src: tuple[str, int]) -> bool:
+        """``src`` is (or may become) the peer."""
+        if self.controller is not None:
+            ip, port = self.controller
+            return src[0] == ip and (port is None or src[1] == port)
+        if self.peer is None or src == self.peer:
+            return True
+        silent = self.last_rx_time is None or self._clock() - self.last_rx_time > self.handover
+        return silent
+
+    def _count_foreign(self, src: tuple[str, int]) -> None:
+        self.counters.foreign += 1
+        key = f"{src[0]}:{src[1]}"
+        sources = self.foreign_sources
+        if key not in sources and len(sources) >= MAX_SOURCES:
+            key = "other"
+        sources[key] = sources.get(key, 0) + 1
+
+    def _answer_newest(self, packets: list) -> int:
+        """Answer the peer's newest packet that decodes. Without a peer (or after its silence),
+        the sender of the oldest valid packet becomes the peer. Count the rest: the peer's
+        older packets superseded, other senders' foreign."""
+        c = self.counters
+        sources = [_source(p[1]) for p in packets]
+        peer = self.peer if self.peer in sources else None
+        bad: set[int] = set()
+        if peer is None:  # a handover is due (_may_serve let these in): the first valid sender
+            for k, (data, *_) in enumerate(packets):
+                try:
+                    decode_robot(data)
+                except EgmDecodeError:
+                    bad.add(k)
+                    c.malformed += 1
+                    continue
+                peer = sources[k]
+                break
+            if peer is None:
+                return 0
+            self.peer = peer
+            c.handovers += 1
+        answered = -1
+        for k in range(len(packets) - 1, -1, -1):
+            if sources[k] != peer:
+                self._count_foreign(sources[k])
+            elif answered >= 0:
+                c.superseded += 1
+            elif k not in bad:
+                try:
+                    fb = decode_robot(packets[k][0])
+                except EgmDecodeError:
+                    c.malformed += 1
+                    continue
+                answered = k
+                data, addr, t_read, wait = packets[k]
+        return self._reply(fb, data, addr, t_read, wait) if answered >= 0 else 0
+
+    def _reply(self, fb: RobotFeedback, data: bytes, addr, t_read: float, wait: float) -> int:
+        c = self.counters
+        self.last_rx_time = self._clock()
+        try:
+            q, qd = self.reply_fn(fb)
+            tm = int((self.last_rx_time - self._t0) * 1000.0)
+            payload = encode_sensor((self.seqno + 1) & UINT32, tm, q, qd, mtype=MSGTYPE_CORRECTION)
+        except Exception:  # a failing setpoint source must never stop the I/O loop
+            c.reply_errors += 1
+            return 0
+        work = time.perf_counter() - t_read
+        try:
+            self._sock.sendto(payload, addr)
+        except OSError:
+            c.socket_errors += 1
+            return 0
+        self.seqno = (self.seqno + 1) & UINT32
+        self._last_exchange = (data, q, qd)
+        c.replied += 1
+        if self.timing is not None:
+            self.timing.add(wait, work)
+        return 1
 
     def warm(self) -> None:
         """Decode the last request and encode the last reply again, discarding both.

@@ -19,7 +19,8 @@ time. States:
   Ruckig from the commanded state to the goal nearest the most likely crossing point.
 - ``returning``: after the crossing (plus ``after_crossing``) or when detections stop, a move to
   home within the limits; then ``idle``.
-- ``fault``: set by the daemon (the supervisor's brake); left only by a restart.
+- ``fault``: latched by the daemon after repeated supervisor faults (:meth:`hold_fault`); left
+  only by a restart. A single fault is recovered from: :meth:`recover` returns home.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from thinkfast.runtime.launch import LaunchDetector
 from thinkfast.runtime.planner import Decision, RuntimeTree
 from thinkfast.runtime.segments import (
     EDGE,
+    HOLD,
     RETURN,
     STEER,
     TERMINAL,
@@ -323,11 +325,37 @@ class Executor:
 
     def recover(self, q: np.ndarray, t: float) -> None:
         """After the supervisor stopped the arm at ``q`` (6,): drop the throw and return home."""
-        self.resync(q, t)
+        self.resync(q, np.zeros(6), np.zeros(6), t)
         self._reset_episode(IDLE)
         self._start_return(t)
 
-    def resync(self, q: np.ndarray, t: float) -> None:
-        """Continue from rest at commanded joints ``q`` (6,) (after the supervisor intervened)."""
-        self.segment = hold(np.r_[q[:3], np.zeros(6)], t)
-        self.wrist.reset(np.asarray(q[3:], dtype=float), t)
+    def hold_fault(self, q: np.ndarray, t: float) -> None:
+        """Latched fault: drop the throw and hold ``q`` (6,) until restarted."""
+        self.resync(q, np.zeros(6), np.zeros(6), t)
+        self._reset_episode(FAULT)
+
+    def resync(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, t: float) -> None:
+        """Continue from the commanded (or measured) state ``q, qd, qdd`` (6,) at time ``t`` [s]
+        with the same intent: the motion in progress is planned again from that state (a tree
+        edge, which cannot be resumed off its compiled path, becomes a move to the most
+        probable goal). Used after the supervisor changed a command and after an EGM silence."""
+        q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
+        state = np.r_[q[:3], qd[:3], qdd[:3]]
+        self.wrist.reset(q[3:], t, qd[3:], qdd[3:])
+        seg = self.segment
+        kind, target, ref = seg.kind, seg.end[:3], seg.ref
+        if kind == EDGE:
+            d = self.decision
+            goal = -1 if d is None or d.backup is None else int(d.backup.best_goal)
+            kind, ref = STEER, goal
+            target = self.tree.goal_q[goal, :3] if goal >= 0 else q[:3]
+        if kind == HOLD and not state[3:].any():
+            self.segment = hold(state, t)
+            return
+        steer = self.steer_home if kind == RETURN else self.steer
+        new = steer.segment(kind, state, target, t, ref)
+        if new is None and steer is not self.steer:
+            new = self.steer.segment(kind, state, target, t, ref)
+        if new is None:  # Ruckig failed: come to rest where the state would stop
+            new = self.steer.segment(HOLD, state, q[:3], t) or hold(state, t)
+        self.segment = new

@@ -16,7 +16,7 @@ admissible next velocities is never empty. Requests that are admissible and cons
 previous state (their position step matches some ``|acc| <= a_max`` motion) pass unchanged;
 anything else is replaced by the admissible velocity closest to one that tracks the request.
 
-Braking (on a stop signal, feedback deviation, loss of EGM traffic or a non-finite request)
+Braking (on a stop signal, feedback deviation or a non-finite request)
 drives every joint's velocity to zero with ``|acc| <= a_max`` and ramps the acceleration at
 ``j_max`` (a sqrt law, like a jerk-limited time-optimal stop). Jerk is honoured unless the state
 when braking starts makes it impossible without reversing (then the velocity stops at zero), or
@@ -26,6 +26,7 @@ a position limit demands a harder stop. Joints brake independently (each as fast
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -34,8 +35,8 @@ from thinkfast.config import spec
 from thinkfast.errors import ThinkfastError
 
 CLAMP_KINDS = ("nonfinite", "velocity", "acceleration", "position_step", "position_limit")
-BRAKE_REASONS = ("signal", "deviation", "traffic", "nonfinite")
-KINDS = CLAMP_KINDS + tuple(f"brake_{r}" for r in BRAKE_REASONS) + ("init_clamped",)
+BRAKE_REASONS = ("signal", "deviation", "nonfinite")
+KINDS = CLAMP_KINDS + tuple(f"brake_{r}" for r in BRAKE_REASONS) + ("init_clamped", "resync")
 
 
 class SafetyError(ThinkfastError):
@@ -50,16 +51,42 @@ class SafetyConfig:
     position_margin: float = spec(
         0.035, doc="commands stay this far inside the URDF position limits", unit="rad", lo=0.0
     )
+    tracking_lag: float = spec(
+        0.2,
+        doc="ASSUMED longest lag of the arm behind its command (transport, filter and servo "
+        "lag; calibrate from logged EGM feedback): the feedback must lie within what was "
+        "commanded during this window",
+        unit="s",
+        lo=0.0,
+    )
     max_deviation: float = spec(
-        0.35,
-        doc="brake when |feedback - last command| exceeds this on any joint; must exceed "
-        "v_max * controller lag (3.2 rad/s * 80 ms = 0.26 rad on joint 1)",
+        0.1,
+        doc="brake when a joint's feedback lies this far outside the range it was commanded "
+        "over the last tracking_lag (overshoot of a soft servo, quantisation)",
         unit="rad",
         lo=0.0,
         lo_open=True,
     )
-    traffic_timeout: float = spec(
-        0.05, doc="brake when no EgmRobot arrived for this long", unit="s", lo=0.0, lo_open=True
+    resync_after: float = spec(
+        0.02,
+        doc="an EGM silence longer than this restarts the setpoint stream from the measured "
+        "feedback",
+        unit="s",
+        lo=0.0,
+        lo_open=True,
+    )
+    recover_after: float = spec(
+        0.2,
+        doc="after a fault brake, restart (and return home) once the measured arm has been at "
+        "rest this long",
+        unit="s",
+        lo=0.0,
+    )
+    max_faults: int = spec(
+        3, doc="this many faults within fault_window latch fault until restarted", lo=1
+    )
+    fault_window: float = spec(
+        60.0, doc="window for counting faults towards max_faults", unit="s", lo=0.0, lo_open=True
     )
 
 
@@ -270,6 +297,11 @@ class SafeCommand(NamedTuple):
 class SafetySupervisor:
     """Stateful wrapper of :func:`filter_step` and :func:`brake_velocity`, one call per tick.
 
+    Besides the limits it watches the feedback: the arm lags its command (transport, filters,
+    servo), so a joint's measured position must lie within the range of what was commanded
+    over the last ``tracking_lag``, give or take ``max_deviation``; an arm outside that envelope
+    has stopped following (or reports nonsense) and the supervisor brakes.
+
     Args:
         limits: joint limits (margin already applied, see :func:`make_limits`).
         config: tick period and trigger thresholds.
@@ -281,26 +313,55 @@ class SafetySupervisor:
         self.limits = limits
         self.config = config
         self.counts = dict.fromkeys(KINDS, 0)
+        self.ticks = 0  # ticks stepped
+        self.intervened = 0  # ticks whose request was changed (clamped) or braked
         self._k = _TickConstants.of(limits, config.dt)
+        self._window = max(1, math.ceil(config.tracking_lag / config.dt - 1e-9)) + 1
         self.reset(q0)
 
-    def reset(self, q0) -> None:
-        """Start from rest at ``q0`` [rad] with no brake latched."""
+    def reset(self, q0, qd0=None) -> None:
+        """Start at ``q0`` [rad] moving at ``qd0`` [rad/s] (default: rest), no brake latched.
+
+        Raises:
+            SafetyError: a value is not finite or the shapes are wrong.
+        """
         q0 = np.array(q0, dtype=float).reshape(-1)
         n = self.limits.q_min.size
-        if q0.size != n or not np.isfinite(q0).all():
-            raise SafetyError(f"safety supervisor: q0 must hold {n} finite values, got {q0}")
+        v0 = np.zeros(n) if qd0 is None else np.array(qd0, dtype=float).reshape(-1)
+        if q0.size != n or v0.size != n or not (np.isfinite(q0).all() and np.isfinite(v0).all()):
+            raise SafetyError(f"safety supervisor: q0 and qd0 must hold {n} finite values")
         q = np.clip(q0, self.limits.q_min, self.limits.q_max)
         if (q != q0).any():
             self.counts["init_clamped"] += 1
-        self.q, self.qd, self.qdd = q, np.zeros(n), np.zeros(n)
+        v = np.clip(v0, -self.limits.v_max, self.limits.v_max)
+        q.setflags(write=False)
+        v.setflags(write=False)
+        self.q, self.qd, self.qdd = q, v, np.zeros(n)
         self.brake_reason: str | None = None
         self._prepared: tuple | None = None
+        self._recent = np.tile(q, (self._window, 1))  # ring of recent commands (envelope)
+        self._head = 0
+
+    def resync(self, q_meas, qd_meas=None) -> bool:
+        """Restart from the measured state (after an EGM silence): returns False when the
+        measurement is unusable (the state is kept and a ``deviation`` brake latched)."""
+        try:
+            self.reset(q_meas, qd_meas)
+        except SafetyError:
+            self.request_brake("deviation")
+            return False
+        self.counts["resync"] += 1
+        return True
 
     @property
     def braking(self) -> bool:
         """A brake is latched."""
         return self.brake_reason is not None
+
+    @property
+    def stopped(self) -> bool:
+        """The commanded velocity is zero on every joint."""
+        return not self.qd.any()
 
     def request_brake(self, reason: str) -> None:
         """Latch a smooth stop; ``reason`` is one of :data:`BRAKE_REASONS` (first one is kept)."""
@@ -314,14 +375,24 @@ class SafetySupervisor:
         """Accept requests again (call when stopped and the cause is gone)."""
         self.brake_reason = None
 
+    def deviation(self, q_meas) -> np.ndarray | None:
+        """Per joint [rad], how far ``q_meas`` lies outside the range commanded over the last
+        ``tracking_lag``; None when ``q_meas`` is unusable (shape, non-finite)."""
+        q = _vector(q_meas, self.q.size)
+        if q is None:
+            return None
+        recent = self._recent
+        return np.maximum(np.maximum(q - recent.max(axis=0), recent.min(axis=0) - q), 0.0)
+
     def prepare(self, q_req, qd_req) -> None:
         """Filter the next tick's request ahead of time, to take work out of :meth:`step`.
 
         Pure until :meth:`step`: no state changes. The next :meth:`step` called with these same
-        request objects, from the same commanded state and with no brake latched by then, uses
-        the result, which is exactly what it would have computed (the same :func:`filter_step`
-        from the same previous command); any other call computes afresh. The request is copied
-        here: modifying it in between would send the filtered copy, still admissible.
+        request objects, from the same commanded state, with the nominal tick and with no brake
+        latched by then, uses the result, which is exactly what it would have computed (the same
+        :func:`filter_step` from the same previous command); any other call computes afresh. The
+        request is copied here: modifying it in between would send the filtered copy, still
+        admissible.
         """
         self._prepared = None
         n = self.q.size
@@ -332,33 +403,33 @@ class SafetySupervisor:
             res = _filter_step(self.q, self.qd, q_r, v_r, self.limits, self.config.dt, self._k)
         self._prepared = (q_req, qd_req, self.q, self.qd, res)
 
-    def step(self, q_req, qd_req, q_meas=None, egm_age: float | None = None) -> SafeCommand:
+    def step(self, q_req, qd_req, q_meas=None, dt: float | None = None) -> SafeCommand:
         """Advance one tick. Never raises; whatever the inputs the output is admissible.
 
         Args:
             q_req: requested joint angles [rad], shape (n,) (anything: checked here).
             qd_req: requested joint velocities [rad/s], shape (n,).
-            q_meas: latest measured joint angles [rad], shape (n,), or None; a deviation from
-                the last command beyond ``max_deviation`` (or a non-finite value) brakes.
-            egm_age: time since the last EgmRobot arrived [s], or None; beyond
-                ``traffic_timeout`` brakes.
+            q_meas: latest measured joint angles [rad], shape (n,), or None; one outside the
+                envelope of recent commands by more than ``max_deviation`` (or a non-finite
+                value) brakes.
+            dt: length of this tick [s] when it is not exactly the nominal ``config.dt`` (the
+                controller's clock says how much time passed); within a small fraction of it
+                (the braking-room invariant is kept for the nominal tick: step longer gaps as
+                several ticks).
         """
         cfg, lim, n = self.config, self.limits, self.q.size
         kinds: tuple[str, ...] = ()
         prep, self._prepared = self._prepared, None
         if q_meas is not None:
-            dev = _vector(q_meas, n)
-            if dev is None or _any(np.abs(dev - self.q) > cfg.max_deviation):
+            dev = self.deviation(q_meas)
+            if dev is None or _any(dev > cfg.max_deviation):
                 self.request_brake("deviation")
-        if egm_age is not None:
-            try:
-                fresh = float(egm_age) <= cfg.traffic_timeout  # False for NaN
-            except (TypeError, ValueError):
-                fresh = False
-            if not fresh:
-                self.request_brake("traffic")
+        nominal = dt is None or dt == cfg.dt
+        k = self._k if nominal else _TickConstants.of(lim, dt)
+        h = cfg.dt if nominal else dt
         if (
             prep is not None
+            and nominal
             and not self.braking
             and prep[0] is q_req
             and prep[1] is qd_req
@@ -366,30 +437,37 @@ class SafetySupervisor:
             and prep[3] is self.qd
         ):
             q, v, kinds = prep[4]
-            return self._commit(q, v, kinds)
+            return self._commit(q, v, kinds, h)
         q_r, v_r = _vector(q_req, n), _vector(qd_req, n)
         if not self.braking and (q_r is None or v_r is None):
             kinds = ("nonfinite",)
             self.request_brake("nonfinite")
         if self.braking:
-            v_des = brake_velocity(self.qd, self.qdd, lim, cfg.dt)
-            q, v = limit_step(self.q, self.qd, v_des, lim, cfg.dt)
+            v_des = brake_velocity(self.qd, self.qdd, lim, h)
+            q, v = limit_step(self.q, self.qd, v_des, lim, h)
             # rounding in the limit bounds can leave +-1e-13 rad/s of the wrong sign: a stop
             # is exactly zero, never a reversal
             v = np.where(np.abs(v) < 1e-9, 0.0, v)
         else:
             with np.errstate(over="ignore", invalid="ignore"):  # as in filter_step
-                q, v, kinds = _filter_step(self.q, self.qd, q_r, v_r, lim, cfg.dt, self._k)
-        return self._commit(q, v, kinds)
+                q, v, kinds = _filter_step(self.q, self.qd, q_r, v_r, lim, h, k)
+        return self._commit(q, v, kinds, h)
 
-    def _commit(self, q: np.ndarray, v: np.ndarray, kinds: tuple[str, ...]) -> SafeCommand:
+    def _commit(
+        self, q: np.ndarray, v: np.ndarray, kinds: tuple[str, ...], h: float
+    ) -> SafeCommand:
         """Make ``(q, v)`` the commanded state of this tick and count the interventions."""
-        for k in kinds:
-            self.counts[k] += 1
-        self.qdd = (v - self.qd) / self.config.dt
+        for kind in kinds:
+            self.counts[kind] += 1
+        self.ticks += 1
+        if kinds or self.braking:
+            self.intervened += 1
+        self.qdd = (v - self.qd) / h
         q.setflags(write=False)  # fresh arrays each tick: safe to hand out read-only
         v.setflags(write=False)
         self.q, self.qd = q, v
+        self._head = (self._head + 1) % self._window
+        self._recent[self._head] = q
         return SafeCommand(q, v, self.braking, self.braking and not v.any(), kinds)
 
 

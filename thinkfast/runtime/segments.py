@@ -118,9 +118,11 @@ class WristTracker:
         self._traj, self._t0 = None, 0.0
         self._rest: tuple | None = None  # (inputs, state, goal, traj) of the last standstill
 
-    def reset(self, q: np.ndarray, t: float) -> None:
-        """Start at rest at wrist angles ``q`` (3,) at time ``t``."""
-        self.state = np.r_[q, np.zeros(6)]
+    def reset(self, q: np.ndarray, t: float, qd=None, qdd=None) -> None:
+        """Start at wrist angles ``q`` (3,) [rad] with velocity ``qd`` and acceleration ``qdd``
+        (3,) (default: at rest) at time ``t`` [s]."""
+        z = np.zeros(3)
+        self.state = np.r_[q, z if qd is None else qd, z if qdd is None else qdd].astype(float)
         self.goal = np.array(q, dtype=float)
         self.t = t
         self._traj, self._t0 = None, t

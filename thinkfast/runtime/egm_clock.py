@@ -1,0 +1,123 @@
+"""The controller's clock: which controller cycle each ``EgmRobot`` belongs to.
+
+A setpoint is a function of the controller's time, never of how many packets arrived: a
+duplicated or stale packet gets the same setpoint again, a missed cycle advances the plan by two
+cycles, and after a silence the stream restarts from the measured feedback. Pure: the daemon
+passes the header time and its own receive time in.
+
+Two sources, in this order:
+
+* the ``EgmRobot`` header's ``tm`` [ms] (the controller's own clock, uint32, wraps): the time
+  elapsed since the last served packet is the difference of the stamps;
+* without ``tm``, the receive time snapped to the cycle grid: a packet less than half a cycle
+  after the last grid time is the same cycle again; otherwise it is the nearest grid time
+  (at least one cycle on), and the grid's phase follows the receive times at most ``max_slew``
+  (relative) per cycle, so that host and controller clocks drifting apart never make a cycle
+  longer or shorter than the supervisor's limits allow for.
+
+Times are returned in the daemon's time base (wall clock seconds, like detection stamps): the
+controller's clock is anchored on the receive time of the first packet and re-anchored (to the
+earliest recent arrival, the least delayed one) whenever nothing is moving, where shifting the
+time base changes no setpoint.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+REANCHOR = 0.0005  # s: the time base moves (at rest) when arrivals drifted further than this
+_WRAP = 1 << 32
+_HALF = 1 << 31
+
+
+class ClockTick(NamedTuple):
+    """Where one ``EgmRobot`` stands on the controller's clock.
+
+    Attributes:
+        t: the controller time of this packet in the daemon's time base [s].
+        elapsed: controller time since the last served packet [s]; 0 for the same cycle again.
+        resync: the stream starts afresh here (first packet, a silence longer than
+            ``resync_after``, or a clock that jumped back): restart from the measured feedback.
+        repeat: the packet belongs to a cycle already answered (duplicate or stale): answer
+            with the same setpoint again.
+    """
+
+    t: float
+    elapsed: float
+    resync: bool
+    repeat: bool
+
+
+class ControllerClock:
+    """Maps ``EgmRobot`` packets to controller time (see the module doc).
+
+    Args:
+        dt: controller cycle [s] (0.004).
+        resync_after: a silence longer than this [s] restarts the stream from the feedback.
+        max_slew: largest relative change of a cycle's length when following receive times
+            (only without ``tm``).
+        anchor_window: arrivals within this long [s] are used to re-anchor the time base.
+    """
+
+    def __init__(
+        self, dt: float, resync_after: float, max_slew: float = 1e-4, anchor_window: float = 1.0
+    ):
+        self.dt, self.resync_after, self.max_slew = dt, resync_after, max_slew
+        self.anchor_window = anchor_window
+        self.t = -math.inf  # controller time of the last served packet (daemon time base)
+        self.tm: int | None = None  # its header stamp [ms]
+        self._offset = 0.0  # daemon time = tm / 1000 + offset
+        self._best: tuple[float, float] = (math.inf, -math.inf)  # (offset, when) of the earliest
+
+    def tick(self, tm_ms: int | None, now: float, at_rest: bool = False) -> ClockTick:
+        """Place one packet with header stamp ``tm_ms`` (None: absent) received at ``now`` [s].
+
+        ``at_rest``: nothing moves (the setpoint does not depend on time), so the time base may
+        be re-anchored here.
+        """
+        if tm_ms is None:
+            return self._by_arrival(now)
+        if self.tm is None or not math.isfinite(self.t):
+            return self._restart(tm_ms, now)
+        d_ms = (tm_ms - self.tm + _HALF) % _WRAP - _HALF  # signed, across the uint32 wrap
+        elapsed = d_ms / 1000.0
+        if elapsed > self.resync_after or elapsed < -self.resync_after:
+            return self._restart(tm_ms, now)  # a silence, or the controller's clock restarted
+        if d_ms <= 0:
+            return ClockTick(self.t, 0.0, False, True)
+        self._track(tm_ms, now)
+        self.tm = tm_ms
+        self.t += elapsed
+        if at_rest and abs(self._best[0] - self._offset) > REANCHOR:
+            self._offset = self._best[0]  # nothing moves: line the time base up with arrivals
+            self.t = tm_ms / 1000.0 + self._offset
+        return ClockTick(self.t, elapsed, False, False)
+
+    def _restart(self, tm_ms: int, now: float) -> ClockTick:
+        self.tm, self.t = tm_ms, now
+        self._offset = now - tm_ms / 1000.0
+        self._best = (self._offset, now)
+        return ClockTick(now, 0.0, True, False)
+
+    def _track(self, tm_ms: int, now: float) -> None:
+        """Keep the earliest arrival (smallest offset) seen within the anchor window."""
+        off = now - tm_ms / 1000.0
+        best, when = self._best
+        if off <= best or now - when > self.anchor_window:
+            self._best = (off, now)
+
+    def _by_arrival(self, now: float) -> ClockTick:
+        self.tm = None
+        since = now - self.t
+        if not math.isfinite(self.t) or since > self.resync_after or since < -self.resync_after:
+            self.t = now
+            return ClockTick(now, 0.0, True, False)
+        if since < 0.5 * self.dt:
+            return ClockTick(self.t, 0.0, False, True)
+        n = max(1, round(since / self.dt))
+        nominal = n * self.dt
+        slew = self.max_slew * nominal
+        elapsed = nominal + min(max(since - nominal, -slew), slew)
+        self.t += elapsed
+        return ClockTick(self.t, elapsed, False, False)

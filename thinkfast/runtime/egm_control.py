@@ -1,0 +1,217 @@
+"""Setpoints on the controller's clock: executor and supervisor stepped per controller cycle.
+
+Clock-free (time is passed in). For each ``EgmRobot`` the controller's clock
+(:mod:`thinkfast.runtime.egm_clock`) says which cycle it belongs to, and the reply is the plan
+and the supervisor's state at that time:
+
+* the same cycle again (a duplicated or stale packet): the same setpoint again;
+* one or more cycles on: the supervisor steps through each elapsed cycle (a missed cycle
+  advances the command by two cycles of admissible motion, never by one of double speed);
+* the first packet, or one after a silence longer than ``resync_after``: the stream restarts
+  from the measured feedback (position, and velocity where the feedback measured it: two
+  packets at most three cycles apart), and the executor plans on from there with the same
+  intent.
+
+Every plan starts from the commanded state: when the supervisor had to change a request (it
+should almost never have to), the executor is resynchronised to what was actually commanded.
+
+Faults. A deviation brake (the arm left the envelope of its recent commands) or a non-finite
+request stops the arm smoothly. Once the commanded stop is complete and the *measured* arm has
+been at rest for ``recover_after``, the stream restarts from the measured position and the arm
+returns home, then is ready again. ``max_faults`` faults within ``fault_window`` latch ``fault``
+for good: the measured position is held until the daemon is restarted.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.runtime.egm_clock import ClockTick, ControllerClock
+from thinkfast.runtime.executor import FAULT, IDLE, Executor
+from thinkfast.runtime.safety import SafetyConfig, SafetySupervisor
+
+FAULT_REASONS = ("deviation", "nonfinite")
+REST_SPEED = 1e-3  # rad/s: a measured joint slower than this is at rest
+MEASURED_SPAN = 3  # cycles: feedback further apart measures no velocity
+
+
+class Reply(NamedTuple):
+    """One reply: ``q`` [rad], ``qd`` [rad/s] (6,), the ``mode`` to mirror, and the tick."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    mode: str
+    tick: ClockTick
+
+
+class EgmControl:
+    """Executor + supervisor on the controller's clock, with fault recovery (module doc).
+
+    Args:
+        executor: the planner/executor (its ``setpoint(t)`` gives the plan at time t).
+        supervisor: the safety supervisor (the last stage before the wire).
+        cfg: supervisor and recovery parameters.
+        on_event: ``on_event(t, kind, detail)`` for things worth logging and recording.
+    """
+
+    def __init__(
+        self,
+        executor: Executor,
+        supervisor: SafetySupervisor,
+        cfg: SafetyConfig,
+        on_event=lambda t, kind, detail: None,
+    ):
+        self.ex, self.sup, self.cfg, self.on_event = executor, supervisor, cfg, on_event
+        self.clock = ControllerClock(cfg.dt, cfg.resync_after)
+        self.last: Reply | None = None
+        self.repeats = 0  # duplicate or stale packets answered with the same setpoint
+        self.resyncs = 0  # restarts from the measured feedback (first packet excluded)
+        self.faults: collections.deque[float] = collections.deque()  # times, within the window
+        self.fault_count = 0
+        self.latched = False
+        self._fb: tuple[float, np.ndarray] | None = None  # (controller time, q) of last feedback
+        self._rest_since = math.inf  # measured arm at rest since (controller time)
+        self._prepared: tuple | None = None  # (t, q_req, qd_req)
+        self.errors = 0  # executor.setpoint failures (each brakes)
+        self.last_error: Exception | None = None
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def t_next(self) -> float:
+        """Controller time of the next cycle [s] (-inf before the first packet)."""
+        return self.clock.t + self.cfg.dt
+
+    def at_rest(self) -> bool:
+        """Nothing moves and nothing will without a new detection (the time base may move)."""
+        return self.ex.mode == IDLE and self.sup.stopped and not self.sup.braking
+
+    def mode(self) -> str:
+        """Executor mode, ``brake`` while braking, ``fault`` while latched."""
+        if self.latched:
+            return FAULT
+        return "brake" if self.sup.braking else self.ex.mode
+
+    # ------------------------------------------------------------------ cycle
+    def prepare(self) -> None:
+        """Plan the next cycle's setpoint ahead (the supervisor filters it ahead too); a
+        failure leaves nothing prepared (the reply tries again, counts it and brakes)."""
+        t = self.t_next
+        try:
+            q_req, qd_req = self.ex.setpoint(t)
+        except Exception:
+            self._prepared = None
+            return
+        self._prepared = (t, q_req, qd_req)
+        self.sup.prepare(q_req, qd_req)
+
+    def invalidate(self) -> None:
+        """The plan changed: a prepared setpoint is void."""
+        self._prepared = None
+
+    def on_feedback(self, tm_ms: int | None, q_meas: np.ndarray, now: float) -> Reply:
+        """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, joints ``q_meas`` [rad])
+        received at ``now`` [s]. Never raises: a failing ``executor.setpoint`` is counted in
+        ``errors`` and brakes."""
+        tick = self.clock.tick(tm_ms, now, self.at_rest())
+        if tick.repeat and self.last is not None:
+            self.repeats += 1
+            return self.last._replace(tick=tick)
+        qd_meas = self._measure(tick, q_meas)
+        if tick.resync or self.last is None:
+            return self._restart(tick, q_meas, qd_meas)
+        prepared, self._prepared = self._prepared, None
+        steps = max(1, round(tick.elapsed / self.cfg.dt))
+        h = tick.elapsed / steps
+        t0 = tick.t - tick.elapsed
+        for i in range(1, steps):  # cycles the controller skipped: still admissible motion
+            self.sup.step(*self._plan(t0 + i * h), dt=h)
+        if prepared is not None and steps == 1 and prepared[0] == tick.t:
+            q_req, qd_req = prepared[1], prepared[2]
+        else:
+            q_req, qd_req = self._plan(tick.t)
+        cmd = self.sup.step(q_req, qd_req, q_meas=q_meas, dt=h)
+        if cmd.kinds and not cmd.braking:  # the plan goes on from what was commanded
+            self.ex.resync(cmd.q, cmd.qd, self.sup.qdd, tick.t)
+        if cmd.braking:
+            self._while_braking(tick.t, q_meas, qd_meas)
+        self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
+        return self.last
+
+    def brake(self, reason: str) -> None:
+        """Latch a smooth stop (``signal``, or ``nonfinite`` for a planner failure)."""
+        self.sup.request_brake(reason)
+
+    # ------------------------------------------------------------------ internals
+    def _plan(self, t: float):
+        """The executor's setpoint at ``t``, or (None, None) when it fails (the supervisor
+        brakes on it)."""
+        try:
+            return self.ex.setpoint(t)
+        except Exception as exc:  # a planner bug must cost a smooth stop, never a reply
+            self.errors += 1
+            self.last_error = exc
+            return None, None
+
+    def _measure(self, tick: ClockTick, q_meas: np.ndarray) -> np.ndarray | None:
+        """Measured velocity [rad/s] (6,) from the last two feedbacks, or None."""
+        q = np.asarray(q_meas, dtype=float)
+        prev, self._fb = self._fb, (tick.t, q)
+        if prev is None or tick.resync:
+            self._rest_since = math.inf
+            return None
+        span = tick.t - prev[0]
+        if not 0.0 < span <= MEASURED_SPAN * self.cfg.dt + 1e-9:
+            self._rest_since = math.inf
+            return None
+        qd = (q - prev[1]) / span
+        if np.max(np.abs(qd)) < REST_SPEED:
+            self._rest_since = min(self._rest_since, prev[0])
+        else:
+            self._rest_since = math.inf
+        return qd
+
+    def _restart(self, tick: ClockTick, q_meas, qd_meas) -> Reply:
+        """First packet or after a silence: command the measured state, plan on from it."""
+        first = self.last is None
+        if first:
+            self.sup.reset(q_meas)
+            self.ex.start_from(np.array(self.sup.q), tick.t)
+        elif self.latched:
+            self.sup.reset(q_meas)
+            self.sup.request_brake("deviation")  # latched: hold where the arm stands
+            self.ex.hold_fault(np.array(self.sup.q), tick.t)
+        elif not self.sup.resync(q_meas, qd_meas):
+            pass  # unusable measurement: the supervisor brakes from the old state
+        else:
+            self.resyncs += 1
+            self.ex.resync(self.sup.q, self.sup.qd, np.zeros(6), tick.t)
+            self.on_event(tick.t, "resync", {"silence": "restart from the measured feedback"})
+        self._prepared = None
+        self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
+        return self.last
+
+    def _while_braking(self, t: float, q_meas, qd_meas) -> None:
+        reason = self.sup.brake_reason
+        if reason not in FAULT_REASONS or not self.sup.stopped or self.latched:
+            return
+        if t - self._rest_since < self.cfg.recover_after:
+            return  # the commanded stop is done; wait until the arm stands too
+        self.fault_count += 1
+        while self.faults and t - self.faults[0] > self.cfg.fault_window:
+            self.faults.popleft()
+        self.faults.append(t)
+        if len(self.faults) >= self.cfg.max_faults:
+            self.latched = True
+            self.sup.reset(q_meas)
+            self.sup.request_brake(reason)  # stays braked (at rest): requests are ignored
+            self.ex.hold_fault(np.array(self.sup.q), t)
+            self.on_event(t, "fault_latched", {"reason": reason, "faults": len(self.faults)})
+            return
+        self.sup.reset(q_meas)  # the arm stands: restart from where it is, then go home
+        self.ex.recover(np.array(self.sup.q), t)
+        self._prepared = None
+        self.on_event(t, "recover", {"reason": reason, "faults": len(self.faults)})
