@@ -273,11 +273,10 @@ class Daemon:
             self.detection_cost = max(spent, 0.99 * self.detection_cost, 1e-4)
 
     def _plan_time(self, now: float) -> float:
-        """When a plan made now takes effect: the controller time of the next cycle (a plan
-        starting later than the cycle it is first sampled at would jump), or now when the
-        controller is silent."""
-        t_next = self.control.t_next
-        return t_next if self._connected(now) and t_next >= now - 0.004 else now
+        """When a plan made now takes effect: the controller time of the next cycle (plans live
+        on the controller's clock; one starting later than the cycle it is first sampled at
+        would jump), or now when the controller is silent."""
+        return self.control.t_next if self._connected(now) else now
 
     def _take(self, payload: bytes, now: float) -> None:
         """One detection payload received at ``now``: intake, recorder, filter and planner."""

@@ -36,6 +36,7 @@ from thinkfast.errors import ThinkfastError
 
 CLAMP_KINDS = ("nonfinite", "velocity", "acceleration", "position_step", "position_limit")
 BRAKE_REASONS = ("signal", "deviation", "nonfinite")
+REL_TOL = 1e-9  # a request exactly at a limit passes (a planner at the limit, rounded up)
 KINDS = CLAMP_KINDS + tuple(f"brake_{r}" for r in BRAKE_REASONS) + ("init_clamped", "resync")
 
 
@@ -234,7 +235,8 @@ def filter_step(q_p, v_p, q_req, v_req, lim: SafetyLimits, dt: float) -> StepRes
 class _TickConstants(NamedTuple):
     """Products of the limits and the tick that every step uses (computed once, same floats)."""
 
-    a_dt: np.ndarray  # a_max dt: largest velocity change per tick
+    a_dt: np.ndarray  # a_max dt (1 + REL_TOL): largest velocity change of a request per tick
+    v_tol: np.ndarray  # v_max (1 + REL_TOL): largest speed of a request
     step_tol: np.ndarray  # largest position error of an admissible request
     two_a: np.ndarray
     half_dt: float
@@ -242,7 +244,13 @@ class _TickConstants(NamedTuple):
     @classmethod
     def of(cls, lim: SafetyLimits, dt: float) -> _TickConstants:
         a_dt = lim.a_max * dt
-        return cls(a_dt, 0.25 * a_dt * dt * (1.0 + 1e-9), 2.0 * lim.a_max, 0.5 * dt)
+        return cls(
+            a_dt * (1.0 + REL_TOL),
+            lim.v_max * (1.0 + REL_TOL),
+            0.25 * a_dt * dt * (1.0 + REL_TOL),
+            2.0 * lim.a_max,
+            0.5 * dt,
+        )
 
 
 def _any(mask: np.ndarray) -> bool:
@@ -257,7 +265,7 @@ def _filter_step(
     q_p, v_p, q_req, v_req, lim: SafetyLimits, dt: float, k: _TickConstants
 ) -> StepResult:
     kinds = []
-    if _any(np.abs(v_req) > lim.v_max):
+    if _any(np.abs(v_req) > k.v_tol):
         kinds.append("velocity")
     if _any(np.abs(v_req - v_p) > k.a_dt):
         kinds.append("acceleration")
