@@ -3,6 +3,11 @@
 Each stage declares one frozen dataclass. Fields carry their constraints in ``field(metadata=...)``
 through :func:`spec`; :func:`from_dict` checks unknown keys, types, shapes and ranges and raises a
 :class:`~thinkfast.errors.ConfigError` naming the dotted key. Past this module nothing reads files.
+
+A table in a file overrides only the keys it names: every other key keeps the default of the
+enclosing config, i.e. the value a default-constructed top-level config holds (a nested field may
+default to an instance that differs from its class's own defaults, e.g. ``RunConfig.filter``).
+An array of tables is a value, not an override: each element starts from its class defaults.
 """
 
 from __future__ import annotations
@@ -63,14 +68,18 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(str(path), None, f"invalid TOML ({exc})") from None
 
 
-def from_dict(cls: type[T], data: Any, source: str, prefix: str = "") -> T:
+def from_dict(cls: type[T], data: Any, source: str, prefix: str = "", base: T | None = None) -> T:
     """Build the frozen dataclass ``cls`` from a TOML table, validating every key.
+
+    Keys ``data`` does not name keep their value in ``base`` (or the class defaults); a nested
+    table starts from the enclosing field's default instance, so it overrides only its own keys.
 
     Args:
         cls: a dataclass whose fields were declared with :func:`spec` (or plain defaults).
         data: the table (dict) read from TOML.
         source: file name, for messages.
         prefix: dotted key of ``data`` inside the file, for messages.
+        base: instance of ``cls`` holding the defaults (None: the class's own defaults).
 
     Raises:
         ConfigError: unknown key, missing key, wrong type, wrong length or out-of-range value.
@@ -86,12 +95,13 @@ def from_dict(cls: type[T], data: Any, source: str, prefix: str = "") -> T:
     values = {}
     for name, f in fields.items():
         key = _join(prefix, name)
+        default = getattr(base, name) if base is not None else _field_default(f)
         if name not in data:
-            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            if default is dataclasses.MISSING:
                 raise ConfigError(source, key, "missing required key")
             continue
-        values[name] = _convert(hints[name], data[name], f.metadata, source, key)
-    return cls(**values)
+        values[name] = _convert(hints[name], data[name], f.metadata, source, key, default)
+    return dataclasses.replace(base, **values) if base is not None else cls(**values)
 
 
 def to_dict(obj: Any) -> dict[str, Any]:
@@ -107,6 +117,13 @@ def to_dict(obj: Any) -> dict[str, Any]:
     return plain(obj)
 
 
+def _field_default(f: dataclasses.Field) -> Any:
+    """The field's default value (MISSING for a required field)."""
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return f.default
+
+
 def _join(prefix: str, name: str) -> str:
     return f"{prefix}.{name}" if prefix else name
 
@@ -117,15 +134,16 @@ def _kind(v: Any) -> str:
     )
 
 
-def _convert(tp: Any, v: Any, meta: Any, source: str, key: str) -> Any:
+def _convert(tp: Any, v: Any, meta: Any, source: str, key: str, default: Any = None) -> Any:
+    """``v`` as type ``tp``; ``default`` is the field's default (the base of a nested table)."""
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         if v is None:
             return None
-        return _convert(args[0], v, meta, source, key)
+        return _convert(args[0], v, meta, source, key, default)
     if dataclasses.is_dataclass(tp):
-        return from_dict(tp, v, source, key)
+        return from_dict(tp, v, source, key, default if isinstance(default, tp) else None)
     if origin is tuple:
         if not isinstance(v, list):
             raise ConfigError(source, key, f"expected an array, got {_kind(v)}")

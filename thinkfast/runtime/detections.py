@@ -51,7 +51,15 @@ class DetectionLimits:
         1.0, doc="older stamps (vs the receiver's clock) are stale", unit="s", lo=0.0, lo_open=True
     )
     max_future: float = spec(
-        0.25, doc="stamps further ahead of the receiver's clock are refused", unit="s", lo=0.0
+        0.01,
+        unit="s",
+        lo=0.0,
+        doc="stamps later than the receive time by more than this are refused (counted future). "
+        "A capture stamp precedes its receipt by the pipeline latency (ZED host stamps too, "
+        "however late after exposure), so with synchronised clocks only the clock offset "
+        "(PTP < 1 ms, LAN NTP a few ms) can put one ahead; an accepted stamp is the order "
+        "watermark, so this also bounds how far ahead of the clock the watermark can run "
+        "(half a frame period at 50 Hz: at most one extra frame lost)",
     )
 
 
@@ -243,8 +251,9 @@ def classify_order(
     """Place a detection in time: against the receiver's clock, then against the last one used.
 
     The capture stamp decides (a sender restart may reset ``seq``); ``seq`` only breaks ties.
-    Checking against ``now`` keeps one absurd stamp (say 1e300) from becoming the "last" stamp
-    and making every later detection look out of order.
+    Checking against ``now`` keeps a stamp from the future (say now + 0.2 s, or 1e300) from
+    becoming the "last" stamp and making every later detection look out of order: an accepted
+    stamp is at most ``now + max_future``.
 
     Args:
         stamp: capture time of the new detection [s].

@@ -32,6 +32,10 @@ class Accepted(NamedTuple):
 class Intake:
     """Stateful intake of one detection stream.
 
+    ``last_stamp`` is the order watermark: only later stamps are new. It moves only with an
+    accepted detection, whose stamp is at most ``max_future`` after its receive time, so no
+    detection (nor a burst of them) can put it further ahead of the clock than that.
+
     Args:
         camera: pose of the camera in ``base``.
         limits: payload and clock limits.
