@@ -51,9 +51,9 @@ def _rng(doc: str, default: tuple[float, float], unit: str, lo: float = 0.0, **k
 class ThrowerConfig:
     """The thrower's motions before the release (the ``thrower`` table of a throw config).
 
-    Every range is ASSUMED (no measurement of real throwers yet): overarm throws of a tennis ball
-    by an adult, from video-analysis figures of the order of a 0.2-0.4 m back swing and a
-    0.1-0.2 s, ~1 m forward acceleration phase. The draw picks the forward swing's time and
+    Every range is ASSUMED: chosen as plausible for an adult's overarm throw of a tennis ball
+    (a 0.2-0.4 m back swing, a 0.1-0.2 s, ~1 m forward acceleration), not measured on real
+    throwers. The draw picks the forward swing's time and
     travel inside their ranges such that the mean speed stays inside ``forward_mean_speed``.
     """
 
@@ -114,14 +114,14 @@ def parse_mix(text: str, source: str = "--mix") -> tuple[float, float, float]:
     """
     w = dict.fromkeys(KINDS, 0.0)
     for item in (x.strip() for x in text.split(",") if x.strip()):
-        name, _, value = item.partition("=")
-        if name.strip() not in w:
-            raise ConfigError(source, None, f"{name.strip()!r} is not one of {', '.join(KINDS)}")
+        name, _, value = (x.strip() for x in item.partition("="))
+        if name not in w:
+            raise ConfigError(source, None, f"{name!r} is not one of {', '.join(KINDS)}")
         try:
-            w[name.strip()] = float(value)
+            w[name] = float(value)
         except ValueError:
             raise ConfigError(source, None, f"{item!r}: expected KIND=WEIGHT") from None
-        if not (w[name.strip()] >= 0.0 and math.isfinite(w[name.strip()])):
+        if not (w[name] >= 0.0 and math.isfinite(w[name])):
             raise ConfigError(source, None, f"{item!r}: weight must be a number >= 0")
     if sum(w.values()) <= 0.0:
         raise ConfigError(source, None, f"{text!r}: give at least one positive weight")
