@@ -125,3 +125,35 @@ def test_a_malformed_history_is_refused(kin, pose):
         judge(th, np.array([1.0, 1.0]), np.zeros((2, 6)), kin, th.plane_x, R_BALL)
     with pytest.raises(ValueError, match="q_hist"):
         judge(th, np.array([1.0]), np.zeros((1, 5)), kin, th.plane_x, R_BALL)
+
+
+def _excursion(home, peak, back_at, end):
+    """Joint 1 goes 0.2 rad out from T_REL to T_REL + 0.5 s, then home by ``back_at`` (or never)."""
+    t = T_REL - 1.0 + np.arange(0.0, end + 1.0, 0.004)
+    q = np.tile(home, (len(t), 1))
+    s = t - T_REL
+    out = np.clip(s / 0.5, 0.0, 1.0)
+    if back_at is not None:
+        out = np.where(s > 0.5, np.clip((back_at - s) / (back_at - 0.5), 0.0, 1.0), out)
+    q[:, 0] += peak * out
+    return t, q
+
+
+def test_feint_judge_measures_the_shield_excursion_and_when_it_is_home_again(kin, home):
+    from thinkfast.sim.judge import judge_feint
+
+    t, q = _excursion(home, 0.2, back_at=1.2, end=2.5)
+    v = judge_feint(t, q, kin, home, T_REL)
+    q_far = home.copy()
+    q_far[0] += 0.2
+    expect = np.linalg.norm(kin.shield(q_far).centre - kin.shield(home).centre)
+    assert v.displacement == pytest.approx(expect, rel=1e-9) and expect > 0.1
+    assert 1.2 <= v.home_after <= 1.21 and v.home_again
+    late = judge_feint(*_excursion(home, 0.2, back_at=2.3, end=2.5), kin, home, T_REL)
+    assert 2.3 <= late.home_after <= 2.31 and not late.home_again
+    gone = judge_feint(*_excursion(home, 0.2, back_at=None, end=2.5), kin, home, T_REL)
+    assert math.isnan(gone.home_after) and not gone.home_again
+    short = judge_feint(*_excursion(home, 0.2, back_at=1.2, end=1.5), kin, home, T_REL)
+    assert not short.home_again  # the history does not cover the 2 s window
+    still = judge_feint(*_excursion(home, 0.0, back_at=1.2, end=2.5), kin, home, T_REL)
+    assert still.displacement == 0.0 and still.home_after < 0.0 and still.home_again

@@ -132,3 +132,51 @@ def test_bench_command_refuses_bad_planners_and_files(tree_path, tmp_path):
     bad = tmp_path / "x.h5"
     bad.write_text("no")
     assert_one_line_error(run_cli("thinkfast-sim", "bench", "--tree", str(bad)), str(bad))
+
+
+def test_wind_ups_and_a_feint_run_end_to_end_and_are_reported_per_kind(tree_path, tmp_path):
+    import dataclasses
+
+    from thinkfast.sim.bench import format_summary, plot_summary
+    from thinkfast.sim.throws import ThrowConfig, sample_throws
+
+    cfg = ThrowConfig()
+    cfg = dataclasses.replace(cfg, thrower=dataclasses.replace(cfg.thrower, mix=(0.0, 1.0, 0.0)))
+    throws = sample_throws(cfg, 3, seed=5, feints=1)
+    planners = ["tree", "naive", "oracle"]
+    out = run_bench(_Factory(tree_path), throws, planners, seed=5, jobs=1)
+    s = summarize(out, planners)
+    assert (s["throws"], s["feints"], s["kinds"]) == (3, 1, {"windup": 3, "feint": 1})
+    for e in s["planners"].values():
+        assert set(e["by_kind"]) == {"windup", "feint"}
+        w, f = e["by_kind"]["windup"], e["by_kind"]["feint"]
+        assert {
+            "throws",
+            "blocked",
+            "rate",
+            "ci95",
+            "starts_before_release",
+            "rate_of_feasible",
+        } <= set(w)
+        assert w["blocked"] == e["blocked"] and w["throws"] == 3
+        assert {"feints", "starts", "displacement_m", "displacement_max_m", "home_again"} <= set(f)
+        assert f["feints"] == 1 and f["home_again"] <= 1
+        assert 0.0 <= f["displacement_max_m"] < 3.0
+    oracle = s["planners"]["oracle"]["by_kind"]["feint"]
+    assert (
+        oracle["starts"] == 0 and oracle["displacement_max_m"] == 0.0 and oracle["home_again"] == 1
+    )
+    text = format_summary(s)
+    assert "windup" in text and "feints (never released)" in text
+    plot_summary(s, str(tmp_path / "kinds.png"))
+    assert (tmp_path / "kinds.png").stat().st_size > 10_000
+    # the oracle leaves at the release: a wind-up's flight is its still twin's, bit for bit
+    twin = sample_throws(ThrowConfig(), 1, seed=5)[0]
+    world = _Factory(tree_path)()
+    a, b = simulate(world, throws[0], "oracle", 5), simulate(world, twin, "oracle", 5)
+    assert (a.blocked, a.miss_distance, a.kind, b.kind) == (
+        b.blocked,
+        b.miss_distance,
+        "windup",
+        "still",
+    )

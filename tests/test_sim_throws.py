@@ -14,12 +14,11 @@ from thinkfast.sim.throws import (
     ball_positions,
     ball_state,
     ball_states,
-    load_throw_set,
     make_throw,
     plane_crossing,
     sample_throws,
-    save_throw_set,
 )
+from thinkfast.sim.throwset import load_throw_set, save_throw_set
 
 CFG = ThrowConfig()
 
@@ -131,9 +130,9 @@ def test_unknown_version_is_refused_naming_the_path(tmp_path, throws):
     path = tmp_path / "future.json"
     save_throw_set(path, throws[:1], CFG)
     doc = json.loads(path.read_text())
-    doc["version"] = 2
+    doc["version"] = 3
     path.write_text(json.dumps(doc))
-    with pytest.raises(ThinkfastError, match="future.json.*version 2"):
+    with pytest.raises(ThinkfastError, match="future.json.*version 3"):
         load_throw_set(path)
 
 

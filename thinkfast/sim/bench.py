@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from thinkfast.sim.lockstep import Outcome, World, simulate, wilson
+from thinkfast.sim.lockstep import FEINT_WINDOW, Outcome, World, simulate, wilson
+from thinkfast.sim.thrower import KINDS
 
 BINS = (0.4, 0.5, 0.6, 0.7, 0.8)  # flight-time bins [s]
 _W: dict[str, Any] = {}
@@ -58,24 +59,33 @@ def run_bench(make_world, throws, planners, seed: int, jobs: int = 1, progress=N
 
 
 def summarize(outcomes: list[Outcome], planners) -> dict:
-    """Per planner: blocked, rate, Wilson interval, per flight-time bin, share of feasible."""
+    """Per planner: blocked, rate, Wilson interval, per flight-time bin, share of feasible, and
+    per kind of throw (``by_kind``: still, windup, feint; see :func:`_kind_entry`).
+
+    The overall figures count throws only: a feint cannot be blocked (``feints`` counts them).
+    ``false_starts``: throws the arm left home for before their release.
+    """
     by = {p: [o for o in outcomes if o.planner == p] for p in planners}
-    n = len(next(iter(by.values()))) if by else 0
-    feasible = None
+    first = next(iter(by.values())) if by else []
+    n = sum(1 for o in first if o.kind != "feint")
+    feasible = None  # aligned with every planner's rows (same throws, same order)
     if "oracle" in by:
-        feasible = np.array([o.blocked for o in by["oracle"]])
-    summary: dict[str, Any] = {"throws": n, "planners": {}}
-    for p, rows in by.items():
-        blocked = np.array([o.blocked for o in rows])
-        flight = np.array([o.flight_time for o in rows])
-        k = int(blocked.sum())
-        lo, hi = wilson(k, n)
-        entry = {
-            "blocked": k,
-            "rate": k / n if n else float("nan"),
-            "ci95": [lo, hi],
-            "why": {w: sum(1 for o in rows if o.why == w) for w in ("blocked", "late", "missed")},
+        feasible = np.array([o.blocked for o in by["oracle"]], dtype=bool)
+    kinds = [k for k in KINDS if any(o.kind == k for o in first)]
+    summary: dict[str, Any] = {
+        "throws": n,
+        "feints": len(first) - n,
+        "kinds": {k: sum(1 for o in first if o.kind == k) for k in kinds},
+        "planners": {},
+    }
+    for p, all_rows in by.items():
+        rows, ok = _select(all_rows, feasible, lambda k: k != "feint")
+        entry = _rates(rows, ok)
+        entry["why"] = {
+            w: sum(1 for o in rows if o.why == w) for w in ("blocked", "late", "missed")
         }
+        blocked = np.array([o.blocked for o in rows], dtype=bool)
+        flight = np.array([o.flight_time for o in rows])
         bins = []
         for a, b in zip(BINS[:-1], BINS[1:], strict=True):
             sel = (flight >= a) & (flight < b + (1e-9 if b == BINS[-1] else 0.0))
@@ -89,24 +99,72 @@ def summarize(outcomes: list[Outcome], planners) -> dict:
                 }
             )
         entry["by_flight_time"] = bins
-        starts = np.array([o.start for o in rows])
-        entry["false_starts"] = int(np.sum(starts < 0.0))  # moved while the ball was in the hand
-        moved = starts[np.isfinite(starts) & (starts >= 0.0)]
-        entry["start_median_s"] = float(np.median(moved)) if len(moved) else float("nan")
-        if feasible is not None:
-            nf = int(feasible.sum())
-            kf = int((blocked & feasible).sum())
-            entry["feasible"] = nf
-            entry["rate_of_feasible"] = kf / nf if nf else float("nan")
-            entry["ci95_of_feasible"] = list(wilson(kf, nf))
+        entry["false_starts"] = entry.pop("starts_before_release")
+        entry["by_kind"] = {
+            k: _kind_entry(*_select(all_rows, feasible, lambda x, k=k: x == k)) for k in kinds
+        }
         summary["planners"][p] = entry
     return summary
+
+
+def _select(rows: list[Outcome], feasible: np.ndarray | None, keep) -> tuple[list, Any]:
+    """The rows whose kind passes ``keep`` and their feasibility flags (or None)."""
+    idx = [i for i, o in enumerate(rows) if keep(o.kind)]
+    return [rows[i] for i in idx], (None if feasible is None else feasible[idx])
+
+
+def _rates(rows: list[Outcome], feasible: np.ndarray | None) -> dict:
+    """Blocked, rate, Wilson interval, starts before release, median start, share of feasible."""
+    n = len(rows)
+    blocked = np.array([o.blocked for o in rows], dtype=bool)
+    k = int(blocked.sum())
+    lo, hi = wilson(k, n)
+    starts = np.array([o.start for o in rows])
+    moved = starts[np.isfinite(starts) & (starts >= 0.0)]
+    entry: dict[str, Any] = {
+        "throws": n,
+        "blocked": k,
+        "rate": k / n if n else float("nan"),
+        "ci95": [lo, hi],
+        "starts_before_release": int(np.sum(starts < 0.0)),  # moved with the ball in the hand
+        "start_median_s": float(np.median(moved)) if len(moved) else float("nan"),
+    }
+    if feasible is not None:
+        nf, kf = int(feasible.sum()), int((blocked & feasible).sum())
+        entry["feasible"] = nf
+        entry["rate_of_feasible"] = kf / nf if nf else float("nan")
+        entry["ci95_of_feasible"] = list(wilson(kf, nf))
+    return entry
+
+
+def _kind_entry(rows: list[Outcome], feasible: np.ndarray | None) -> dict:
+    """One kind's figures: :func:`_rates` for throws; for feints (never released, so neither
+    blocked nor missed) ``starts`` (the arm left home at all), the largest shield displacement
+    from home per feint (``displacement_m``, its max and median) and how many were home again
+    (1 cm, at rest) within ``FEINT_WINDOW`` of the ball stopping."""
+    if not rows or rows[0].kind != "feint":
+        return _rates(rows, feasible)
+    disp = np.array([o.displacement for o in rows])
+    back = np.array([o.home_after for o in rows])
+    return {
+        "feints": len(rows),
+        "starts": int(sum(o.moved for o in rows)),
+        "starts_before_release": int(sum(o.moved for o in rows)),
+        "displacement_m": [round(float(x), 4) for x in disp],
+        "displacement_max_m": float(disp.max()),
+        "displacement_median_m": float(np.median(disp)),
+        "home_again": int(sum(o.home_again for o in rows)),
+        "home_after_max_s": float(np.max(back)) if np.isfinite(back).all() else float("nan"),
+        "home_window_s": FEINT_WINDOW,
+    }
 
 
 def format_summary(summary: dict) -> str:
     """The summary as a table."""
     lines = [
-        f"{summary['throws']} throws per planner (paired: same throws, same camera noise)",
+        f"{summary['throws']} throws"
+        + (f" and {summary['feints']} feints" if summary.get("feints") else "")
+        + " per planner (paired: same throws, same camera noise)",
         "",
         f"{'planner':<8} {'blocked':>8} {'rate':>7} {'95% CI':>15} {'of feasible':>12}",
     ]
@@ -131,25 +189,65 @@ def format_summary(summary: dict) -> str:
             f"{str(x['blocked']) + '/' + str(x['throws']):>14}" for x in e["by_flight_time"]
         )
         lines.append(f"{p:<8}{cells}")
-    return "\n".join(lines)
+    return "\n".join(lines + _format_kinds(summary))
+
+
+def _format_kinds(summary: dict) -> list[str]:
+    """The per-kind tables: throws of each kind, then feints."""
+    kinds = summary.get("kinds", {})
+    w = max([8, *map(len, summary["planners"])])
+    lines = ["", "by kind (starts: the arm left home before the release):"]
+    lines.append(
+        f"{'planner':<{w}} {'kind':<7} {'throws':>6} {'blocked':>8} {'rate':>7} {'95% CI':>15} "
+        f"{'starts':>7}"
+    )
+    for p, e in summary["planners"].items():
+        for k, x in e["by_kind"].items():
+            if k == "feint":
+                continue
+            lo, hi = x["ci95"]
+            lines.append(
+                f"{p:<{w}} {k:<7} {x['throws']:>6} {x['blocked']:>8} {100 * x['rate']:>6.1f}% "
+                f"[{100 * lo:5.1f}, {100 * hi:5.1f}] {x['starts_before_release']:>7}"
+            )
+    if "feint" in kinds:
+        window = next(iter(summary["planners"].values()))["by_kind"]["feint"]["home_window_s"]
+        lines += [
+            "",
+            f"feints (never released): starts = the arm left home at all; shield displacement "
+            f"from home; home again (1 cm, at rest) within {window:g} s of the ball stopping",
+            f"{'planner':<{w}} {'feints':>6} {'starts':>7} {'max disp':>9} {'median':>8} "
+            f"{'home again':>11}",
+        ]
+        for p, e in summary["planners"].items():
+            x = e["by_kind"]["feint"]
+            lines.append(
+                f"{p:<{w}} {x['feints']:>6} {x['starts']:>7} {x['displacement_max_m']:>7.3f} m "
+                f"{x['displacement_median_m']:>6.3f} m {x['home_again']:>6}/{x['feints']}"
+            )
+    return lines
 
 
 def plot_summary(summary: dict, path: str) -> None:
-    """Success rate per flight-time bin and overall, with 95 % intervals."""
+    """Success rate per flight-time bin and overall (left) and per kind of throw with 95 %
+    intervals (right; feints: what the arm did, in the panel's caption)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
-    width = 0.8 / max(len(summary["planners"]), 1)
-    for k, (p, e) in enumerate(summary["planners"].items()):
+    fig, (ax, axk) = plt.subplots(
+        1, 2, figsize=(10, 4.2), gridspec_kw={"width_ratios": [2, 1]}, squeeze=True
+    )
+    planners = summary["planners"]
+    width = 0.8 / max(len(planners), 1)
+    for k, (p, e) in enumerate(planners.items()):
         rates = [x["rate"] for x in e["by_flight_time"]]
         xs = np.arange(len(rates)) + k * width
         ax.bar(xs, rates, width, label=f"{p} ({100 * e['rate']:.0f} %)")
     labels = [
         f"{x['flight_s'][0]:.1f}-{x['flight_s'][1]:.1f}"
-        for x in next(iter(summary["planners"].values()))["by_flight_time"]
+        for x in next(iter(planners.values()))["by_flight_time"]
     ]
     ax.set_xticks(np.arange(len(labels)) + 0.4 - width / 2, labels)
     ax.set(
@@ -159,6 +257,24 @@ def plot_summary(summary: dict, path: str) -> None:
         title=f"{summary['throws']} throws per planner (lockstep)",
     )
     ax.legend()
+    kinds = [k for k in summary.get("kinds", {}) if k != "feint"]
+    for j, (p, e) in enumerate(planners.items()):
+        rates = np.array([e["by_kind"][k]["rate"] for k in kinds])
+        ci = np.array([e["by_kind"][k]["ci95"] for k in kinds]).reshape(-1, 2)
+        err = np.abs(ci.T - rates)
+        axk.bar(np.arange(len(kinds)) + j * width, rates, width, yerr=err, capsize=3, label=p)
+    counts = [f"{k}\n({summary['kinds'][k]})" for k in kinds]
+    axk.set_xticks(np.arange(len(kinds)) + 0.4 - width / 2, counts)
+    axk.set(ylabel="blocked", ylim=(0, 1), title="by kind (95 % Wilson)")
+    if "feint" in summary.get("kinds", {}):
+        text = ["feints: started / max shield displacement / home again"]
+        for p, e in planners.items():
+            x = e["by_kind"]["feint"]
+            text.append(
+                f"{p}: {x['starts']}/{x['feints']}, {100 * x['displacement_max_m']:.0f} cm, "
+                f"{x['home_again']}/{x['feints']}"
+            )
+        axk.set_xlabel("\n".join(text), fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

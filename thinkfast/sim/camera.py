@@ -32,7 +32,7 @@ import numpy as np
 
 from thinkfast.config import spec
 from thinkfast.runtime.detections import CameraExtrinsic
-from thinkfast.sim.throws import Throw, ball_states, plane_crossing
+from thinkfast.sim.throws import Throw, ball_states, observed_until
 
 
 @dataclasses.dataclass(frozen=True)
@@ -208,7 +208,7 @@ def observe(
         rng: the only source of randomness (noise level, phase, noise, outliers, dropouts).
         t_release_wall: wall-clock time of release [s]; stamps and delivery times use this clock.
         until: last capture time, after release [s]; None: ``cfg.after_crossing`` after the ball
-            crosses ``throw.plane_x``.
+            crosses ``throw.plane_x`` (a feint: the end of its rest).
         seq0: frame counter of the first frame (keep counting across throws).
 
     Returns:
@@ -217,7 +217,7 @@ def observe(
     sigma_disp = rng.uniform(*cfg.disparity_sigma)
     period = 1.0 / cfg.rate
     if until is None:
-        until = plane_crossing(throw).t + cfg.after_crossing
+        until = observed_until(throw, cfg.after_crossing)
     t = (
         -throw.t_release
         + rng.uniform(0.0, period)

@@ -20,13 +20,38 @@ def _group() -> None:
     """Simulated throws, camera and ABB controller for thinkfast."""
 
 
-def _throws(n: int, seed: int, throw_set: Path | None):
-    from thinkfast.sim.throws import ThrowConfig, load_throw_set, sample_throws
+MIX_HELP = (
+    "kinds of throw drawn, KIND=WEIGHT,... of still, windup, feint (default: "
+    "thinkfast/sim/thrower.py DEFAULT_MIX, all still)"
+)
+FEINTS_HELP = "feints appended to the drawn throws (ids s<seed>-f<j>)"
 
+
+def _throw_config(mix: str | None):
+    import dataclasses
+
+    from thinkfast.sim.thrower import parse_mix
+    from thinkfast.sim.throws import ThrowConfig
+
+    cfg = ThrowConfig()
+    if mix is None:
+        return cfg
+    return dataclasses.replace(cfg, thrower=dataclasses.replace(cfg.thrower, mix=parse_mix(mix)))
+
+
+def _throws(n: int, seed: int, throw_set: Path | None, mix: str | None = None, feints: int = 0):
+    from thinkfast.errors import ConfigError
+    from thinkfast.sim.throws import sample_throws
+    from thinkfast.sim.throwset import load_throw_set
+
+    if feints < 0:
+        raise ConfigError("--feints", None, f"must be >= 0, got {feints}")
     if throw_set is not None:
+        if mix is not None or feints:
+            raise ConfigError("--mix/--feints", None, "not with --throw-set (the set is given)")
         ts = load_throw_set(throw_set)
         return ts.throws[:n] if n else ts.throws
-    return sample_throws(ThrowConfig(), n, seed)
+    return sample_throws(_throw_config(mix), n, seed, feints)
 
 
 @app.command()
@@ -34,12 +59,19 @@ def throws(
     output: Path = typer.Option(..., "-o", "--output", help="throw-set file to write (JSON)"),
     n: int = typer.Option(500, "--throws", "-n", help="number of throws"),
     seed: int = typer.Option(1, "--seed", help="random seed"),
+    mix: str | None = typer.Option(None, "--mix", help=MIX_HELP),
+    feints: int = typer.Option(0, "--feints", help=FEINTS_HELP),
 ) -> None:
     """Write a throw set (docs/THROW_SET_FORMAT.md) so any run can be repeated exactly."""
-    from thinkfast.sim.throws import ThrowConfig, sample_throws, save_throw_set
+    from collections import Counter
 
-    save_throw_set(output, sample_throws(ThrowConfig(), n, seed), ThrowConfig())
-    print(f"wrote {n} throws (seed {seed}) to {output}")
+    from thinkfast.sim.throwset import save_throw_set
+
+    balls = _throws(n, seed, None, mix, feints)
+    save_throw_set(output, balls, _throw_config(mix))
+    kinds = Counter(t.kind for t in balls)
+    what = ", ".join(f"{kinds[k]} {k}" for k in ("still", "windup", "feint") if kinds[k])
+    print(f"wrote {len(balls)} throws ({what}; seed {seed}) to {output}")
 
 
 @app.command()
@@ -49,6 +81,8 @@ def run(
     seed: int = typer.Option(1, "--seed", help="throw and camera-noise seed"),
     planner: str = typer.Option("tree", "--planner", help="tree or naive"),
     throw_set: Path | None = typer.Option(None, "--throw-set", help="throws from this file"),
+    mix: str | None = typer.Option(None, "--mix", help=MIX_HELP),
+    feints: int = typer.Option(0, "--feints", help=FEINTS_HELP),
     egm: str | None = typer.Option(None, "--egm", help="HOST:PORT of a running daemon's EGM"),
     zenoh_endpoint: str | None = typer.Option(None, "--zenoh", help="its zenoh endpoint"),
     key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
@@ -88,7 +122,7 @@ def run(
     logging.getLogger("thinkfast.sim.controller").setLevel(logging.ERROR)  # overrun chatter
     cfg = load_run_config(config)
     robot = load_robot()
-    balls = _throws(n, seed, throw_set)
+    balls = _throws(n, seed, throw_set, mix, feints)
     via = f", camera frames ({frames_resolution}) via thinkfast-detect" if frames else ""
     print(f"{len(balls)} throws at the {planner} planner (real time, seed {seed}{via})")
     if egm is not None or zenoh_endpoint is not None:
@@ -116,7 +150,15 @@ def run(
             frames=frames_resolution if frames else None, detect_config=detect_config,
         )  # fmt: skip
     k = sum(r.blocked for r in res)
-    print(f"{planner}: blocked {k} / {len(res)} ({100 * k / max(len(res), 1):.0f} %)")
+    nt = sum(r.kind != "feint" for r in res)
+    print(f"{planner}: blocked {k} / {nt} ({100 * k / max(nt, 1):.0f} %)")
+    feints = [r for r in res if r.kind == "feint"]
+    if feints:
+        worst = max(r.displacement for r in feints)
+        home = sum(r.home_again for r in feints)
+        print(
+            f"feints: {len(feints)}, largest shield displacement {worst:.3f} m, home again {home}"
+        )
 
 
 @app.command()
@@ -126,12 +168,18 @@ def bench(
     seed: int = typer.Option(1, "--seed", help="throw and camera-noise seed"),
     planners: str = typer.Option("tree,naive,oracle", "--planners", help="comma separated"),
     throw_set: Path | None = typer.Option(None, "--throw-set", help="throws from this file"),
+    mix: str | None = typer.Option(None, "--mix", help=MIX_HELP),
+    feints: int = typer.Option(0, "--feints", help=FEINTS_HELP),
     jobs: int = typer.Option(0, "--jobs", "-j", help="processes (0: all cores)"),
     config: Path | None = typer.Option(None, "--config", help="runtime config (TOML)"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object"),
     png: Path | None = typer.Option(None, "--png", help="plot success by flight time"),
 ) -> None:
-    """Lockstep statistics: the daemon's kernels in simulated time, every planner, same throws."""
+    """Lockstep statistics: the daemon's kernels in simulated time, every planner, same throws.
+
+    Each kind of throw (--mix, --feints) is also reported on its own; feints by how far the
+    shield left home and whether it was home again within 2 s.
+    """
     from thinkfast.compile.grow import default_jobs
     from thinkfast.compile.treefile import load_tree
     from thinkfast.errors import ConfigError
@@ -144,7 +192,7 @@ def bench(
         raise ConfigError("--planners", None, f"{bad or names} not in {', '.join(PLANNERS)}")
     cfg = load_run_config(config)
     load_tree(tree)  # fail here, with the file's name, not in a worker
-    balls = _throws(n, seed, throw_set)
+    balls = _throws(n, seed, throw_set, mix, feints)
     start = time.perf_counter()
     out = run_bench(
         _WorldFactory(tree, cfg),

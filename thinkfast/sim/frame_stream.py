@@ -27,7 +27,7 @@ from thinkfast.perception.node import frame_key
 from thinkfast.runtime.detections import CameraExtrinsic
 from thinkfast.sim.camera import CameraModelConfig
 from thinkfast.sim.frames import FrameRenderConfig, FrameRenderer
-from thinkfast.sim.throws import Throw, ball_states, plane_crossing
+from thinkfast.sim.throws import Throw, ball_states, observed_until
 
 RESOLUTIONS = {"hd720": ((1280, 720), 532.0), "vga": ((672, 376), 265.0)}  # FACTS.md
 VGA_DETECT = "[colour]\nsearch_step = 1\nopen_px = 1\nmin_area = 2\n"  # balls 2-3 px wide at 6-9 m
@@ -83,7 +83,7 @@ class FrameStream:
         """Publish every frame of ``throw`` released at wall time ``t0_wall`` [s]."""
         cam = self.camera
         period = 1.0 / cam.rate
-        until = plane_crossing(throw).t + cam.after_crossing
+        until = observed_until(throw, cam.after_crossing)
         n = int(math.floor((until + throw.t_release) * cam.rate)) + 1
         t = -throw.t_release + rng.uniform(0.0, period) + period * np.arange(n)
         t = t[t <= until]

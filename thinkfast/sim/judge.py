@@ -7,6 +7,9 @@ sphere and the solid disk touch at any time from release until its centre crosse
 ``x = plane_x``. Times are sampled every ``step`` (0.5 ms: the ball moves ~1 cm, a sixth of its
 diameter) and the first contact is refined on a finer grid. A shield that reaches the ball's
 crossing point only after the crossing is ``"late"``, which is a miss.
+
+A feint (never released) is not blocked or missed: :func:`judge_feint` measures how far the
+shield left home and whether it was home again, and at rest, soon after the ball stopped.
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ from thinkfast.robot.kinematics import Kinematics
 from thinkfast.sim.throws import Throw, ball_positions, plane_crossing
 
 VERDICTS = ("blocked", "late", "missed")
+FEINT_WINDOW = 2.0
+"""How soon after a feint's ball stops the arm must be home again [s]."""
 
 
 class Verdict(NamedTuple):
@@ -131,3 +136,62 @@ def judge(
     if len(late):
         return Verdict(False, math.nan, miss, float(t_release_wall + after[late[0]]), "late")
     return Verdict(False, math.nan, miss, float(t_release_wall + t[j]), "missed")
+
+
+class FeintVerdict(NamedTuple):
+    """What the arm did about a feint.
+
+    Attributes:
+        displacement: largest distance of the shield centre from its home position [m].
+        home_after: time [s] after the ball stopped from which the arm stays home (shield centre
+            within ``tol``, every joint at rest) to the end of the history; <= 0 when it was
+            home from the stop on, nan when it is not home at the end.
+        home_again: ``home_after`` <= ``window`` and the history covers the window.
+    """
+
+    displacement: float
+    home_after: float
+    home_again: bool
+
+
+def judge_feint(
+    t_hist: np.ndarray,
+    q_hist: np.ndarray,
+    kin: Kinematics,
+    q_home: np.ndarray,
+    t_stop_wall: float,
+    window: float = FEINT_WINDOW,
+    tol: float = 0.01,
+    rest_speed: float = 0.01,
+) -> FeintVerdict:
+    """Judge the arm's answer to a feint from its joint history.
+
+    Args:
+        t_hist: history times [s, wall clock], shape (N,), increasing, N >= 2.
+        q_hist: joint angles [rad], shape (N, 6) (commanded or simulated).
+        kin: kinematics (the shield link's frame origin is the shield centre).
+        q_home: home joint angles [rad], shape (6,).
+        t_stop_wall: when the feint's ball stopped moving [s, wall clock].
+        window: how soon after the stop the arm must be home again [s].
+        tol: distance from home counted as home [m].
+        rest_speed: joint speed counted as at rest [rad/s] (finite differences of the history).
+    """
+    t_hist, q_hist = np.asarray(t_hist, float), np.asarray(q_hist, float)
+    if t_hist.ndim != 1 or len(t_hist) < 2 or q_hist.shape != (len(t_hist), 6):
+        raise ValueError(f"need t_hist (N>=2,) and q_hist (N, 6), got {t_hist.shape}")
+    robot = kin.robot
+    fk = BatchFK(robot)
+    link = robot.shield_link
+    centres = fk.link_poses(np.vstack([q_hist, q_home]), until=link)[link][:, :3, 3]
+    dist = np.linalg.norm(centres[:-1] - centres[-1], axis=1)
+    speed = np.abs(np.diff(q_hist, axis=0) / np.diff(t_hist)[:, None]).max(axis=1)
+    home = (dist <= tol) & (np.r_[speed[0], speed] <= rest_speed)
+    away = np.flatnonzero(~home)
+    if len(away) and away[-1] == len(t_hist) - 1:
+        home_after = math.nan
+    else:
+        since = t_hist[away[-1] + 1] if len(away) else t_hist[0]
+        home_after = float(since - t_stop_wall)
+    covered = t_hist[-1] >= t_stop_wall + window
+    ok = bool(covered and math.isfinite(home_after) and home_after <= window)
+    return FeintVerdict(float(dist.max()), home_after, ok)

@@ -10,6 +10,10 @@ point at release and goes there as fast as the arm allows, so the throws it bloc
 this arm can block at all ("feasible"). ``oracle_seen`` knows the same but leaves only when the
 first detection of the flight is delivered: no planner that waits for evidence of the flight can
 start earlier, so it bounds what any of them can block with this camera's latency.
+
+A feint (``thinkfast/sim/thrower.py``) is flown until :data:`FEINT_WINDOW` after its ball stopped
+and judged by :func:`~thinkfast.sim.judge.judge_feint` (how far the shield left home, whether it
+is home again); the oracles know it is a feint and stay home.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from thinkfast.runtime.safety import SafetySupervisor, robot_limits
 from thinkfast.runtime.segments import Steering, WristTracker
 from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
 from thinkfast.sim.controller import ServoConfig, SimController
-from thinkfast.sim.judge import judge
+from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.throws import Throw, plane_crossing
 
 DT = 0.004
@@ -51,6 +55,10 @@ class Outcome(NamedTuple):
     decisions: int
     moved: bool
     start: float  # when the arm was first commanded to move, relative to release [s] (nan: never)
+    kind: str = "still"  # the throw's kind (thinkfast/sim/thrower.py)
+    displacement: float = math.nan  # feint: largest shield-centre distance from home [m]
+    home_after: float = math.nan  # feint: home (1 cm, at rest) from this long after the stop [s]
+    home_again: bool = False  # feint: home again within FEINT_WINDOW of the ball stopping
 
 
 class World:
@@ -69,12 +77,18 @@ def simulate(
     world: World, throw: Throw, planner: str, seed: int, oracle_start: float = 0.0
 ) -> Outcome:
     """Fly one throw against one planner; ``seed`` drives the camera noise (same for all
-    planners on the same throw). ``oracle_start``: when the oracle leaves, after release [s]."""
+    planners on the same throw). ``oracle_start``: when the oracle leaves, after release [s].
+
+    For a feint, "release" is the moment its ball stops; ``blocked`` is False."""
     robot, cfg = world.robot, world.cfg
     t_rel = LEAD + throw.t_release  # simulated wall time of release
     dets = observe(throw, world.camera, cfg.camera, np.random.default_rng(seed), t_rel)
-    cross = plane_crossing(throw)
-    t_end = t_rel + cross.t + cfg.throw.after_crossing + 0.15
+    feint = throw.kind == "feint"
+    if feint:
+        cross, t_end = None, t_rel + FEINT_WINDOW + 0.2
+    else:
+        cross = plane_crossing(throw)
+        t_end = t_rel + cross.t + cfg.throw.after_crossing + 0.15
     sim = SimController(world.servo, q0=robot.home)
     sup = SafetySupervisor(world.limits, cfg.safety, robot.home)
     if planner in ("oracle", "oracle_seen"):
@@ -82,7 +96,7 @@ def simulate(
         if planner == "oracle_seen":
             seen = [d.delivery_time for d in dets if d.capture_stamp > t_rel]
             t_go = min(seen) if seen else math.inf
-        step_fn = _oracle(world, throw, cross, t_go)
+        step_fn = _stay(robot.home) if feint else _oracle(world, throw, cross, t_go)
         ex = None
     else:
         ex = Executor(world.tree, robot, cfg, planner)
@@ -106,6 +120,14 @@ def simulate(
         sim.step(DT)
         t += DT
     hist = sim.history()
+    decisions = 0 if ex is None else ex.episode.decisions + ex.episodes
+    if feint:
+        f = judge_feint(hist.t, hist.q, world.kin, robot.home, t_rel, FEINT_WINDOW)
+        return Outcome(
+            throw.id, planner, False, "feint", math.nan, float(throw.flight_time), math.nan,
+            math.nan, decisions, moved, t_move, "feint", f.displacement, f.home_after,
+            f.home_again,
+        )  # fmt: skip
     v = judge(throw, hist.t, hist.q, world.kin, throw.plane_x, BALL_RADIUS, t_release_wall=t_rel)
     return Outcome(
         throw.id,
@@ -116,9 +138,10 @@ def simulate(
         float(throw.flight_time),
         float(cross.y),
         float(cross.z),
-        0 if ex is None else ex.episode.decisions + ex.episodes,
+        decisions,
         moved,
         t_move,
+        throw.kind,
     )
 
 
@@ -147,6 +170,11 @@ def _oracle(world: World, throw: Throw, cross, t_go: float):
         return np.r_[p, w[:3]], np.r_[v, w[3:6]]
 
     return setpoint
+
+
+def _stay(home: np.ndarray):
+    """Setpoint function that holds the arm at ``home``."""
+    return lambda t: (np.array(home, dtype=float), np.zeros(6))
 
 
 def _inside(robot: Robot, q: np.ndarray) -> bool:

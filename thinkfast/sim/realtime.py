@@ -3,7 +3,8 @@ zenoh, one throw after another, judged from the controller's joint history.
 
 The daemon is started here (or an already running one is used: ``egm`` and ``zenoh`` endpoints
 given); the controller simulator stamps every joint sample with the wall clock so the judge can
-compare it with the throw's true flight.
+compare it with the throw's true flight. A feint is judged by
+:func:`~thinkfast.sim.judge.judge_feint` instead (how far the shield left home, home again).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from thinkfast.runtime.detections import CameraExtrinsic
 from thinkfast.runtime.planner import BALL_RADIUS
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
-from thinkfast.sim.judge import judge
+from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.publisher import free_tcp_port, open_session, publish_detections
 from thinkfast.sim.throws import Throw, plane_crossing
 
@@ -50,9 +51,12 @@ class WallClockSim(SimController):
 class RealtimeResult(NamedTuple):
     throw_id: str
     blocked: bool
-    why: str
+    why: str  # a verdict of the judge, or "feint"
     miss_distance: float
     flight_time: float
+    kind: str = "still"
+    displacement: float = float("nan")  # feint: largest shield distance from home [m]
+    home_again: bool = False  # feint: home again within FEINT_WINDOW of the ball stopping
 
 
 def start_daemon(
@@ -132,16 +136,37 @@ def run_throws(
                 dets = observe(
                     th, camera, extrinsic, np.random.default_rng(seed * 100_003 + i), 0.0
                 )
-                t0 = time.time() + 0.3
+                # a swing is seen in real time from the ball's appearance; still throws keep
+                # their timing (hold frames older than 0.3 s before the release go out at once)
+                t0 = time.time() + 0.3 + (th.t_release if th.kind != "still" else 0.0)
                 publish_detections(session, f"{prefix}/detections", dets, t0_wall=t0)
+            if th.kind == "feint":
+                time.sleep(max(0.0, t0 + FEINT_WINDOW + 0.3 - time.time()))
+                t_hist, q_hist = sim.joint_history(t0 - th.t_release - 0.5)
+                f = judge_feint(t_hist, q_hist, kin, robot.home, t0, FEINT_WINDOW)
+                results.append(
+                    RealtimeResult(th.id, False, "feint", float("nan"), float(th.flight_time),
+                                   "feint", f.displacement, f.home_again)
+                )  # fmt: skip
+                report(
+                    f"throw {i + 1:3d}/{len(throws)} {th.id:>10}: FEINT -> shield moved "
+                    f"{f.displacement:.3f} m, home again: {'yes' if f.home_again else 'no'}"
+                )
+                time.sleep(max(0.0, t0 + FEINT_WINDOW + 1.0 - time.time()))
+                continue
             cross = plane_crossing(th)
             time.sleep(max(0.0, t0 + cross.t + 0.3 - time.time()))
             t_hist, q_hist = sim.joint_history(t0 - 1.0)
             v = judge(th, t_hist, q_hist, kin, th.plane_x, BALL_RADIUS, t_release_wall=t0)
             results.append(
                 RealtimeResult(
-                    th.id, bool(v.blocked), v.why, float(v.miss_distance), float(th.flight_time)
-                )
+                    th.id,
+                    bool(v.blocked),
+                    v.why,
+                    float(v.miss_distance),
+                    float(th.flight_time),
+                    th.kind,
+                )  # fmt: skip
             )
             report(
                 f"throw {i + 1:3d}/{len(throws)} {th.id:>10}: flight {th.flight_time:.2f} s, "

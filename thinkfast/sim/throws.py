@@ -1,34 +1,35 @@
-"""Simulated throws: sampling, the drag ODE, release velocity by shooting, throw-set files.
+"""Simulated throws: sampling, the drag ODE, release velocity by shooting.
 
-A throw starts with the ball held still in the thrower's hand (small hand motion) for
-``t_release`` seconds, then flies from ``p_release`` with ``v_release`` under gravity and quadratic
-air drag ``a = (0, 0, -g) - k |v| v``, all in ``base`` (REP-103, z up). Time ``t`` is measured
-from release (negative during the hold). The release velocity is solved so that the ball centre
-reaches the aim point ``(plane_x, y, z)`` exactly at the chosen flight time, with drag.
+A throw starts with the ball in the thrower's hand ``t_release`` seconds before the release: held
+still (small hand motion), and for a ``windup`` then swung back and forward to the release
+(``thinkfast/sim/thrower.py``; a ``feint`` stops its forward swing and is never released); it
+then flies from ``p_release`` with ``v_release`` under gravity and quadratic air drag
+``a = (0, 0, -g) - k |v| v``, all in ``base`` (REP-103, z up). Time ``t`` is measured from release
+(negative in the hand). The release velocity is solved so that the ball centre reaches the aim
+point ``(plane_x, y, z)`` exactly at the chosen flight time, with drag.
 
 Integration is classical RK4 on a fixed grid of :data:`STEP` seconds from release; a state between
 grid nodes takes one partial RK4 step from the node before it, so every query is as accurate as
 the grid (about 1e-11 m at 5 ms against a tight adaptive solver, checked in the tests).
-Throw-set files: ``docs/THROW_SET_FORMAT.md``.
+Throw-set files: ``thinkfast/sim/throwset.py``, ``docs/THROW_SET_FORMAT.md``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from thinkfast.config import from_dict, spec, to_dict
-from thinkfast.errors import ConfigError, NoSolutionError, ThinkfastError
+from thinkfast.config import spec
+from thinkfast.errors import ConfigError, NoSolutionError
+from thinkfast.sim.thrower import DRAWS, ThrowerConfig, sample_motion, swing_states
 
 STEP = 0.005
 """RK4 grid step [s]."""
-FORMAT = "thinkfast-throws"
-VERSION = 1
+FEINT_KEY = 0x46454E54
+"""First spawn-key element of the seed sequences of feints appended to a sampled set."""
 
 
 def _rng(doc: str, default: tuple[float, float], unit: str = "m", lo: float | None = None) -> Any:
@@ -60,6 +61,9 @@ class ThrowConfig:
     drag_coefficient: float = spec(0.55, doc="drag coefficient Cd (tennis ball)", lo=0.0)
     air_density: float = spec(1.2, doc="air density", unit="kg/m^3", lo=0.0)
     gravity: float = spec(9.81, doc="gravity along -z of base", unit="m/s^2", lo=0.0)
+    thrower: ThrowerConfig = spec(
+        ThrowerConfig(), doc="kinds of throw (mix) and wind-up / feint motions, ASSUMED"
+    )
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -71,6 +75,10 @@ class ThrowConfig:
         """Quadratic drag coefficient ``k = rho Cd A / (2 m)`` [1/m] (about 0.0204 by default)."""
         area = math.pi * self.ball_radius**2
         return self.air_density * self.drag_coefficient * area / (2.0 * self.ball_mass)
+
+
+_ZERO3 = np.zeros(3)
+_ZERO3.setflags(write=False)
 
 
 class Throw(NamedTuple):
@@ -87,6 +95,16 @@ class Throw(NamedTuple):
         gravity: gravity along -z [m/s^2].
         plane_x: the plane the throw is aimed at [m].
         hand_amp, hand_freq, hand_phase: hand motion per axis [m], [Hz], [rad], shape (3,) each.
+        kind: ``"still"``, ``"windup"`` or ``"feint"`` (``thinkfast/sim/thrower.py``).
+        back_time: back swing duration [s] (0 for ``still``).
+        back_swing: back swing displacement (hold point to forward swing start) [m], (3,).
+        back_sag: back swing path offset from its chord at mid swing [m], (3,).
+        forward_time: forward swing duration [s], ending at ``t = 0``.
+        forward_swing: forward swing displacement (its start to ``p_release``) [m], (3,).
+        rest_time: a feint's ball stays still at ``p_release`` this long after ``t = 0`` [s].
+
+    A feint is never released: ``p_release`` is where its ball stops, ``v_release`` is zero,
+    ``aim`` and ``flight_time`` are those of the throw it feigned (never flown).
     """
 
     id: str
@@ -101,6 +119,13 @@ class Throw(NamedTuple):
     hand_amp: np.ndarray
     hand_freq: np.ndarray
     hand_phase: np.ndarray
+    kind: str = "still"
+    back_time: float = 0.0
+    back_swing: np.ndarray = _ZERO3
+    back_sag: np.ndarray = _ZERO3
+    forward_time: float = 0.0
+    forward_swing: np.ndarray = _ZERO3
+    rest_time: float = 0.0
 
 
 class Crossing(NamedTuple):
@@ -201,36 +226,76 @@ def make_throw(
     )  # fmt: skip
 
 
-def sample_throws(cfg: ThrowConfig, n: int, seed: int) -> list[Throw]:
-    """``n`` throws drawn from ``cfg``; throw ``i`` depends only on ``(cfg, seed, i)``."""
-    out = []
-    for i, ss in enumerate(np.random.SeedSequence(seed).spawn(n)):
-        rng = np.random.default_rng(ss)
-        x, y, z, aim_y, aim_z, flight_time, hold = (
-            rng.uniform(*r)
-            for r in (cfg.release_distance, cfg.release_lateral, cfg.release_height, cfg.aim_y,
-                      cfg.aim_z, cfg.flight_time, cfg.hold_time)
-        )  # fmt: skip
-        p, aim = np.array([cfg.plane_distance + x, y, z]), (aim_y, aim_z)
-        hand = (
-            cfg.hand_motion * rng.uniform(0.5, 1.0, 3),
-            rng.uniform(*cfg.hand_frequency, 3),
-            rng.uniform(0.0, 2.0 * math.pi, 3),
-        )
-        out.append(make_throw(cfg, p, aim, flight_time, hold, f"s{seed}-{i}", hand))
+def sample_throws(cfg: ThrowConfig, n: int, seed: int, feints: int = 0) -> list[Throw]:
+    """``n`` throws drawn from ``cfg``, then ``feints`` feints; each depends only on
+    ``(cfg, seed, index)``.
+
+    Throw ``i`` (id ``s<seed>-<i>``) draws its kind from ``cfg.thrower.mix`` after its release
+    state, so an all-``still`` mix draws exactly the throws it always did. Feint ``j`` (id
+    ``s<seed>-f<j>``) has a seed sequence of its own.
+    """
+    out = [
+        _sample(cfg, ss, f"s{seed}-{i}", None)
+        for i, ss in enumerate(np.random.SeedSequence(seed).spawn(n))
+    ]
+    for j in range(feints):
+        ss = np.random.SeedSequence(seed, spawn_key=(FEINT_KEY, j))
+        out.append(_sample(cfg, ss, f"s{seed}-f{j}", "feint"))
     return out
+
+
+def _sample(cfg: ThrowConfig, ss: np.random.SeedSequence, throw_id: str, kind: str | None) -> Throw:
+    rng = np.random.default_rng(ss)
+    x, y, z, aim_y, aim_z, flight_time, hold = (
+        rng.uniform(*r)
+        for r in (cfg.release_distance, cfg.release_lateral, cfg.release_height, cfg.aim_y,
+                  cfg.aim_z, cfg.flight_time, cfg.hold_time)
+    )  # fmt: skip
+    p, aim = np.array([cfg.plane_distance + x, y, z]), (aim_y, aim_z)
+    hand = (
+        cfg.hand_motion * rng.uniform(0.5, 1.0, 3),
+        rng.uniform(*cfg.hand_frequency, 3),
+        rng.uniform(0.0, 2.0 * math.pi, 3),
+    )
+    th = make_throw(cfg, p, aim, flight_time, hold, throw_id, hand)
+    u = rng.random(DRAWS)
+    return with_motion(cfg, th, kind or cfg.thrower.kind_of(u[0]), u)
+
+
+def with_motion(cfg: ThrowConfig, throw: Throw, kind: str, u: np.ndarray) -> Throw:
+    """``throw`` as a ``kind`` throw, its motion drawn from ``cfg.thrower`` with ``u``.
+
+    Args:
+        cfg: the ranges (``cfg.thrower``).
+        throw: a still throw (its hold time stays; ``t_release`` grows by the swings).
+        kind: ``"still"`` (returns ``throw``), ``"windup"`` or ``"feint"``.
+        u: :data:`~thinkfast.sim.thrower.DRAWS` uniform numbers in [0, 1).
+    """
+    if kind == "still":
+        return throw
+    m = sample_motion(cfg.thrower, kind, u, throw.p_release, throw.v_release)
+    m = {k: (_frozen(v) if isinstance(v, np.ndarray) else v if k == "kind" else float(v))
+         for k, v in m.items()}  # fmt: skip
+    t_release = throw.t_release + m["back_time"] + m["forward_time"]
+    return throw._replace(t_release=float(t_release), **m)
 
 
 def ball_states(throw: Throw, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """True ball centre [m] (N, 3) and velocity [m/s] (N, 3) in base at ``times`` [s] (N,).
 
-    Times are after release; before release (``t < 0``) the ball is in the hand at the release
-    point plus the hand motion ``A (sin(2 pi f t + phi) - sin(phi))``, which is zero at release.
+    Times are after release. Before release (``t < 0``) a still throw's ball is in the hand at
+    the release point plus the hand motion ``A (sin(2 pi f t + phi) - sin(phi))``, which is zero
+    at release; a wind-up's is swung (``thinkfast.sim.thrower.swing_states``); a feint's ball is
+    never released.
     """
     t = np.atleast_1d(np.asarray(times, dtype=float))
     p, v = np.empty((len(t), 3)), np.empty((len(t), 3))
     hold = t < 0.0
-    if hold.any():
+    if throw.kind != "still":
+        if throw.kind == "feint":
+            hold[:] = True
+        p[hold], v[hold] = swing_states(throw, t[hold])
+    elif hold.any():
         w = 2.0 * math.pi * throw.hand_freq
         arg = w * t[hold, None] + throw.hand_phase
         p[hold] = throw.p_release + throw.hand_amp * (np.sin(arg) - np.sin(throw.hand_phase))
@@ -260,8 +325,11 @@ def plane_crossing(throw: Throw, plane_x: float | None = None, t_max: float = 5.
     """When and where the ball centre crosses ``x = plane_x`` [m] (default: the throw's plane).
 
     Raises:
-        NoSolutionError: the ball does not reach the plane within ``t_max`` [s].
+        NoSolutionError: the ball does not reach the plane within ``t_max`` [s], or the throw is
+            a feint (never released).
     """
+    if throw.kind == "feint":
+        raise NoSolutionError(f"throw {throw.id} is a feint: it is never released")
     plane_x = throw.plane_x if plane_x is None else float(plane_x)
     y0 = np.concatenate([throw.p_release, throw.v_release])[None]
     if y0[0, 0] <= plane_x:
@@ -281,54 +349,9 @@ def plane_crossing(throw: Throw, plane_x: float | None = None, t_max: float = 5.
     return Crossing((i - 1) * STEP + s, float(y[1]), float(y[2]), y[3:].copy())
 
 
-_ARRAYS = ("p_release", "v_release", "aim", "hand_amp", "hand_freq", "hand_phase")
-
-
-def save_throw_set(path: str | Path, throws: list[Throw], cfg: ThrowConfig) -> None:
-    """Write ``throws`` and the config that drew them as a JSON throw-set file (format v1)."""
-    records = [
-        {f: (v.tolist() if f in _ARRAYS else v) for f, v in t._asdict().items()} for t in throws
-    ]
-    doc = {"format": FORMAT, "version": VERSION, "config": to_dict(cfg), "throws": records}
-    Path(path).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-
-
-class ThrowSet(NamedTuple):
-    """A loaded throw-set file: the config and the throws, in file order."""
-
-    config: ThrowConfig
-    throws: list[Throw]
-
-
-def load_throw_set(path: str | Path) -> ThrowSet:
-    """Read a throw-set file written by :func:`save_throw_set`.
-
-    Raises:
-        ThinkfastError: unreadable, not a throw set, unknown version or a bad record; the
-            message names the path.
-    """
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise ThinkfastError(f"{path}: cannot read throw set ({exc})") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        raise ThinkfastError(f"{path}: not a throw-set file (format must be {FORMAT!r})")
-    if doc.get("version") != VERSION:
-        raise ThinkfastError(
-            f"{path}: unknown version {doc.get('version')!r} (this reader knows {VERSION})"
-        )
-    cfg = from_dict(ThrowConfig, doc.get("config"), str(path), "config")
-    throws = []
-    for i, rec in enumerate(doc.get("throws") or []):
-        try:
-            arrays = {f: _frozen(rec[f]) for f in _ARRAYS}
-            scalars = {f: float(rec[f]) for f in Throw._fields if f not in _ARRAYS and f != "id"}
-            t = Throw(id=str(rec["id"]), **arrays, **scalars)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ThinkfastError(f"{path}: throws[{i}]: bad record ({exc!r})") from None
-        shapes = [(3,), (3,), (2,), (3,), (3,), (3,)]
-        if [getattr(t, f).shape for f in _ARRAYS] != shapes:
-            raise ThinkfastError(f"{path}: throws[{i}]: wrong array lengths")
-        throws.append(t)
-    return ThrowSet(cfg, throws)
+def observed_until(throw: Throw, after_crossing: float) -> float:
+    """When there is nothing more to see of ``throw`` [s after release]: ``after_crossing`` [s]
+    after its centre crosses its plane; a feint's: the end of its rest."""
+    if throw.kind == "feint":
+        return float(throw.rest_time)
+    return plane_crossing(throw).t + after_crossing
