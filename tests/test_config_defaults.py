@@ -19,7 +19,8 @@ from thinkfast.errors import ConfigError
 from thinkfast.perception.config import DetectConfig, load_detect_config
 from thinkfast.robot.model import RobotToml
 from thinkfast.runtime.config import RunConfig, load_run_config
-from thinkfast.sim.throws import FORMAT, VERSION, ThrowConfig, load_throw_set
+from thinkfast.sim.throws import ThrowConfig
+from thinkfast.sim.throwset import FORMAT, VERSION, load_throw_set
 
 
 def _toml_value(v: Any) -> str:
@@ -127,12 +128,24 @@ def test_detect_config_table_naming_one_key_keeps_every_other_default(tmp_path):
 def test_throw_set_config_naming_one_key_keeps_every_other_default(tmp_path):
     """A throw-set file's config naming one key keeps every other ThrowConfig default."""
     default = ThrowConfig()
+    cases = []
     for f in dataclasses.fields(default):
-        value = _nudge(getattr(default, f.name), f.metadata)
-        doc = {"format": FORMAT, "version": VERSION, "config": {f.name: value}}
+        v = getattr(default, f.name)
+        if dataclasses.is_dataclass(v):  # a nested table: each of its keys alone
+            for g in dataclasses.fields(v):
+                value = _nudge(getattr(v, g.name), g.metadata)
+                want = dataclasses.replace(
+                    default, **{f.name: dataclasses.replace(v, **{g.name: value})}
+                )
+                cases.append(({f.name: {g.name: value}}, want))
+        else:
+            value = _nudge(v, f.metadata)
+            cases.append(({f.name: value}, dataclasses.replace(default, **{f.name: value})))
+    for config, want in cases:
+        doc = {"format": FORMAT, "version": VERSION, "config": config}
         path = tmp_path / "set.json"
         path.write_text(json.dumps(doc))
-        assert load_throw_set(path).config == dataclasses.replace(default, **{f.name: value})
+        assert load_throw_set(path).config == want
 
 
 def test_robot_toml_cell_objects_take_their_class_defaults():
