@@ -1,0 +1,246 @@
+"""Setpoints on the controller's clock: duplicates, missed cycles, silences, deviation faults.
+
+The real executor (small compiled tree, real Ruckig) and the real supervisor, driven packet by
+packet with controller stamps as a controller would send them.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from tests.conftest import compile_small_tree
+from thinkfast.compile.treefile import load_tree
+from thinkfast.runtime.config import RunConfig
+from thinkfast.runtime.egm_clock import ControllerClock
+from thinkfast.runtime.egm_control import EgmControl
+from thinkfast.runtime.executor import FAULT, IDLE, RETURNING, Executor
+from thinkfast.runtime.planner import runtime_tree
+from thinkfast.runtime.safety import SafetySupervisor, robot_limits
+
+CFG = RunConfig()
+DT = CFG.safety.dt
+T0 = 1.7e9  # wall clock of the first packet [s]
+
+
+@pytest.fixture(scope="module")
+def rtree(tmp_path_factory, robot):
+    path = compile_small_tree(tmp_path_factory.mktemp("ctl"), spacing=0.15)
+    return runtime_tree(load_tree(path), robot, CFG)
+
+
+def _control(rtree, robot, events=None):
+    ex = Executor(rtree, robot, CFG, "naive")
+    sup = SafetySupervisor(robot_limits(robot, CFG.safety.position_margin), CFG.safety, robot.home)
+    on_event = (lambda t, k, d: events.append(k)) if events is not None else (lambda *a: None)
+    return EgmControl(ex, sup, CFG.safety, on_event)
+
+
+def _away(robot):
+    """A start away from home: the executor returns home, so the plan moves."""
+    return robot.home + np.array([0.6, -0.3, 0.3, 0.5, 0.3, -0.4])
+
+
+def _assert_admissible_over_the_controller_clock(t, q, qd, robot, tol=1e-6):
+    """Applied commands, one per controller cycle: finite differences within the limits."""
+    t, q, qd = np.asarray(t), np.asarray(q), np.asarray(qd)
+    dt = np.diff(t)[:, None]
+    assert np.all(np.abs(np.diff(q, axis=0)) / dt <= robot.v_max * (1 + tol) + 1e-9)
+    assert np.all(np.abs(qd) <= robot.v_max * (1 + tol))
+    assert np.all(np.abs(np.diff(qd, axis=0)) / dt <= robot.a_max * (1 + tol))
+
+
+def test_a_duplicated_packet_gets_the_same_setpoint_and_time_does_not_advance(rtree, robot):
+    ctl = _control(rtree, robot)
+    ctl.on_feedback(1000, _away(robot), T0)
+    t, q, qd = [], [], []
+    for k in range(1, 200):
+        tm = 1000 + 4 * k
+        r = ctl.on_feedback(tm, ctl.sup.q, T0 + 0.004 * k)
+        again = ctl.on_feedback(tm, ctl.sup.q, T0 + 0.004 * k + 0.0003)  # the same EgmRobot
+        assert again.q is r.q and again.qd is r.qd and again.tick.repeat
+        t.append(tm / 1000), q.append(r.q), qd.append(r.qd)
+    assert ctl.repeats == 199 and ctl.sup.ticks == 199  # one supervisor tick per cycle
+    assert np.ptp(np.array(q), axis=0).max() > 0.2  # the arm really moved
+    _assert_admissible_over_the_controller_clock(t, q, qd, robot)
+
+
+def test_missed_cycles_advance_the_command_by_the_elapsed_time_within_the_limits(rtree, robot):
+    """The controller got no reply for some cycles: the next reply is the plan at that packet's
+    time, reached through admissible ticks (never one tick's motion at double speed)."""
+    ctl = _control(rtree, robot)
+    ctl.on_feedback(0, _away(robot), T0)
+    rng = np.random.default_rng(4)
+    tm, t, q, qd = 0, [0.0], [ctl.sup.q], [ctl.sup.qd]
+    for _ in range(150):
+        tm += 4 * int(rng.choice([1, 1, 1, 2, 3]))  # skipped cycles
+        r = ctl.on_feedback(tm, ctl.sup.q, T0 + tm / 1000)
+        t.append(tm / 1000), q.append(r.q), qd.append(r.qd)
+    assert ctl.sup.ticks == tm // 4  # every elapsed cycle stepped
+    dt = np.diff(t)[:, None]
+    assert np.all(np.abs(np.diff(q, axis=0)) / dt <= robot.v_max * (1 + 1e-6))
+    assert np.all(np.abs(np.diff(qd, axis=0)) / dt <= robot.a_max * (1 + 1e-6))
+
+
+def test_a_stale_packet_or_a_reordered_one_gets_the_last_setpoint(rtree, robot):
+    ctl = _control(rtree, robot)
+    ctl.on_feedback(400, _away(robot), T0)
+    r = ctl.on_feedback(404, ctl.sup.q, T0 + 0.004)
+    stale = ctl.on_feedback(396, ctl.sup.q, T0 + 0.0045)
+    assert stale.q is r.q and stale.tick.repeat and ctl.sup.ticks == 1
+
+
+def test_after_a_silence_in_motion_the_stream_restarts_at_the_measured_state(rtree, robot):
+    events = []
+    ctl = _control(rtree, robot, events)
+    ctl.on_feedback(0, _away(robot), T0)
+    for k in range(1, 60):
+        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+    assert np.abs(ctl.sup.qd).max() > 0.3  # moving
+    q_meas = ctl.sup.q + 0.03  # the arm went on a little during 0.5 s of silence
+    tm = 4 * 59 + 500
+    r = ctl.on_feedback(tm, q_meas, T0 + tm / 1000)
+    assert r.tick.resync and ctl.resyncs == 1 and events == ["resync"]
+    np.testing.assert_allclose(r.q, q_meas, atol=1e-12)  # within 1 mrad: exactly
+    assert not r.qd.any()  # one packet measures no velocity: at rest
+    assert ctl.ex.mode == RETURNING  # the plan goes on (home) from the measured state
+    t, q, qd = [tm / 1000], [r.q], [r.qd]
+    for k in range(1, 100):  # and it goes on smoothly
+        r = ctl.on_feedback(tm + 4 * k, ctl.sup.q, T0 + (tm + 4 * k) / 1000)
+        t.append((tm + 4 * k) / 1000), q.append(r.q), qd.append(r.qd)
+    _assert_admissible_over_the_controller_clock(t, q, qd, robot)
+    assert ctl.sup.intervened == 0
+
+
+def test_the_measured_velocity_seeds_a_restart_when_two_packets_measure_it(rtree, robot):
+    ctl = _control(rtree, robot)
+    ctl.on_feedback(0, robot.home, T0)
+    v = np.array([0.2, -0.1, 0.0, 0.3, 0.0, 0.0])
+    ctl._fb = (ctl.clock.t, robot.home)  # the last packet before the silence
+    tm = 100  # 100 ms later: a silence
+    r = ctl.on_feedback(tm, robot.home + v * 0.004, T0 + 0.1)
+    assert r.tick.resync and not r.qd.any()  # 100 ms apart: no velocity measured
+    r2 = ctl.on_feedback(tm + 4, robot.home + v * 0.008, T0 + 0.104)
+    assert not r2.tick.resync  # consecutive: the velocity is measured from now on
+    assert ctl._measure(ctl.clock.tick(tm + 8, T0 + 0.108), robot.home + v * 0.012) is not None
+
+
+def _lagging_run(ctl, robot, lag_cycles, freeze=(math.inf, math.inf), n=400):
+    """Feedback that follows the command ``lag_cycles`` late (a slow servo), frozen during the
+    cycles ``freeze`` = [from, to) (an arm that stops following). Returns the replies."""
+    ctl.on_feedback(0, _away(robot), T0)
+    sent = [ctl.sup.q]
+    out = []
+    for k in range(1, n):
+        q_meas = sent[max(0, len(sent) - 1 - lag_cycles)]
+        if freeze[0] <= k < freeze[1]:
+            q_meas = sent[freeze[0] - 1 - lag_cycles]
+        r = ctl.on_feedback(4 * k, q_meas, T0 + 0.004 * k)
+        sent.append(r.q)
+        out.append(r)
+    return out
+
+
+def test_a_servo_lagging_within_the_tracking_lag_is_followed_without_fault(rtree, robot):
+    ctl = _control(rtree, robot)
+    _lagging_run(ctl, robot, lag_cycles=int(0.15 / DT))
+    assert not ctl.sup.braking and ctl.fault_count == 0 and ctl.sup.intervened == 0
+
+
+def test_an_arm_that_stops_following_brakes_then_recovers_home_by_itself(rtree, robot):
+    events = []
+    ctl = _control(rtree, robot, events)
+    replies = _lagging_run(ctl, robot, lag_cycles=5, freeze=(40, 120), n=700)
+    assert ctl.sup.counts["brake_deviation"] == 1
+    assert any(r.mode == "brake" for r in replies)
+    # the arm stands (frozen); once the commanded stop is done and it has stood for
+    # recover_after, the stream restarts from it and the executor returns home
+    assert events == ["recover"] and ctl.fault_count == 1 and not ctl.latched
+    assert ctl.ex.mode == IDLE and not ctl.sup.braking  # home again, ready for a throw
+    np.testing.assert_allclose(ctl.sup.q, robot.home, atol=1e-6)
+
+
+def test_repeated_faults_within_the_window_latch_fault(rtree, robot):
+    events = []
+    ctl = _control(rtree, robot, events)
+    q_frozen = _away(robot)
+    ctl.on_feedback(0, q_frozen, T0)
+    tm = 0
+    for _ in range(3000):  # the arm never moves: every return home trips the check again
+        tm += 4
+        ctl.on_feedback(tm, q_frozen, T0 + tm / 1000)
+        if ctl.latched:
+            break
+    assert ctl.latched and ctl.mode() == FAULT and ctl.ex.mode == FAULT
+    assert events == ["recover", "recover", "fault_latched"]
+    for _ in range(50):  # latched: holds the measured position, moves nothing
+        tm += 4
+        r = ctl.on_feedback(tm, q_frozen, T0 + tm / 1000)
+        assert not r.qd.any()
+    np.testing.assert_allclose(r.q, np.clip(q_frozen, ctl.sup.limits.q_min, ctl.sup.limits.q_max))
+
+
+def test_clock_stamps_wrap_around_uint32_without_a_restart():
+    clock = ControllerClock(DT, 0.02)
+    assert clock.tick(2**32 - 4, T0).resync
+    tick = clock.tick(0, T0 + 0.004)
+    assert not tick.resync and tick.elapsed == pytest.approx(0.004)
+
+
+def test_clock_without_stamps_snaps_arrivals_to_the_cycle_grid():
+    clock = ControllerClock(DT, 0.02)
+    clock.tick(None, T0)
+    jitter = [0.0011, -0.0013, 0.0016, 0.0, -0.0009]
+    t = T0
+    for k, j in enumerate(jitter, 1):
+        tick = clock.tick(None, T0 + 0.004 * k + j)
+        assert tick.elapsed == pytest.approx(0.004, rel=1.01e-4) and not tick.repeat
+        t += tick.elapsed
+    assert clock.tick(None, T0 + 0.004 * 5 + 0.0004).repeat  # a duplicate right behind
+    assert clock.tick(None, T0 + 0.004 * 6 + 0.0002).elapsed == pytest.approx(0.004, rel=2e-4)
+    assert clock.tick(None, T0 + 0.5).resync
+
+
+def test_a_controller_clock_restart_is_a_resync_not_a_stale_packet():
+    clock = ControllerClock(DT, 0.02)
+    clock.tick(500_000, T0)
+    clock.tick(500_004, T0 + 0.004)
+    assert clock.tick(12, T0 + 0.008).resync  # tm restarted with a new EGM session
+    assert math.isclose(clock.t, T0 + 0.008)
+
+
+@pytest.mark.parametrize("planner", ["tree", "naive"])
+def test_ordinary_throws_never_need_the_supervisor_and_stay_jerk_limited(rtree, robot, planner):
+    """Throws through the control core with the simulated servo's feedback: every request is
+    admissible as planned (0 interventions), and the commanded motion over the controller's clock
+    is jerk-limited (third differences of positions / dt^3 <= j_max)."""
+    from thinkfast.runtime.intake import Intake
+    from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
+    from thinkfast.sim.controller import ServoConfig, SimController
+    from thinkfast.sim.throws import ThrowConfig, sample_throws
+
+    ex = Executor(rtree, robot, CFG, planner)
+    sup = SafetySupervisor(robot_limits(robot, CFG.safety.position_margin), CFG.safety, robot.home)
+    ctl = EgmControl(ex, sup, CFG.safety)
+    arm = SimController(ServoConfig(), q0=robot.home)
+    intake = Intake(CFG.camera, CFG.detections)
+    t, tm, q = 0.0, 0, []
+    for i, th in enumerate(sample_throws(ThrowConfig(), 3, 3)):
+        t_rel = t + 0.5 + th.t_release
+        dets = observe(th, CameraModelConfig(), CFG.camera, np.random.default_rng(i), t_rel)
+        k, t_end = 0, t_rel + th.flight_time + 3.5
+        while t < t_end:
+            while k < len(dets) and dets[k].delivery_time <= t:
+                acc = intake.take(detection_payload(dets[k]), None)
+                if acc is not None:
+                    ex.on_detection(ctl.t_next if ctl.last else t, acc.stamp, acc.position)
+                k += 1
+            r = ctl.on_feedback(tm, arm.q, t)
+            arm.command(r.q, r.qd, arm.t)
+            arm.step(DT)
+            q.append(r.q)
+            t, tm = t + DT, tm + 4
+    assert ex.episodes == 3 and ctl.fault_count == 0
+    assert sup.ticks > 1000 and sup.intervened == 0, sup.counts
+    jerk = np.abs(np.diff(np.array(q), 3, axis=0)) / DT**3
+    assert np.all(jerk <= robot.j_max * (1 + 1e-6))
