@@ -1,7 +1,7 @@
 """Ball detections from zenoh: validate one JSON payload, count outcomes, order, camera -> base.
 
-The payload contract is ``shared/INTERFACES.md`` ("Detections in"). :func:`parse_detection`
-never raises on any input: it returns a :class:`Detection` or a :class:`Rejection` whose
+The payload contract is the project's detection message (README, "Interfaces").
+:func:`parse_detection` never raises on any input: it returns a :class:`Detection` or a :class:`Rejection` whose
 ``reason`` is one of :data:`REJECT_REASONS`. Choices where the contract is silent:
 
 * an optional key whose value is JSON ``null`` counts as absent;

@@ -1,7 +1,7 @@
 """ABB EGM wire format (protobuf proto2, package ``abb.egm``) and pure encode/decode helpers.
 
 The schema is built at import time from a ``FileDescriptorProto`` (no ``protoc``), with the field
-numbers of ABB's published ``egm.proto`` (see ``shared/INTERFACES.md``). Only the fields thinkfast
+numbers of ABB's published ``egm.proto`` (docs/EGM_CONTROLLER.md). Only the fields thinkfast
 uses are declared; everything else a controller sends (RobotWare 7 additions, Cartesian poses,
 RAPID data, ...) arrives as unknown fields and is ignored by the parser.
 
