@@ -1,8 +1,9 @@
 """Ball detections from zenoh: validate one JSON payload, count outcomes, order, camera -> base.
 
 The payload contract is the project's detection message (README, "Interfaces").
-:func:`parse_detection` never raises on any input: it returns a :class:`Detection` or a :class:`Rejection` whose
-``reason`` is one of :data:`REJECT_REASONS`. Choices where the contract is silent:
+:func:`parse_detection` never raises on any input: it returns a :class:`Detection` or a
+:class:`Rejection` whose ``reason`` is one of :data:`REJECT_REASONS`. Choices where the
+contract is silent:
 
 * an optional key whose value is JSON ``null`` counts as absent;
 * keys the contract does not name are ignored (the contract may grow optional fields);
