@@ -28,7 +28,9 @@ app = make_app("thinkfast runtime daemon: ball detections over zenoh in, EGM set
 def run(
     tree: Path = typer.Option(..., "--tree", help="compiled action tree (HDF5)"),
     config: Path | None = typer.Option(None, "--config", help="runtime configuration (TOML)"),
-    planner: str = typer.Option("tree", "--planner", help="tree (belief-space) or naive"),
+    planner: str = typer.Option(
+        "tree", "--planner", help="tree (belief-space), naive or naive-paper (baselines)"
+    ),
     egm_bind: str = typer.Option("0.0.0.0:6510", "--egm-bind", help="UDP HOST:PORT to serve EGM"),
     egm_controller: str | None = typer.Option(
         None,
@@ -71,10 +73,11 @@ def run(
     from thinkfast.runtime.config import load_run_config
     from thinkfast.runtime.daemon import Daemon, Endpoints
     from thinkfast.runtime.egm_server import parse_controller, parse_hostport
+    from thinkfast.runtime.executor import PLANNERS
     from thinkfast.runtime.zenoh_io import session_config
 
-    if planner not in ("tree", "naive"):
-        raise ConfigError("--planner", None, f"{planner!r} is not one of tree, naive")
+    if planner not in PLANNERS:
+        raise ConfigError("--planner", None, f"{planner!r} is not one of {', '.join(PLANNERS)}")
     if log_level.upper() not in ("DEBUG", "INFO", "WARNING", "ERROR"):
         raise ConfigError("--log-level", None, f"{log_level!r} is not one of debug, info, ...")
     logging.basicConfig(

@@ -17,6 +17,9 @@ time. States:
   arrive in time), the robot rushes to the most probable goal anyway, re-targeted at every
   belief: a shield on its way may still catch the ball. Naive planner: at every belief update,
   Ruckig from the commanded state to the goal nearest the most likely crossing point.
+  ``naive-paper`` (the paper's baseline): the same, from the first belief that predicts a
+  throw (mean approach speed above ``min_approach_speed``, crossing within ``max_tau`` near the
+  goals), with neither the launch detector nor the confirmation.
 - ``returning``: after the crossing (plus ``after_crossing``) or when detections stop, a move to
   home within the limits; then ``idle``.
 - ``fault``: latched by the daemon after repeated supervisor faults (:meth:`hold_fault`); left
@@ -48,6 +51,7 @@ from thinkfast.runtime.segments import (
 )
 
 IDLE, TRACKING, EXECUTING, RETURNING, FAULT = "idle", "tracking", "executing", "returning", "fault"
+PLANNERS = ("tree", "naive", "naive-paper")  # the ones the executor runs (online)
 
 
 @dataclass
@@ -70,12 +74,12 @@ class Executor:
         tree: the runtime tree.
         robot: the robot (limits, home).
         cfg: runtime configuration.
-        planner: "tree" or "naive".
+        planner: one of :data:`PLANNERS`.
     """
 
     def __init__(self, tree: RuntimeTree, robot: Robot, cfg: RunConfig, planner: str = "tree"):
-        if planner not in ("tree", "naive"):
-            raise ValueError(f"planner {planner!r} is not one of tree, naive")
+        if planner not in PLANNERS:
+            raise ValueError(f"planner {planner!r} is not one of {', '.join(PLANNERS)}")
         self.tree, self.robot, self.cfg, self.planner = tree, robot, cfg, planner
         self.steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
         scale = cfg.execution.return_speed_scale
@@ -120,7 +124,8 @@ class Executor:
         restarted = info.status in ("first", "init") or bool(np.any(info.reset))
         self.settled = 0 if restarted else self.settled + 1
         launched = False
-        if self.mode in (IDLE, TRACKING) and self.cfg.launch.enabled:
+        paper = self.planner == "naive-paper"  # no launch gate: the filter alone
+        if self.mode in (IDLE, TRACKING) and self.cfg.launch.enabled and not paper:
             fit = self.launch.add(stamp, p_base)
             if fit is not None:  # the launch fit replaces the filter's slower restart
                 self.belief = kf.restart(self.belief, fit.t, fit.mean, fit.cov, fit.z)
@@ -133,7 +138,12 @@ class Executor:
         c = self.tree.crossing(self.belief.mean, self.belief.cov, self.cfg.filter.gravity)
         if c.ok:
             self.episode.t_cross = stamp + float(c.mean[2])
-        if self.mode == TRACKING:
+        if paper:
+            if self.mode == TRACKING and not self._approaching(c, sigmas=0.0):
+                return  # the paper's baseline acts from the first belief predicting a crossing
+            if math.isnan(self.episode.t_confirmed):
+                self.episode.t_confirmed = t_now
+        elif self.mode == TRACKING:
             if self.settled >= self.cfg.throw.settle_updates and self._approaching(c):
                 self.confirm = self.cfg.throw.confirm_updates if launched else self.confirm + 1
             else:  # one outlier frame costs one step, not the whole count
@@ -145,16 +155,19 @@ class Executor:
         t_start = self.episode.t_start if self.mode == EXECUTING else t_now
         self.decision = self.tree.decide(c, stamp, t_start, self.lag)
         self.episode.decisions += 1
-        if self.planner == "naive":
+        if self.planner in ("naive", "naive-paper"):
             self._naive(t_now, c)
         elif self.mode == TRACKING:
             self._maybe_leave_home(t_now)
         elif self.segment.kind in (STEER, TERMINAL):
             self._fallback(t_now)  # committed: follow the most probable goal as beliefs improve
 
-    def _approaching(self, c) -> bool:
+    def _approaching(self, c, sigmas: float | None = None) -> bool:
+        """The belief predicts a throw: approaching faster than ``min_approach_speed`` at
+        ``sigmas`` (default ``approach_sigmas``), crossing within ``max_tau``, near the goals."""
         th = self.cfg.throw
-        speed_lo = -self.belief.mean[3] - th.approach_sigmas * np.sqrt(self.belief.cov[3, 3])
+        k = th.approach_sigmas if sigmas is None else sigmas
+        speed_lo = -self.belief.mean[3] - k * np.sqrt(self.belief.cov[3, 3])
         if not c.ok or speed_lo < th.min_approach_speed or c.mean[2] > th.max_tau:
             return False
         y, z = c.mean[0], c.mean[1]

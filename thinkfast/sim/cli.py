@@ -12,7 +12,8 @@ import typer
 from thinkfast.cli_util import make_app, run_app
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
-PLANNERS = ("tree", "naive", "oracle", "oracle_seen")
+PLANNERS = ("tree", "naive", "naive-paper", "oracle", "oracle_seen")
+ONLINE = ("tree", "naive", "naive-paper")  # the ones the daemon runs
 
 
 @app.callback()
@@ -79,7 +80,7 @@ def run(
     tree: Path = typer.Option(..., "--tree", help="compiled action tree (HDF5)"),
     n: int = typer.Option(5, "--throws", "-n", help="number of throws"),
     seed: int = typer.Option(1, "--seed", help="throw and camera-noise seed"),
-    planner: str = typer.Option("tree", "--planner", help="tree or naive"),
+    planner: str = typer.Option("tree", "--planner", help="tree, naive or naive-paper"),
     throw_set: Path | None = typer.Option(None, "--throw-set", help="throws from this file"),
     mix: str | None = typer.Option(None, "--mix", help=MIX_HELP),
     feints: int = typer.Option(0, "--feints", help=FEINTS_HELP),
@@ -109,8 +110,8 @@ def run(
     from thinkfast.runtime.egm_server import parse_hostport
     from thinkfast.sim.realtime import run_throws, run_with_daemon
 
-    if planner not in ("tree", "naive"):
-        raise ConfigError("--planner", None, f"{planner!r} is not one of tree, naive")
+    if planner not in ONLINE:
+        raise ConfigError("--planner", None, f"{planner!r} is not one of {', '.join(ONLINE)}")
     if frames_resolution not in ("hd720", "vga"):
         raise ConfigError("--frames-resolution", None, f"{frames_resolution!r}: hd720 or vga")
     if frames and detect_config is not None:
