@@ -9,7 +9,8 @@ import pytest
 
 from tests.conftest import ROBOT_TOML, assert_one_line_error, compile_small_tree, run_cli
 from thinkfast.sim.bench import run_bench, summarize
-from thinkfast.sim.lockstep import World, simulate, wilson
+from thinkfast.sim.lockstep import World, simulate
+from thinkfast.sim.stats import wilson
 
 
 @pytest.fixture(scope="module")
@@ -103,31 +104,67 @@ def test_wilson_interval_matches_the_textbook_values():
     assert wilson(0, 10)[0] == 0.0 and wilson(10, 10)[1] == pytest.approx(1.0)
 
 
-def test_bench_command_prints_one_json_object(tree_path):
-    proc = run_cli(
-        "thinkfast-sim",
-        "bench",
-        "--tree",
-        str(tree_path),
-        "--throws",
-        "4",
-        "--seed",
-        "2",
-        "--json",
-        "--jobs",
-        "1",
-    )
-    assert proc.returncode == 0, proc.stderr
-    out = json.loads(proc.stdout)
-    assert out["throws"] == 4
+@pytest.fixture(scope="module")
+def bench_json(tree_path):
+    """The bench's JSON for 4 throws (still and wind-ups) and a feint, with 1 and 2 processes."""
+    out = []
+    for jobs in ("1", "2"):
+        proc = run_cli(
+            "thinkfast-sim", "bench", "--tree", str(tree_path), "--throws", "4", "--seed", "2",
+            "--mix", "still=0.5,windup=0.5", "--feints", "1", "--planners", "tree,naive,oracle",
+            "--json", "--jobs", jobs,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        out.append(json.loads(proc.stdout))
+    return out
+
+
+def test_bench_command_prints_one_json_object_identical_for_any_number_of_jobs(bench_json):
+    one, two = bench_json
+    assert one["throws"] == 4 and one["feints"] == 1
     for p in ("tree", "naive", "oracle"):
-        assert {"blocked", "rate", "rate_of_feasible"} <= set(out["planners"][p])
+        e = one["planners"][p]
+        assert {"blocked", "rate", "rate_of_feasible", "starts_before_release"} <= set(e)
+        assert e["starts_before_release"] == sum(
+            x["starts_before_release"] for k, x in e["by_kind"].items() if k != "feint"
+        )
+        assert e["feint_starts"] == e["by_kind"]["feint"]["starts"]
+    assert one.pop("seconds") >= 0 and two.pop("seconds") >= 0  # the only timing field
+    assert json.dumps(one, sort_keys=True) == json.dumps(two, sort_keys=True)
+
+
+def test_bench_json_pairs_every_planner_with_tree_consistently(bench_json):
+    """Counts add up to the paired throws; the paired rates are the planners' own rates (every
+    released throw is paired); kinds and flight-time bins partition the throws."""
+    s = bench_json[0]
+    paired = s["paired"]
+    assert paired["reference"] == "tree" and set(paired["planners"]) == {"naive", "oracle"}
+    cells = ("both", "only_reference", "only_other", "neither")
+    for p, e in paired["planners"].items():
+        o = e["overall"]
+        assert sum(o[c] for c in cells) == o["throws"] == s["throws"]
+        assert o["rate_reference"] == pytest.approx(s["planners"]["tree"]["rate"])
+        assert o["rate_other"] == pytest.approx(s["planners"][p]["rate"])
+        assert o["difference"] == pytest.approx(o["rate_other"] - o["rate_reference"])
+        lo, hi = o["ci95"]
+        assert lo <= o["difference"] <= hi and 0.0 <= o["p_exact"] <= 1.0
+        for part in (list(e["by_kind"].values()), e["by_flight_time"]):
+            for c in (*cells, "throws"):
+                assert sum(x[c] for x in part) == o[c], (p, c)
+        for k, x in e["by_kind"].items():
+            assert x["throws"] == s["kinds"][k]
+            assert x["rate_other"] == pytest.approx(s["planners"][p]["by_kind"][k]["rate"])
+    assert set(paired["planners"]["naive"]["by_kind"]) == {"still", "windup"}
 
 
 def test_bench_command_refuses_bad_planners_and_files(tree_path, tmp_path):
     assert_one_line_error(
         run_cli("thinkfast-sim", "bench", "--tree", str(tree_path), "--planners", "magic"),
         "--planners",
+    )
+    assert_one_line_error(
+        run_cli("thinkfast-sim", "bench", "--tree", str(tree_path), "--reference", "oracle_seen"),
+        "--reference",
     )
     bad = tmp_path / "x.h5"
     bad.write_text("no")

@@ -1,8 +1,8 @@
 """Closed-loop statistics: many throws, every planner on the same throws, in lockstep.
 
 Throw ``i`` of seed ``s`` is the same throw (and the same camera noise) for every planner, so the
-comparison is paired. Work is split over processes by throw; results do not depend on the number
-of processes.
+comparison is paired (``paired``: every planner against a reference, :mod:`thinkfast.sim.paired`).
+Work is split over processes by throw; results do not depend on the number of processes.
 """
 
 from __future__ import annotations
@@ -13,7 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from thinkfast.sim.lockstep import FEINT_WINDOW, Outcome, World, simulate, wilson
+from thinkfast.sim.lockstep import FEINT_WINDOW, Outcome, World, simulate
+from thinkfast.sim.paired import format_paired, paired_summary, plot_paired
+from thinkfast.sim.stats import wilson
 from thinkfast.sim.thrower import KINDS
 
 BINS = (0.4, 0.5, 0.6, 0.7, 0.8)  # flight-time bins [s]
@@ -58,12 +60,15 @@ def run_bench(make_world, throws, planners, seed: int, jobs: int = 1, progress=N
     return out
 
 
-def summarize(outcomes: list[Outcome], planners) -> dict:
+def summarize(outcomes: list[Outcome], planners, reference: str | None = None) -> dict:
     """Per planner: blocked, rate, Wilson interval, per flight-time bin, share of feasible, and
-    per kind of throw (``by_kind``: still, windup, feint; see :func:`_kind_entry`).
+    per kind of throw (``by_kind``: still, windup, feint; see :func:`_kind_entry`); ``paired``:
+    every planner against ``reference`` (default ``tree`` when it ran, else the first planner;
+    :func:`~thinkfast.sim.paired.paired_summary`).
 
     The overall figures count throws only: a feint cannot be blocked (``feints`` counts them).
-    ``false_starts``: throws the arm left home for before their release.
+    ``starts_before_release`` (also as ``false_starts``): throws the arm left home for before
+    their release; ``feint_starts``: feints it left home for at all.
     """
     by = {p: [o for o in outcomes if o.planner == p] for p in planners}
     first = next(iter(by.values())) if by else []
@@ -99,11 +104,18 @@ def summarize(outcomes: list[Outcome], planners) -> dict:
                 }
             )
         entry["by_flight_time"] = bins
-        entry["false_starts"] = entry.pop("starts_before_release")
+        entry["false_starts"] = entry["starts_before_release"]
         entry["by_kind"] = {
             k: _kind_entry(*_select(all_rows, feasible, lambda x, k=k: x == k)) for k in kinds
         }
+        if "feint" in kinds:
+            entry["feint_starts"] = entry["by_kind"]["feint"]["starts"]
         summary["planners"][p] = entry
+    names = list(by)
+    if reference is None:
+        reference = "tree" if "tree" in by else (names[0] if names else None)
+    if reference is not None:
+        summary["paired"] = paired_summary(outcomes, names, reference, BINS)
     return summary
 
 
@@ -161,12 +173,13 @@ def _kind_entry(rows: list[Outcome], feasible: np.ndarray | None) -> dict:
 
 def format_summary(summary: dict) -> str:
     """The summary as a table."""
+    w = max([8, *map(len, summary["planners"])])
     lines = [
         f"{summary['throws']} throws"
         + (f" and {summary['feints']} feints" if summary.get("feints") else "")
         + " per planner (paired: same throws, same camera noise)",
         "",
-        f"{'planner':<8} {'blocked':>8} {'rate':>7} {'95% CI':>15} {'of feasible':>12}",
+        f"{'planner':<{w}} {'blocked':>8} {'rate':>7} {'95% CI':>15} {'of feasible':>12}",
     ]
     for p, e in summary["planners"].items():
         lo, hi = e["ci95"]
@@ -175,7 +188,7 @@ def format_summary(summary: dict) -> str:
         )
         feas = f"{100 * e['rate_of_feasible']:.1f} %" if "rate_of_feasible" in e else "-"
         lines.append(
-            f"{p:<8} {e['blocked']:>8} {100 * e['rate']:>6.1f}% "
+            f"{p:<{w}} {e['blocked']:>8} {100 * e['rate']:>6.1f}% "
             f"[{100 * lo:5.1f}, {100 * hi:5.1f}] {feas:>12}{extra}"
         )
     lines += ["", "by flight time (blocked / throws):"]
@@ -183,19 +196,19 @@ def format_summary(summary: dict) -> str:
         f"{f'{b[0]:.1f}-{b[1]:.1f} s':>14}"
         for b in [x["flight_s"] for x in next(iter(summary["planners"].values()))["by_flight_time"]]
     )
-    lines.append(f"{'planner':<8}{head}")
+    lines.append(f"{'planner':<{w}}{head}")
     for p, e in summary["planners"].items():
         cells = "".join(
             f"{str(x['blocked']) + '/' + str(x['throws']):>14}" for x in e["by_flight_time"]
         )
-        lines.append(f"{p:<8}{cells}")
-    return "\n".join(lines + _format_kinds(summary))
+        lines.append(f"{p:<{w}}{cells}")
+    paired = format_paired(summary["paired"]) if "paired" in summary else []
+    return "\n".join(lines + _format_kinds(summary, w) + paired)
 
 
-def _format_kinds(summary: dict) -> list[str]:
-    """The per-kind tables: throws of each kind, then feints."""
+def _format_kinds(summary: dict, w: int) -> list[str]:
+    """The per-kind tables (planner column ``w`` wide): throws of each kind, then feints."""
     kinds = summary.get("kinds", {})
-    w = max([8, *map(len, summary["planners"])])
     lines = ["", "by kind (starts: the arm left home before the release):"]
     lines.append(
         f"{'planner':<{w}} {'kind':<7} {'throws':>6} {'blocked':>8} {'rate':>7} {'95% CI':>15} "
@@ -236,9 +249,11 @@ def plot_summary(summary: dict, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax, axk) = plt.subplots(
-        1, 2, figsize=(10, 4.2), gridspec_kw={"width_ratios": [2, 1]}, squeeze=True
-    )
+    pairs = summary.get("paired", {}).get("planners")
+    fig, (ax, axk, *axp) = plt.subplots(
+        1, 3 if pairs else 2, figsize=(15 if pairs else 10, 4.2),
+        gridspec_kw={"width_ratios": [2, 1, 1.2] if pairs else [2, 1]},
+    )  # fmt: skip
     planners = summary["planners"]
     width = 0.8 / max(len(planners), 1)
     for k, (p, e) in enumerate(planners.items()):
@@ -275,6 +290,8 @@ def plot_summary(summary: dict, path: str) -> None:
                 f"{x['home_again']}/{x['feints']}"
             )
         axk.set_xlabel("\n".join(text), fontsize=8)
+    if pairs:
+        plot_paired(axp[0], summary["paired"])
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -168,6 +168,12 @@ def bench(
     n: int = typer.Option(500, "--throws", "-n", help="throws per planner"),
     seed: int = typer.Option(1, "--seed", help="throw and camera-noise seed"),
     planners: str = typer.Option("tree,naive,oracle", "--planners", help="comma separated"),
+    reference: str | None = typer.Option(
+        None,
+        "--reference",
+        help="planner every other one is compared with, paired (default: tree, or the first "
+        "planner when tree does not run)",
+    ),
     throw_set: Path | None = typer.Option(None, "--throw-set", help="throws from this file"),
     mix: str | None = typer.Option(None, "--mix", help=MIX_HELP),
     feints: int = typer.Option(0, "--feints", help=FEINTS_HELP),
@@ -179,7 +185,9 @@ def bench(
     """Lockstep statistics: the daemon's kernels in simulated time, every planner, same throws.
 
     Each kind of throw (--mix, --feints) is also reported on its own; feints by how far the
-    shield left home and whether it was home again within 2 s.
+    shield left home and whether it was home again within 2 s. Every planner is compared with
+    the --reference planner on the same throws: counts of throws both / only one / neither
+    blocked, the difference in rate with a 95 % interval (Newcombe) and an exact McNemar p.
     """
     from thinkfast.compile.grow import default_jobs
     from thinkfast.compile.treefile import load_tree
@@ -191,6 +199,8 @@ def bench(
     bad = [p for p in names if p not in PLANNERS]
     if bad or not names:
         raise ConfigError("--planners", None, f"{bad or names} not in {', '.join(PLANNERS)}")
+    if reference is not None and reference not in names:
+        raise ConfigError("--reference", None, f"{reference!r} is not one of --planners {names}")
     cfg = load_run_config(config)
     load_tree(tree)  # fail here, with the file's name, not in a worker
     balls = _throws(n, seed, throw_set, mix, feints)
@@ -203,7 +213,7 @@ def bench(
         jobs or default_jobs(),
         None if as_json else _progress,
     )
-    summary = summarize(out, names)
+    summary = summarize(out, names, reference)
     summary["seconds"] = round(time.perf_counter() - start, 1)
     summary["seed"] = seed
     if as_json:

@@ -179,14 +179,3 @@ def _stay(home: np.ndarray):
 
 def _inside(robot: Robot, q: np.ndarray) -> bool:
     return bool(np.all(q >= robot.q_lower) and np.all(q <= robot.q_upper))
-
-
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95 % Wilson score interval of a success rate k / n."""
-    if n == 0:
-        return (math.nan, math.nan)
-    p = k / n
-    den = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return (max(centre - half, 0.0), min(centre + half, 1.0))
