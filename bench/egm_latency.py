@@ -90,7 +90,7 @@ def serve(bind: str, realtime: bool, busy: bool, cpu: int) -> None:
     )  # fmt: skip
     state: dict = {}
 
-    def reply(fb):
+    def reply(fb, before=None):
         sup = state.get("sup")
         if sup is None:
             sup = state["sup"] = SafetySupervisor(limits, cfg, fb.q_rad)

@@ -87,6 +87,11 @@ def main() -> None:
         proc.wait(10)
     cmds = sim.commands()
     last = status[-1]
+    events = [
+        line.split(" INFO ", 1)[1]
+        for line in rt.daemon_log(proc).splitlines()
+        if " INFO " in line and "throw_end" not in line
+    ]
     out = {
         "machine": machine_info(),
         "throws": args.throws,
@@ -99,6 +104,7 @@ def main() -> None:
         "faults": last["faults"],
         "egm": last["egm"],
         "applied": applied_ratios(cmds.t, cmds.q, cmds.qd, robot),
+        "events": events,
     }
     if args.json:
         print(json.dumps(out))
@@ -113,6 +119,7 @@ def main() -> None:
     for k in ("velocity", "acceleration", "jerk", "speed_ref"):
         print(f"{'max applied ' + k + ' / limit':28s} {ap_[k]:>10.4f}")
     print(f"{'controller cycles (gaps)':28s} {ap_['cycles']:>10d} ({ap_['gaps']})")
+    print("daemon events:", *events[:40], sep="\n  ")
 
 
 if __name__ == "__main__":

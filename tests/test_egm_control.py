@@ -112,6 +112,19 @@ def test_after_a_silence_in_motion_the_stream_restarts_at_the_measured_state(rtr
     assert ctl.sup.intervened == 0
 
 
+def test_a_superseded_packet_measures_the_velocity_a_restart_starts_with(rtree, robot):
+    """After this host stalled (the controller went on sending), the restart takes the measured
+    velocity from the peer's packet just before the answered one."""
+    ctl = _control(rtree, robot)
+    ctl.on_feedback(0, robot.home, T0)
+    v = np.array([0.4, -0.2, 0.1, 0.5, 0.0, -0.3])
+    q_meas = robot.home + v * 0.1
+    r = ctl.on_feedback(100, q_meas, T0 + 0.1, before=(96, q_meas - v * 0.004))
+    assert r.tick.resync
+    np.testing.assert_allclose(r.q, q_meas, atol=1e-12)
+    np.testing.assert_allclose(r.qd, v, rtol=1e-9)
+
+
 def test_the_measured_velocity_seeds_a_restart_when_two_packets_measure_it(rtree, robot):
     ctl = _control(rtree, robot)
     ctl.on_feedback(0, robot.home, T0)
@@ -155,7 +168,7 @@ def test_an_arm_that_stops_following_brakes_then_recovers_home_by_itself(rtree, 
     assert any(r.mode == "brake" for r in replies)
     # the arm stands (frozen); once the commanded stop is done and it has stood for
     # recover_after, the stream restarts from it and the executor returns home
-    assert events == ["recover"] and ctl.fault_count == 1 and not ctl.latched
+    assert events == ["brake", "recover"] and ctl.fault_count == 1 and not ctl.latched
     assert ctl.ex.mode == IDLE and not ctl.sup.braking  # home again, ready for a throw
     np.testing.assert_allclose(ctl.sup.q, robot.home, atol=1e-6)
 
@@ -172,7 +185,7 @@ def test_repeated_faults_within_the_window_latch_fault(rtree, robot):
         if ctl.latched:
             break
     assert ctl.latched and ctl.mode() == FAULT and ctl.ex.mode == FAULT
-    assert events == ["recover", "recover", "fault_latched"]
+    assert events == ["brake", "recover", "brake", "recover", "brake", "fault_latched"]
     for _ in range(50):  # latched: holds the measured position, moves nothing
         tm += 4
         r = ctl.on_feedback(tm, q_frozen, T0 + tm / 1000)

@@ -18,7 +18,7 @@ from thinkfast.runtime.egm_server import (
 LOOPBACK = "127.0.0.1"
 
 
-def _hold(fb):
+def _hold(fb, before=None):
     """Setpoint source for tests: hold the measured position, 0.1 rad/s on joint 1."""
     return fb.q_rad, np.array([0.1, 0, 0, 0, 0, 0])
 
@@ -93,7 +93,7 @@ def test_one_reply_per_request_with_seqno_plus_one_to_the_one_peer(client):
     a = client()
     seen = []
 
-    def reply(fb):
+    def reply(fb, before=None):
         seen.append(fb)
         return _hold(fb)
 
@@ -175,8 +175,8 @@ def test_a_backlog_is_answered_once_with_the_newest_packet(client):
     flood.setblocking(False)
     got = []
 
-    def reply(fb):
-        got.append(fb.seqno)
+    def reply(fb, before=None):
+        got.append((fb.seqno, before.seqno))
         return _hold(fb)
 
     with EgmServer(f"{LOOPBACK}:0", reply, controller=LOOPBACK) as server:
@@ -189,7 +189,7 @@ def test_a_backlog_is_answered_once_with_the_newest_packet(client):
         n = 0
         while server.counters.received < 206:
             n += server.poll()
-        assert got == [6] and n == 1  # the five older ones were out of date already
+        assert got == [(6, 5)] and n == 1  # the five older ones were out of date already
         assert server.counters.superseded == 5 and server.counters.foreign == 200
         egm.decode_sensor(a.recv(65535))
         _no_reply(a)
@@ -256,7 +256,7 @@ def test_a_failing_setpoint_source_is_counted_and_the_next_request_served(client
     c = client()
     answers = iter([RuntimeError("boom"), (np.full(6, np.nan), np.zeros(6)), (np.zeros(5), 0)])
 
-    def reply(fb):
+    def reply(fb, before=None):
         a = next(answers, None)
         if a is None:
             return _hold(fb)

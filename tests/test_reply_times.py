@@ -42,7 +42,9 @@ def test_unknown_waits_are_left_out_not_counted_as_zero():
 
 def test_a_timing_egm_server_times_every_reply():
     with (
-        EgmServer("127.0.0.1:0", lambda fb: (fb.q_rad, np.zeros(6)), timing=True) as server,
+        EgmServer(
+            "127.0.0.1:0", lambda fb, before=None: (fb.q_rad, np.zeros(6)), timing=True
+        ) as server,
         socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client,
     ):
         client.settimeout(1.0)

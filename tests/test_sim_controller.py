@@ -87,7 +87,7 @@ def test_servo_config_loads_from_a_toml_table():
 
 
 def _hold_server(target):
-    def reply(fb):  # a sensor commanding a constant target at zero speed
+    def reply(fb, before=None):  # a sensor commanding a constant target at zero speed
         return target, np.zeros(6)
 
     server = EgmServer("127.0.0.1:0", reply)

@@ -121,13 +121,14 @@ class Daemon:
         self._peer = None
 
     # -------------------------------------------------------------- EGM path
-    def _reply(self, fb) -> tuple[np.ndarray, np.ndarray]:
+    def _reply(self, fb, before=None) -> tuple[np.ndarray, np.ndarray]:
         now = time.time()
         self.last_rx = now
         if self.stop_reason is not None:
             self.control.brake("signal")
         errors = self.control.errors
-        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now)
+        prev = None if before is None else (before.tm_ms, before.q_rad)
+        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev)
         if self.control.errors != errors:
             self._planner_error("setpoint", self.control.last_error)
         self._watch_throw(r.tick.t)

@@ -112,15 +112,17 @@ class EgmControl:
         """The plan changed: a prepared setpoint is void."""
         self._prepared = None
 
-    def on_feedback(self, tm_ms: int | None, q_meas: np.ndarray, now: float) -> Reply:
+    def on_feedback(self, tm_ms: int | None, q_meas: np.ndarray, now: float, before=None) -> Reply:
         """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, joints ``q_meas`` [rad])
-        received at ``now`` [s]. Never raises: a failing ``executor.setpoint`` is counted in
+        received at ``now`` [s]. ``before``: ``(tm_ms, q_meas)`` of the peer's packet just
+        before it when that one was superseded unanswered (it measures the velocity after a
+        stall of this host). Never raises: a failing ``executor.setpoint`` is counted in
         ``errors`` and brakes."""
         tick = self.clock.tick(tm_ms, now, self.at_rest())
         if tick.repeat and self.last is not None:
             self.repeats += 1
             return self.last._replace(tick=tick)
-        qd_meas = self._measure(tick, q_meas)
+        qd_meas = self._measure(tick, q_meas, _earlier(tick, tm_ms, before))
         if tick.resync or self.last is None:
             return self._restart(tick, q_meas, qd_meas)
         prepared, self._prepared = self._prepared, None
@@ -133,7 +135,19 @@ class EgmControl:
             q_req, qd_req = prepared[1], prepared[2]
         else:
             q_req, qd_req = self._plan(tick.t)
+        was_braking = self.sup.braking
         cmd = self.sup.step(q_req, qd_req, q_meas=q_meas, dt=h)
+        if cmd.braking and not was_braking:
+            dev = self.sup.deviation(q_meas)
+            self.on_event(
+                tick.t,
+                "brake",
+                {
+                    "reason": self.sup.brake_reason,
+                    "mode": self.ex.mode,
+                    "deviation": None if dev is None else np.round(dev, 4).tolist(),
+                },
+            )
         if cmd.kinds and not cmd.braking:  # the plan goes on from what was commanded
             self.ex.resync(cmd.q, cmd.qd, self.sup.qdd, tick.t)
         if cmd.braking:
@@ -156,20 +170,23 @@ class EgmControl:
             self.last_error = exc
             return None, None
 
-    def _measure(self, tick: ClockTick, q_meas: np.ndarray) -> np.ndarray | None:
-        """Measured velocity [rad/s] (6,) from the last two feedbacks, or None."""
+    def _measure(self, tick: ClockTick, q_meas: np.ndarray, earlier=None) -> np.ndarray | None:
+        """Measured velocity [rad/s] (6,) from this feedback and the one before (``earlier``:
+        ``(span [s], q)`` of a superseded packet, else the last one served), or None."""
         q = np.asarray(q_meas, dtype=float)
-        prev, self._fb = self._fb, (tick.t, q)
-        if prev is None or tick.resync:
+        last, self._fb = self._fb, (tick.t, q)
+        if earlier is not None:
+            span, q_prev = earlier
+        elif last is not None and not tick.resync:
+            span, q_prev = tick.elapsed, last[1]
+        else:
+            span, q_prev = 0.0, None
+        if q_prev is None or not 0.0 < span <= MEASURED_SPAN * self.cfg.dt + 1e-9:
             self._rest_since = math.inf
             return None
-        span = tick.t - prev[0]
-        if not 0.0 < span <= MEASURED_SPAN * self.cfg.dt + 1e-9:
-            self._rest_since = math.inf
-            return None
-        qd = (q - prev[1]) / span
+        qd = (q - q_prev) / span
         if np.max(np.abs(qd)) < REST_SPEED:
-            self._rest_since = min(self._rest_since, prev[0])
+            self._rest_since = min(self._rest_since, tick.t - span)
         else:
             self._rest_since = math.inf
         return qd
@@ -215,3 +232,14 @@ class EgmControl:
         self.ex.recover(np.array(self.sup.q), t)
         self._prepared = None
         self.on_event(t, "recover", {"reason": reason, "faults": len(self.faults)})
+
+
+def _earlier(tick: ClockTick, tm_ms: int | None, before) -> tuple[float, np.ndarray] | None:
+    """``(span [s], q)`` of the packet ``before``, when it was sent at most
+    :data:`MEASURED_SPAN` cycles before this one on the controller's clock."""
+    if before is None or tm_ms is None or before[0] is None:
+        return None
+    d_ms = (tm_ms - before[0]) % (1 << 32)
+    if not 0 < d_ms <= MEASURED_SPAN * 4:
+        return None
+    return d_ms / 1000.0, np.asarray(before[1], dtype=float)

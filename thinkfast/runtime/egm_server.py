@@ -150,9 +150,10 @@ class EgmServer:
 
     Args:
         bind: ``"HOST:PORT"`` string or ``(host, port)`` to bind; port 0 picks a free port.
-        reply_fn: ``reply_fn(feedback) -> (q_rad, qd_rad_s)``, two sequences of 6 finite values:
-            the setpoint to send in answer to ``feedback``. Called once per valid request, in
-            arrival order, on the thread that calls :meth:`poll`.
+        reply_fn: ``reply_fn(feedback, before) -> (q_rad, qd_rad_s)``, two sequences of 6 finite
+            values: the setpoint to send in answer to ``feedback``; ``before`` is the peer's
+            valid packet just before it when that one was superseded in the same drain (else
+            None). Called once per answered request, on the thread that calls :meth:`poll`.
         controller: ``"IP"`` or ``"IP:PORT"`` of the one controller to serve; None serves the
             first sender of a valid ``EgmRobot`` (see the module doc).
         handover: a silent peer [s] after which another sender may become the peer.
@@ -297,12 +298,17 @@ class EgmServer:
                 return 0
             self.peer = peer
             c.handovers += 1
-        answered = -1
+        answered, before = -1, None
         for k in range(len(packets) - 1, -1, -1):
             if sources[k] != peer:
                 self._count_foreign(sources[k])
             elif answered >= 0:
                 c.superseded += 1
+                if before is None:  # the peer's packet just before the answered one
+                    try:
+                        before = decode_robot(packets[k][0])
+                    except EgmDecodeError:
+                        before = False
             elif k not in bad:
                 try:
                     fb = decode_robot(packets[k][0])
@@ -311,13 +317,17 @@ class EgmServer:
                     continue
                 answered = k
                 data, addr, t_read, wait = packets[k]
-        return self._reply(fb, data, addr, t_read, wait) if answered >= 0 else 0
+        if answered < 0:
+            return 0
+        return self._reply(fb, before or None, data, addr, t_read, wait)
 
-    def _reply(self, fb: RobotFeedback, data: bytes, addr, t_read: float, wait: float) -> int:
+    def _reply(
+        self, fb: RobotFeedback, before, data: bytes, addr, t_read: float, wait: float
+    ) -> int:
         c = self.counters
         self.last_rx_time = self._clock()
         try:
-            q, qd = self.reply_fn(fb)
+            q, qd = self.reply_fn(fb, before)
             tm = int((self.last_rx_time - self._t0) * 1000.0)
             payload = encode_sensor((self.seqno + 1) & UINT32, tm, q, qd, mtype=MSGTYPE_CORRECTION)
         except Exception:  # a failing setpoint source must never stop the I/O loop
