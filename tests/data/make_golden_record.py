@@ -45,8 +45,8 @@ def main() -> None:
 
     if recorder.SCHEMA_VERSION != 1:
         sys.exit("this script needs the schema-1 writer (git history before schema 2)")
-    out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).with_name(
-        "record_v1_golden.h5"
+    out = (
+        Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).with_name("record_v1_golden.h5")
     )
     rec = recorder.Recorder(out, ATTRS)
     for method, rows in golden_rows().items():

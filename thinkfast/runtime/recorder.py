@@ -196,9 +196,7 @@ class Recorder:
         self.dropped += 1
         if stream not in self._warned:
             self._warned.add(stream)
-            log.warning(
-                "flight record: a %s row was refused (%s); such rows are dropped", stream, exc
-            )
+            log.warning("flight record: refused a %s row (%s); such rows are dropped", stream, exc)
 
     # -------------------------------------------------------------- idle time
     def service(self) -> None:
