@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import os
 import struct
-import sys
 
 import numpy as np
 
@@ -25,7 +24,6 @@ HEADER = struct.Struct("<BxxxII")
 OPEN_ID = 255
 FIELDS = {"raw": 1, "events": 2}  # byte fields of the variable-length streams
 STREAM_ID = {s.name: i for i, s in enumerate(STREAMS)}
-LITTLE = sys.byteorder == "little"
 
 
 def open_frame(attrs: dict) -> bytes:
@@ -114,22 +112,24 @@ class FrameSplitter:
 
 
 class TableBatch:
-    """Rows of a table waiting to be shipped: a preallocated (cap, width) float64 array."""
+    """Rows of a table waiting to be shipped: a preallocated (cap, width) float64 array over a
+    buffer whose byte view is kept, so that a frame's body is a slice of it (no copy)."""
 
-    __slots__ = ("sid", "rows", "n", "cap")
+    __slots__ = ("sid", "rows", "n", "cap", "row_bytes", "view")
 
     def __init__(self, sid: int, width: int, cap: int):
-        self.sid, self.rows, self.n, self.cap = sid, np.zeros((cap, width)), 0, cap
+        buf = bytearray(8 * width * cap)
+        self.sid, self.n, self.cap, self.row_bytes = sid, 0, cap, 8 * width
+        self.rows = np.frombuffer(buf, dtype="<f8").reshape(cap, width)
+        self.view = memoryview(buf)
 
     def full(self) -> bool:
         return self.n >= self.cap
 
     def parts(self) -> tuple[bytes, memoryview]:
         """The frame of the batched rows as (header, body); the body is a view of the batch."""
-        body = self.rows[: self.n]
-        if not LITTLE:
-            body = body.astype("<f8")
-        return HEADER.pack(self.sid, self.n, body.nbytes), memoryview(body).cast("B")
+        size = self.n * self.row_bytes
+        return HEADER.pack(self.sid, self.n, size), self.view[:size]
 
     def clear(self) -> None:
         self.n = 0
