@@ -38,3 +38,11 @@ class NoSolutionError(ThinkfastError):
 
 class TreeFileError(ThinkfastError):
     """A tree file is refused: the message names the path and the reason."""
+
+
+class RecorderError(ThinkfastError):
+    """The flight recorder cannot record to the path it was given (checked at start-up)."""
+
+
+class RecordFileError(ThinkfastError):
+    """A flight record file is refused: the message names the path and the reason."""

@@ -255,15 +255,13 @@ def replay(
     key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
     speed: float = typer.Option(1.0, "--speed", help="replay speed factor"),
 ) -> None:
-    """Re-publish a flight record's detections (raw payloads) with their original timing."""
+    """Re-publish a flight record's detections (raw payloads) with their original timing
+    (schema 1 and 2 records, also a partial one)."""
     from thinkfast.errors import ConfigError
-    from thinkfast.runtime.recorder import read_detections
+    from thinkfast.runtime.record_format import read_detections
     from thinkfast.sim.publisher import open_session
 
-    try:
-        t, payloads = read_detections(record)
-    except (OSError, ValueError, KeyError) as exc:
-        raise ConfigError(str(record), None, f"not a readable flight record ({exc})") from None
+    t, payloads = read_detections(record)  # RecordFileError: one line naming the file
     if speed <= 0:
         raise ConfigError("--speed", None, "must be > 0")
     session = open_session(connect=list(zenoh_connect or ()))
