@@ -32,6 +32,7 @@ import gc
 import json
 import logging
 import math
+import os
 import select
 import signal
 import time
@@ -144,9 +145,7 @@ class Daemon:
     def _event(self, t: float, kind: str, detail: dict) -> None:
         """Something worth a log line and a record row (from the control core or here)."""
         log.info("%s %s", kind, json.dumps(detail))
-        event = getattr(self.recorder, "event", None)
-        if event is not None:
-            event(t, kind, detail)
+        self.recorder.event(t, kind, detail)
 
     def _watch_throw(self, t: float) -> None:
         """Count the supervisor's interventions per throw (status and record)."""
@@ -182,7 +181,9 @@ class Daemon:
         cycle = self.cycle
         try:
             if self.cpu is not None:  # here: zenoh's threads are running (they move away)
+                others = os.sched_getaffinity(0) - {self.cpu}
                 pin_thread(self.cpu)
+                self.recorder.move_writer(others)
             if self.fifo is not None:  # this thread only
                 set_fifo(self.fifo)
             while True:
@@ -199,6 +200,8 @@ class Daemon:
                     self.zio.publish_status(self.status(now))
                     next_status = now + status_period
                 self._collect_garbage(now)
+                if self._time_left(now) > 0.0005:
+                    self.recorder.service()  # hands a batch of rows to the writer process
                 if self.stop_reason is not None and self._may_exit(now):
                     break
         finally:
@@ -313,7 +316,6 @@ class Daemon:
         d = ex.decision
         value = float(d.backup.value[ex.node]) if d is not None and d.backup is not None else None
         fault = ctl.latched or (sup.braking and sup.brake_reason in FAULT_REASONS)
-        recorder_status = getattr(self.recorder, "status", None)
         return {
             "stamp": now,
             "state": FAULT if fault else ex.mode,
@@ -337,7 +339,7 @@ class Daemon:
             "braking": sup.braking,
             "brake_reason": sup.brake_reason,
             "planner_errors": self.planner_errors,
-            "recorder": recorder_status() if recorder_status else None,
+            "recorder": self.recorder.status(),
             "egm_timing": self.egm.timing.summary(),
         }
 
