@@ -202,6 +202,17 @@ def test_starting_later_is_the_same_path_shifted_in_time():
     assert np.allclose(a, b, atol=2e-4)
 
 
+def test_an_index_scores_a_subset_with_its_own_starts():
+    rng = np.random.default_rng(9)
+    mean, cov = random_belief(rng)
+    c = np.stack([arrival(rng, mean, cov, s) for s in (-1.0, 0.0, 1.0, 2.0)])
+    paths = shield_paths(TIMES, c, GEOM)
+    start = np.array([0.0, 0.02, -0.03, 0.1])
+    full = block_probability(paths, mean, cov, GEOM, None, start)
+    sub = block_probability(paths, mean, cov, GEOM, None, start[[3, 1]], index=np.array([3, 1]))
+    assert sub.shape == (2,) and np.allclose(sub, full[[3, 1]], atol=2e-4)
+
+
 def test_probabilities_are_bounded_and_a_shield_out_of_reach_blocks_nothing():
     rng = np.random.default_rng(7)
     for _ in range(20):
