@@ -228,17 +228,20 @@ def test_probabilities_are_bounded_and_a_shield_out_of_reach_blocks_nothing():
 
 
 def test_degenerate_beliefs_give_finite_values_without_warnings():
+    rising = on_plane(np.tile([0.1, 1.1], (len(TIMES), 1)))
+    rising[:, 0] += np.clip(TIMES - 0.45, -0.1, 0.0)  # through the touch depth at 0.4 s
     c = np.stack(
         [
             on_plane(np.tile([0.1, 1.1], (len(TIMES), 1))),
             arrival(np.random.default_rng(8), np.array([0.1, 1.1, 0.4]), np.eye(3) * 1e-4, 0.0),
+            rising,
         ]
     )
     paths = shield_paths(TIMES, c, GEOM)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         for cov in (np.zeros((3, 3)), np.diag([0.0, 0.01, 1e-4]), np.eye(3) * 1e-20,
-                    np.full((3, 3), 0.01)):  # fmt: skip
+                    np.full((3, 3), 0.01), np.diag([0.01, 0.01, 1e-4])):  # fmt: skip
             p = block_probability(
                 paths, np.array([0.1, 1.1, 0.4]), cov, GEOM, np.array([-10.0, 0, 0])
             )

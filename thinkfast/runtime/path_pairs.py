@@ -103,7 +103,7 @@ def relative(paths: ShieldPaths, path, start, b: Belief, z, geom, approach):
     pos -= i
     pos *= paths.dt  # seconds into the segment
     i += path * n_t
-    x, y, z_, vx, vy, vz = paths.planes[:, i]  # each (P,)
+    x, y, z_, vx, vy, vz = (plane.take(i) for plane in paths.planes)  # each of shape S
     dx = vx * pos
     dx += x - geom.plane_x
     r_y = vy * pos

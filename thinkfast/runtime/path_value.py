@@ -224,10 +224,12 @@ def _jumps(paths: ShieldPaths, alive, start, b: Belief, geom: BlockGeometry, cfg
     many = cuts[:, 0] == -np.inf
     if not near.any():
         return many
-    off = paths.cut_yz[alive] - (b.m_yz + dt[..., None] * b.k)  # (A, K, 2)
+    a, k = np.nonzero(near)
+    off = paths.cut_yz[alive[a], k] - (b.m_yz + dt[a, k, None] * b.k)  # (N, 2)
     reach = REACH_A * b.sig_a + REACH_Z * b.sig_e + geom.shield_radius + geom.ball_radius
-    near &= np.einsum("akc,akc->ak", off, off) < reach * reach
-    return near.any(axis=1) | many
+    out = many.copy()
+    out[a[np.einsum("nc,nc->n", off, off) < reach * reach]] = True
+    return out
 
 
 def _time_scale(paths: ShieldPaths, group, b: Belief, geom: BlockGeometry) -> float:
