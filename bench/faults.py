@@ -53,6 +53,14 @@ def main(argv=None) -> int:
     ap.add_argument("--throws", type=int, default=50, help="throws per throw series (50)")
     ap.add_argument("--seed", type=int, default=1, help="throws, camera noise and faults (1)")
     ap.add_argument("--quick", action="store_true", help="shortest version of each scenario")
+    ap.add_argument("--resync-ms", type=float, default=20.0,
+                    help="a controller silence longer than this wants the first command at the "
+                    "measured state (20)")  # fmt: skip
+    ap.add_argument(
+        "--no-rt",
+        action="store_true",
+        help="no SCHED_FIFO for the simulated controller's loop (used when allowed)",
+    )
     ap.add_argument(
         "--deploy",
         action="store_true",
@@ -78,6 +86,7 @@ def main(argv=None) -> int:
                        log=lambda m: print(m, file=out, flush=True))  # fmt: skip
     record_dir = Path(tempfile.mkdtemp(prefix="faults-records-")) if a.record else None
     ctx.record_dir = record_dir
+    ctx.resync_s, ctx.controller_fifo = a.resync_ms / 1e3, None if a.no_rt else 30
     opts = Options(throws=a.throws, soak_minutes=a.soak, record=a.record, quick=a.quick)
     try:
         report = lambda r: print(line(r), file=out, flush=True)  # noqa: E731

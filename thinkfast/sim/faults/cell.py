@@ -27,7 +27,7 @@ from thinkfast.sim.controller import ServoConfig
 from thinkfast.sim.faults import rows as R
 from thinkfast.sim.faults.checker import ReplyChecker
 from thinkfast.sim.faults.monitor import Monitor
-from thinkfast.sim.faults.probe import StallProbe, rss_mb, stalls_near
+from thinkfast.sim.faults.probe import StallProbe, attribute, rss_mb
 from thinkfast.sim.faults.remote import RemoteController
 from thinkfast.sim.faults.senders import free_udp_port
 from thinkfast.sim.publisher import free_tcp_port, open_session
@@ -59,6 +59,8 @@ class Context:
     daemon_opts: tuple[str, ...] = ()
     log: object = print
     record_dir: Path | None = None  # every cell records there (``--record``) unless told
+    resync_s: float = 0.02  # a controller silence longer than this wants a resync [s]
+    controller_fifo: int | None = 30  # SCHED_FIFO priority of the controller's loop, if allowed
 
 
 class ThrowOutcome(NamedTuple):
@@ -94,7 +96,7 @@ class Cell:
         self.ctl: RemoteController | None = None
         self.mon_session = self.pub_session = None
         self.monitor: Monitor | None = None
-        self.checker = ReplyChecker(ctx.robot)
+        self.checker = ReplyChecker(ctx.robot, silence=ctx.resync_s)
         self._pending = np.zeros((0, R.NCOL))
         self.exit_code: int | None = None
         self.t_exit: float | None = None
@@ -135,8 +137,10 @@ class Cell:
         robot = ctx.robot
         limits = (robot.q_lower, robot.q_upper)
         target = ("127.0.0.1", self.egm_port)
-        self.ctl = RemoteController(target, self.servo, robot.home, self.seed, q_limits=limits)
+        self.ctl = RemoteController(target, self.servo, robot.home, self.seed, q_limits=limits,
+                                    fifo=ctx.controller_fifo)  # fmt: skip
         self.ctl.start()
+        self.controller_rt = self.ctl.realtime
         self.open_publisher()
         deadline = time.time() + 10.0
         while self.ctl.last_cmd is None and time.time() < deadline:
@@ -149,9 +153,9 @@ class Cell:
         time.sleep(0.2)
 
     def close_publisher(self) -> None:
-        if self.pub_session is not None:
-            self.pub_session.close()
-            self.pub_session = None
+        session, self.pub_session = self.pub_session, None
+        if session is not None:
+            session.close()
 
     def alive(self) -> bool:
         """The daemon runs (a death before :meth:`stop` or :meth:`send_signal` is remembered)."""
@@ -258,26 +262,8 @@ class Cell:
             rows = rows[: last[-1] + 1] if len(last) else rows[:0]
         self.checker.feed(rows, self.monitor.braking)
         fig = self.checker.summary()
-        fig.update(self.attribute_missed())
+        fig.update(attribute(self.checker.missed_times, self.checker.missed_late, self.stalls))
         return fig, self.checker.failures()
-
-    def attribute_missed(self) -> dict:
-        """Missed replies near a host stall (the probe's), late sends of the controller itself,
-        and the rest (unexplained); the probe's stalls during the run."""
-        t = np.array(self.checker.missed_times)
-        host = stalls_near(t, self.stalls, 0.006, 0.004)
-        n_host = int(host.sum())
-        own = min(self.checker.missed_late, len(t) - n_host)
-        st = self.stalls[:, 1] if len(self.stalls) else np.zeros(0)
-        return {
-            "missed_host_stall": n_host,
-            "missed_unexplained": int(len(t) - n_host - own),
-            "host_stalls": int(len(st)),
-            "host_stall_max_ms": round(1e3 * float(st.max()), 1) if len(st) else 0.0,
-        }
-
-    def stderr(self) -> str:
-        return daemon_log(self.proc) if self.proc is not None else ""
 
     def process_failures(self, expect_exit0: bool = True) -> list[str]:
         """Crash, non-zero exit, exception or traceback on stderr, a latched fault."""
@@ -286,7 +272,7 @@ class Cell:
             out.append(f"daemon died (exit {self.proc.returncode})")
         if expect_exit0 and self.exit_code != 0:
             out.append(f"exit status {self.exit_code}")
-        err = self.stderr()
+        err = daemon_log(self.proc) if self.proc is not None else ""
         if _BAD.search(err):
             line = next(ln for ln in err.splitlines() if _BAD.search(ln))
             out.append(f"stderr: {line.strip()[:120]}")

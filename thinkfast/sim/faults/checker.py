@@ -58,7 +58,6 @@ class ReplyChecker:
         self.ctx = np.zeros((0, R.NCOL))  # the last 3 rows of the previous batch
         self.ctx_brake = self.ctx_has = np.zeros(0, dtype=bool)
         self.started = False
-        self.last_cmd: np.ndarray | None = None
         self.f = dict.fromkeys(
             ("v_ratio", "v_ratio_all", "a_ratio", "a_ratio_all", "speedref_ratio",
              "jerk_ratio_brake", "speedref_jerk_ratio_brake", "jerk_ratio_normal",
@@ -121,15 +120,17 @@ class ReplyChecker:
         self.missed_late += int((miss & (rows[:, R.FLAGS].astype(int) & R.LATE > 0)).sum())
         n["bad_replies"] += int(rows[:, R.N_BAD].sum())
         n["nonfinite"] += int(rows[:, R.N_NONFINITE].sum())
-        n["outside_urdf"] += int(rows[:, R.N_OUTSIDE].sum())
         copies = np.where(rows[:, R.FLAGS].astype(int) & R.DUP, 2, 1)
         self._replies += int(valid.sum())
         self._copies += int(copies.sum())
         n["extra_replies"] = max(0, self._replies - self._copies)  # replies to something else
+        lo, hi = self.lim.q_lower, self.lim.q_upper
+        applied_out = ((rows[:, R.CMD_Q] < lo) | (rows[:, R.CMD_Q] > hi)).any(axis=1)
+        # replies outside the URDF limits: every reply as counted by the controller, or the
+        # applied one as checked here (NaN compares False: cycles without a reply count 0)
+        n["outside_urdf"] += int(np.maximum(rows[:, R.N_OUTSIDE], applied_out).sum())
         cmd = rows[valid > 0][:, R.CMD_Q]
         if len(cmd):
-            lo, hi = self.lim.q_lower, self.lim.q_upper
-            n["outside_urdf"] += int(((cmd < lo) | (cmd > hi)).any(axis=1).sum())
             sr = np.abs(rows[valid > 0][:, R.CMD_QD]) / self.lim.v_max
             self.f["speedref_ratio"] = max(self.f["speedref_ratio"], float(sr.max()))
 

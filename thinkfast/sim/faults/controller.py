@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import collections
 import math
+import os
 import socket
 import threading
 import time
@@ -47,11 +48,15 @@ class FaultController:
         seed: randomness of the injected faults.
         history_s: keep this long of the arm's wall-clock history for the judge [s].
         q_limits: ``(q_lower, q_upper)`` [rad] (6,) each: replies outside are counted per cycle.
+        fifo: run the loop's thread under SCHED_FIFO at this priority when the OS allows it (a
+            real controller keeps its cycle; this one then stalls only with the host). It sleeps
+            between cycles, so it never starves the machine. :attr:`realtime` says if it took.
     """
 
     def __init__(
-        self, target, servo=ServoConfig(), q0=None, seed=0, history_s=120.0, q_limits=None
-    ):
+        self, target, servo=ServoConfig(), q0=None, seed=0, history_s=120.0, q_limits=None,
+        fifo: int | None = None,
+    ):  # fmt: skip
         if not str(target[0]).startswith("127."):
             raise ValueError(f"the fault controller talks to loopback only, not {target[0]}")
         self.target, self.dt = (target[0], int(target[1])), servo.dt
@@ -62,6 +67,7 @@ class FaultController:
         self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         self.sock.setblocking(False)
         self.rows = R.RowBuffer()
+        self.fifo, self.realtime = fifo, False
         self.q_limits = None if q_limits is None else tuple(np.asarray(x) for x in q_limits)
         self.wall: collections.deque = collections.deque(maxlen=int(history_s / self.dt))
         self.last_cmd: np.ndarray | None = None  # q of the last applied reply [rad]
@@ -124,6 +130,12 @@ class FaultController:
         return np.array([r[0] for r in rows]), np.array([r[1] for r in rows]).reshape(-1, 6)
 
     def _run(self) -> None:
+        if self.fifo is not None:
+            try:  # this thread only
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.fifo))
+                self.realtime = True
+            except (AttributeError, OSError):
+                pass
         dt, sim = self.dt, self.sim
         t0, w0 = time.perf_counter(), time.time()
         k_prev, row = -1, None

@@ -69,6 +69,21 @@ def stalls_near(times: np.ndarray, stalls: np.ndarray, before: float, after: flo
     return ((start[None, :] <= hi) & (end[None, :] >= lo)).any(axis=1)
 
 
+def attribute(missed_times, missed_own: int, stalls: np.ndarray) -> dict:
+    """Missed replies (send times [s]) near a host stall, late sends of the controller itself
+    (``missed_own``), and the rest (unexplained); with the stalls' count and longest [ms]."""
+    t = np.asarray(missed_times, float)
+    n_host = int(stalls_near(t, stalls, 0.006, 0.004).sum())
+    own = min(missed_own, len(t) - n_host)
+    st = stalls[:, 1] if len(stalls) else np.zeros(0)
+    return {
+        "missed_host_stall": n_host,
+        "missed_unexplained": int(len(t) - n_host - own),
+        "host_stalls": int(len(st)),
+        "host_stall_max_ms": round(1e3 * float(st.max()), 1) if len(st) else 0.0,
+    }
+
+
 def rss_mb(pid: int) -> float | None:
     """Resident memory of process ``pid`` [MB] (Linux ``/proc``), None when unknown."""
     try:

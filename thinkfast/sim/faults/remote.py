@@ -21,7 +21,7 @@ import numpy as np
 from thinkfast.sim.faults.controller import FaultController
 
 _SETTABLE = ("duplicate", "malformed")
-_READABLE = ("last_cmd", "malformed_sent", "gap_log", "address")
+_READABLE = ("last_cmd", "malformed_sent", "gap_log", "address", "realtime")
 _CALLS = ("gap", "random_pauses", "freeze", "absurd", "reset_seqno", "history")
 
 
@@ -102,9 +102,10 @@ class _Rows:
 class RemoteController:
     """Same arguments and controls as :class:`FaultController`, in a child process."""
 
-    def __init__(self, target, servo, q0=None, seed=0, history_s=120.0, q_limits=None):
+    def __init__(self, target, servo, q0=None, seed=0, history_s=120.0, q_limits=None,
+                 fifo=None):  # fmt: skip
         self._args = (tuple(target), servo, None if q0 is None else np.asarray(q0, float), seed,
-                      history_s, q_limits)  # fmt: skip
+                      history_s, q_limits, fifo)  # fmt: skip
         self._lock = threading.Lock()
         self.rows = _Rows(self)
         self._stopped = False

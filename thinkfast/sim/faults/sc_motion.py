@@ -120,13 +120,14 @@ def _throw_series(name, ctx, opts, planner, servo=ServoConfig(), pauses=False):
     """``opts.throws`` ordinary throws; with ``pauses``: controller pauses of 60-200 ms at random
     (mean 2 s apart) and one in each throw between its first frame and 0.25 s before the
     crossing. A throw is lost to a pause when the daemon braked, returned or faulted between the
-    pause and the crossing although the pause ended >= 100 ms before the crossing."""
+    pause and the crossing although the pause ended >= 100 ms before the crossing. A latched
+    fault ends the series (it fails; ``latched_at_throw`` says when)."""
 
     def body(cell):
         rng = np.random.default_rng(ctx.seed)
         if pauses:
             cell.ctl.random_pauses(2.0, 0.06, 0.2)
-        outs, at_risk, lost, lost_ids = [], 0, 0, []
+        outs, at_risk, lost, lost_ids, latched_at = [], 0, 0, [], None
         for i, th in enumerate(sampled_throws(ctx, 2 if opts.quick else opts.throws)):
             hooks = []
             if pauses:
@@ -145,7 +146,10 @@ def _throw_series(name, ctx, opts, planner, servo=ServoConfig(), pauses=False):
                         lost += 1
                         lost_ids.append(th.id)
                         break
-        fig = blocked_summary(outs)
+            if cell.monitor.ever_latched():  # the verdict is in: no point in waiting out the rest
+                latched_at = i + 1
+                break
+        fig = {**blocked_summary(outs), "latched_at_throw": latched_at}
         fails = []
         if pauses:
             fig.update({"pauses": len(cell.ctl.gap_log), "throws_with_pause_before_crossing":

@@ -134,7 +134,8 @@ def finish(name: str, cell: Cell, t_start: float, figures: dict, failures: list[
     if latched and not latch_allowed:
         failures.append("a fault latched")
     figures = {**{k: fig.get(k) for k in _KEEP}, **figures, "exit": code, "latched": latched,
-               "load_avg_1min": round(os.getloadavg()[0], 2)}  # fmt: skip
+               "load_avg_1min": round(os.getloadavg()[0], 2),
+               "controller_rt": getattr(cell, "controller_rt", None)}  # fmt: skip
     for key in ("egm", "safety", "faults", "interventions", "egm_peer", "recorder"):
         if key in status:
             figures[f"daemon_{key}"] = status[key]
