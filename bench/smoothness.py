@@ -63,7 +63,7 @@ def main() -> None:
     proc = rt.start_daemon(args.tree, args.planner, egm_port, zport, "smooth", None, None)
     status: list[dict] = []
     try:
-        rt._wait_port(proc, zport)
+        rt.wait_port(proc, zport)
         sim = rt.WallClockSim(ServoConfig(), q0=robot.home)
         runner = ControllerRunner(sim, ("127.0.0.1", egm_port)).start()
         session = open_session(connect=[f"tcp/127.0.0.1:{zport}"])

@@ -81,9 +81,13 @@ class SimController:
     Args:
         config: servo model and limits.
         q0: initial joint angles [rad], shape (6,); zeros by default.
+        max_history: keep only this many recent history samples and commands (None: all; a
+            long run at 250 Hz would otherwise grow without bound).
     """
 
-    def __init__(self, config: ServoConfig = ServoConfig(), q0=None):
+    def __init__(
+        self, config: ServoConfig = ServoConfig(), q0=None, max_history: int | None = None
+    ):
         self.config = config
         self.q = np.zeros(6) if q0 is None else np.array(q0, dtype=float).reshape(6)
         self.qd = np.zeros(6)
@@ -94,8 +98,12 @@ class SimController:
         self._filt = (self.q.copy(), np.zeros(6))  # low-passed reference
         self._queue: collections.deque = collections.deque()
         self._lock = threading.Lock()
-        self._hist: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, self.q.copy(), self.qd)]
-        self._cmds: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self._hist: collections.deque[tuple[float, np.ndarray, np.ndarray]] = collections.deque(
+            [(0.0, self.q.copy(), self.qd)], maxlen=max_history
+        )
+        self._cmds: collections.deque[tuple[float, np.ndarray, np.ndarray]] = collections.deque(
+            maxlen=max_history
+        )
         self._lim = tuple(np.array(x) for x in (config.q_min, config.q_max, config.v_max))
         self._a_max = np.array(config.a_max)
 

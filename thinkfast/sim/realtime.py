@@ -68,10 +68,12 @@ def start_daemon(
     record: Path | None,
     config: Path | None,
     extra: tuple[str, ...] = (),
+    preexec_fn=None,
 ) -> subprocess.Popen:
     """Start ``thinkfast-run`` with loopback endpoints (``extra``: more options).
 
-    Its stderr goes to ``proc.log`` (a temporary file), read back when it fails.
+    Its stderr goes to ``proc.log`` (a temporary file), read back when it fails. ``preexec_fn``
+    runs in the child before the daemon starts (e.g. resource limits).
     """
     exe = Path(sys.executable).parent / "thinkfast-run"
     cmd = [
@@ -93,7 +95,7 @@ def start_daemon(
         cmd += ["--config", str(config)]
     cmd += list(extra)
     log = tempfile.TemporaryFile(mode="w+")  # its log: read back only if it fails
-    proc = subprocess.Popen(cmd, stderr=log, text=True)
+    proc = subprocess.Popen(cmd, stderr=log, text=True, preexec_fn=preexec_fn)
     proc.log = log  # type: ignore[attr-defined]
     return proc
 
@@ -131,11 +133,9 @@ def run_throws(
         for i, th in enumerate(throws):
             if frames is not None:  # frames in real time from the ball's appearance in the hand
                 t0 = time.time() + 0.3 + th.t_release
-                frames.publish_throw(th, extrinsic, np.random.default_rng(seed * 100_003 + i), t0)
+                frames.publish_throw(th, extrinsic, throw_rng(seed, i), t0)
             else:
-                dets = observe(
-                    th, camera, extrinsic, np.random.default_rng(seed * 100_003 + i), 0.0
-                )
+                dets = observe(th, camera, extrinsic, throw_rng(seed, i), 0.0)
                 # a swing is seen in real time from the ball's appearance; still throws keep
                 # their timing (hold frames older than 0.3 s before the release go out at once)
                 t0 = time.time() + 0.3 + (th.t_release if th.kind != "still" else 0.0)
@@ -156,29 +156,54 @@ def run_throws(
                 continue
             cross = plane_crossing(th)
             time.sleep(max(0.0, t0 + cross.t + 0.3 - time.time()))
-            t_hist, q_hist = sim.joint_history(t0 - 1.0)
-            v = judge(th, t_hist, q_hist, kin, th.plane_x, BALL_RADIUS, t_release_wall=t0)
-            results.append(
-                RealtimeResult(
-                    th.id,
-                    bool(v.blocked),
-                    v.why,
-                    float(v.miss_distance),
-                    float(th.flight_time),
-                    th.kind,
-                )  # fmt: skip
-            )
-            report(
-                f"throw {i + 1:3d}/{len(throws)} {th.id:>10}: flight {th.flight_time:.2f} s, "
-                f"crossing ({cross.y:+.2f}, {cross.z:.2f}) m -> "
-                f"{'BLOCKED' if v.blocked else v.why} (miss {v.miss_distance:.3f} m)"
-            )
+            r = judge_throw(th, *sim.joint_history(t0 - 1.0), kin, t0)._replace(kind=th.kind)
+            results.append(r)
+            report(throw_line(i, len(throws), th, r))
             time.sleep(max(0.0, t0 + cross.t + GAP - time.time()))
     finally:
         runner.stop()
         runner.join(2.0)
         session.close()
     return results
+
+
+def throw_rng(seed: int, i: int) -> np.random.Generator:
+    """The camera noise of throw ``i`` of a run seeded ``seed``."""
+    return np.random.default_rng(seed * 100_003 + i)
+
+
+def publish_throw(
+    session,
+    prefix: str,
+    th: Throw,
+    rng: np.random.Generator,
+    extrinsic: CameraExtrinsic,
+    t0: float,
+    camera: CameraModelConfig = CameraModelConfig(),
+    stop=None,
+):
+    """Publish what the camera sees of ``th`` in real time, released at wall time ``t0`` [s]
+    (detections already due go out at once); blocks until the last one is out."""
+    dets = observe(th, camera, extrinsic, rng, 0.0)
+    return publish_detections(session, f"{prefix}/detections", dets, t0_wall=t0, stop=stop)
+
+
+def judge_throw(th: Throw, t_hist, q_hist, kin: Kinematics, t0: float) -> RealtimeResult:
+    """Judge ``th`` released at wall time ``t0`` against the arm's history (wall times, joints)."""
+    v = judge(th, t_hist, q_hist, kin, th.plane_x, BALL_RADIUS, t_release_wall=t0)
+    return RealtimeResult(
+        th.id, bool(v.blocked), v.why, float(v.miss_distance), float(th.flight_time)
+    )
+
+
+def throw_line(i: int, n: int, th: Throw, r: RealtimeResult) -> str:
+    """One report line for throw ``i`` of ``n``."""
+    cross = plane_crossing(th)
+    return (
+        f"throw {i + 1:3d}/{n} {th.id:>10}: flight {th.flight_time:.2f} s, "
+        f"crossing ({cross.y:+.2f}, {cross.z:.2f}) m -> "
+        f"{'BLOCKED' if r.blocked else r.why} (miss {r.miss_distance:.3f} m)"
+    )
 
 
 def run_with_daemon(
@@ -204,7 +229,7 @@ def run_with_daemon(
     proc = start_daemon(tree, planner, egm_port, zport, prefix, record, config)
     pipeline = None
     try:
-        _wait_port(proc, zport)
+        wait_port(proc, zport)
         if frames is not None:
             from thinkfast.sim.frame_stream import FramePipeline
 
@@ -231,7 +256,8 @@ def run_with_daemon(
             proc.kill()
 
 
-def _wait_port(proc: subprocess.Popen, port: int, timeout: float = 30.0) -> None:
+def wait_port(proc: subprocess.Popen, port: int, timeout: float = 30.0) -> None:
+    """Wait until the daemon ``proc`` listens on TCP ``port`` (its zenoh endpoint)."""
     import socket
 
     deadline = time.time() + timeout

@@ -1,0 +1,258 @@
+"""Independent checks of the commands a controller applied, cycle by cycle on its own clock.
+
+Input: the fault controller's rows (:mod:`thinkfast.sim.faults.rows`): per 4 ms cycle, what it
+sent and the last valid ``EgmSensor`` that arrived during the cycle (decoded with the campaign's
+own protobuf classes). A cycle without a reply keeps the previous command. Finite differences
+(``dt`` = 4 ms) are taken only inside runs of consecutive cycles (``tm`` steps of exactly 4 ms: a
+pause, a silence or a stall of this process breaks the run). A window is *clean* when every
+cycle in it had a fresh reply: one reply (or one per copy sent), and no missed cycle in it or in
+the :data:`SETTLE` cycles before it. A controller cannot tell which ``EgmRobot`` a reply answers;
+after a late reply the next ones may be one cycle stale until two arrive in one cycle, and the
+commands it applies then jump by two cycles' motion. Such windows, and those with a missed
+reply, count only in the ``*_all`` figures (the host or the daemon was late, see the stall
+attribution).
+
+Checks (relative tolerance ``rtol``; ratios are value / limit, per joint, the maximum reported):
+
+* applied positions move at most ``v_max`` (first differences / dt) and accelerate at most
+  ``a_max`` (second differences / dt^2); ``speedRef`` at most ``v_max``;
+* while braking, third differences of positions / dt^3 (windows of four braking cycles) and
+  second differences of ``speedRef`` / dt^2 (windows ending in a braking cycle: the change from
+  the last acceleration before the brake counts) at most ``jerk_tol`` j_max; the jerk of normal
+  running is reported as a figure;
+* after a silence (``tm`` gap > ``silence``) and at the first reply, the first applied command
+  lies within ``pos_tol`` of the measured position, moved along the measured velocity for at
+  most one cycle (``q + s qd``, 0 <= s <= dt), and its ``speedRef`` is within ``a_max dt`` of the
+  measured velocity (what one cycle at the acceleration limit can change);
+* every reply finite and inside the URDF limits.
+
+:meth:`ReplyChecker.feed` takes rows in batches (the soak feeds it every few seconds).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from thinkfast.sim.faults import rows as R
+
+SETTLE = 4  # cycles after a missed one whose replies may be stale
+
+
+class ReplyChecker:
+    """Accumulates the checks over batches of rows (see the module doc).
+
+    Args:
+        limits: object with ``q_lower, q_upper, v_max, a_max, j_max`` (6,) each (a loaded robot).
+        dt: controller cycle [s].
+        rtol: relative tolerance of the velocity and acceleration checks.
+        jerk_tol: allowed jerk ratio while braking.
+        silence: a ``tm`` gap longer than this [s] is a silence (resync expected).
+        pos_tol: resync position tolerance [rad].
+    """
+
+    def __init__(self, limits, dt=0.004, rtol=1e-3, jerk_tol=1.05, silence=0.02, pos_tol=1e-3):
+        self.lim = limits
+        self.dt, self.rtol, self.jerk_tol, self.silence, self.pos_tol = (
+            dt, rtol, jerk_tol, silence, pos_tol,
+        )  # fmt: skip
+        self.ctx = np.zeros((0, R.NCOL))  # the last 3 rows of the previous batch
+        self.ctx_brake = self.ctx_has = np.zeros(0, dtype=bool)
+        self.started = False
+        self.f = dict.fromkeys(
+            ("v_ratio", "v_ratio_all", "a_ratio", "a_ratio_all", "speedref_ratio",
+             "jerk_ratio_brake", "speedref_jerk_ratio_brake", "jerk_ratio_normal",
+             "resync_pos_err_mrad", "resync_vel_ratio"), 0.0,
+        )  # fmt: skip
+        self.n = dict.fromkeys(
+            ("cycles", "replied", "missed", "bad_replies", "nonfinite", "outside_urdf",
+             "extra_replies", "gaps", "silences", "resyncs_checked", "resync_unanswered",
+             "brake_cycles", "v_violations", "a_violations", "jerk_violations"), 0,
+        )  # fmt: skip
+        self.missed_times: list[float] = []  # t_send of cycles without a reply
+        self.missed_late: int = 0  # ... of which this process sent late (its own stall)
+        self.worst_a_at = float("nan")
+        self.resync_fail: list[dict] = []
+        self.resyncs: list[dict] = []  # every resync checked (at most 1000)
+        self._pending_resync = True  # the first reply is a resync too
+        self._seen_reply = False
+        self._waited = 0
+        self._replies = self._copies = 0
+
+    def feed(self, rows: np.ndarray, braking=None) -> None:
+        """Check a batch of rows (in cycle order); ``braking(rows)`` -> bool (N,) (None: never)."""
+        if len(rows) == 0:
+            return
+        br_new = np.zeros(len(rows), dtype=bool) if braking is None else braking(rows)
+        allr = np.vstack([self.ctx, rows])
+        brake = np.r_[self.ctx_brake, br_new]
+        has = np.r_[self.ctx_has, rows[:, R.N_VALID] > 0]
+        copies = np.where(allr[:, R.FLAGS].astype(int) & R.DUP, 2, 1)
+        fresh = has & (allr[:, R.N_VALID] <= copies)
+        missed = ~has
+        for s in range(1, SETTLE + 1):
+            fresh[s:] &= ~missed[:-s]
+        new = np.zeros(len(allr), dtype=bool)
+        new[len(self.ctx) :] = True
+        self._count(rows)
+        self._resyncs(rows)
+        q, qd = self._applied(allr, has | ~np.isnan(allr[:, R.CMD_Q.start]))
+        gap = np.r_[True, np.diff(allr[:, R.K]) != 1]
+        self._differences(allr, q, qd, fresh, gap, brake, new)
+        keep = slice(max(0, len(allr) - 3), len(allr))
+        self.ctx, self.ctx_brake, self.ctx_has = allr[keep].copy(), brake[keep], has[keep]
+        self.ctx[:, R.CMD_Q], self.ctx[:, R.CMD_QD] = q[keep], qd[keep]  # forward-filled
+
+    # ------------------------------------------------------------------ pieces
+    def _count(self, rows: np.ndarray) -> None:
+        n = self.n
+        valid = rows[:, R.N_VALID]
+        if not self.started:
+            first = np.flatnonzero(valid > 0)
+            if len(first) == 0:
+                return
+            rows, valid = rows[first[0] :], valid[first[0] :]
+            self.started = True
+        n["cycles"] += len(rows)
+        n["replied"] += int((valid > 0).sum())
+        miss = valid == 0
+        n["missed"] += int(miss.sum())
+        self.missed_times.extend(rows[miss, R.T_SEND].tolist())
+        self.missed_late += int((miss & (rows[:, R.FLAGS].astype(int) & R.LATE > 0)).sum())
+        n["bad_replies"] += int(rows[:, R.N_BAD].sum())
+        n["nonfinite"] += int(rows[:, R.N_NONFINITE].sum())
+        copies = np.where(rows[:, R.FLAGS].astype(int) & R.DUP, 2, 1)
+        self._replies += int(valid.sum())
+        self._copies += int(copies.sum())
+        n["extra_replies"] = max(0, self._replies - self._copies)  # replies to something else
+        lo, hi = self.lim.q_lower, self.lim.q_upper
+        applied_out = ((rows[:, R.CMD_Q] < lo) | (rows[:, R.CMD_Q] > hi)).any(axis=1)
+        # replies outside the URDF limits: every reply as counted by the controller, or the
+        # applied one as checked here (NaN compares False: cycles without a reply count 0)
+        n["outside_urdf"] += int(np.maximum(rows[:, R.N_OUTSIDE], applied_out).sum())
+        cmd = rows[valid > 0][:, R.CMD_Q]
+        if len(cmd):
+            sr = np.abs(rows[valid > 0][:, R.CMD_QD]) / self.lim.v_max
+            self.f["speedref_ratio"] = max(self.f["speedref_ratio"], float(sr.max()))
+
+    def _resyncs(self, rows: np.ndarray) -> None:
+        """First applied command after each silence (and the first ever): at the measured state."""
+        k = rows[:, R.K]
+        prev_k = self.ctx[-1, R.K] if len(self.ctx) else np.nan
+        dk = np.diff(np.r_[prev_k, k])
+        silence = np.nan_to_num(dk, nan=0.0) * self.dt > self.silence + 1e-9
+        self.n["gaps"] += int((np.nan_to_num(dk, nan=1.0) > 1).sum())
+        self.n["silences"] += int(silence.sum())
+        pending, seen, waited = self._pending_resync, self._seen_reply, self._waited
+        for i in range(len(rows)):
+            if silence[i]:
+                if pending and seen and waited >= 5:  # 5 cycles sent after a silence, no reply
+                    self.n["resync_unanswered"] += 1
+                pending, waited = True, 0
+            if pending and rows[i, R.N_VALID] > 0:
+                pending, seen = False, True
+                self._check_resync(rows[i])
+            waited += 1
+        self._pending_resync, self._seen_reply, self._waited = pending, seen, waited
+
+    def _check_resync(self, row: np.ndarray) -> None:
+        q_meas, qd_meas = row[R.Q_TRUE], row[R.QD_TRUE]
+        q, qd = row[R.CMD_Q], row[R.CMD_QD]
+        # distance to the segment q_meas + s qd_meas, 0 <= s <= dt (per joint)
+        step = qd_meas * self.dt
+        s = np.clip(np.where(step != 0, (q - q_meas) / np.where(step != 0, step, 1), 0), 0, 1)
+        pos_err = float(np.max(np.abs(q - (q_meas + s * step))))
+        vel_ratio = float(np.max(np.abs(qd - qd_meas) / (self.lim.a_max * self.dt)))
+        self.n["resyncs_checked"] += 1
+        f = self.f
+        f["resync_pos_err_mrad"] = max(f["resync_pos_err_mrad"], 1e3 * pos_err)
+        f["resync_vel_ratio"] = max(f["resync_vel_ratio"], vel_ratio)
+        rec = {
+            "t": round(float(row[R.T_SEND]), 3),
+            "pos_err_mrad": round(1e3 * pos_err, 3),
+            "vel_ratio": round(vel_ratio, 3),
+            "speed": round(float(np.abs(qd_meas).max()), 3),
+        }
+        if len(self.resyncs) < 1000:
+            self.resyncs.append(rec)
+        if pos_err > self.pos_tol * (1 + self.rtol) or vel_ratio > 1 + self.rtol:
+            if len(self.resync_fail) < 20:
+                self.resync_fail.append(rec)
+
+    @staticmethod
+    def _applied(allr: np.ndarray, src: np.ndarray):
+        """Commands in force each cycle: the last reply's, forward-filled over missed cycles."""
+        idx = np.maximum.accumulate(np.where(src, np.arange(len(allr)), -1))
+        filled = (idx >= 0)[:, None]
+        q = np.where(filled, allr[np.maximum(idx, 0)][:, R.CMD_Q], np.nan)
+        qd = np.where(filled, allr[np.maximum(idx, 0)][:, R.CMD_QD], np.nan)
+        return q, qd
+
+    def _differences(self, allr, q, qd, has, gap, brake, new) -> None:
+        dt, lim, f, n, tol = self.dt, self.lim, self.f, self.n, 1 + self.rtol
+        n["brake_cycles"] += int((brake & new).sum())
+        for order, key, scale in ((1, "v", lim.v_max), (2, "a", lim.a_max), (3, "j", lim.j_max)):
+            m = len(allr) - order
+            if m <= 0:
+                continue
+            d = np.diff(q, n=order, axis=0) / dt**order / scale  # window ends at i + order
+            ok = ~np.isnan(d).any(axis=1) & new[order:]
+            clean = ok.copy()
+            for s in range(order + 1):
+                sl = slice(s, s + m)
+                clean &= has[sl]
+                if s > 0:
+                    ok &= ~gap[sl]
+                    clean &= ~gap[sl]
+            r = np.abs(d).max(axis=1)
+            if key == "v":
+                f["v_ratio"] = max(f["v_ratio"], _max(r[clean]))
+                f["v_ratio_all"] = max(f["v_ratio_all"], _max(r[ok]))
+                n["v_violations"] += int((r[clean] > tol).sum())
+            elif key == "a":
+                f["a_ratio_all"] = max(f["a_ratio_all"], _max(r[ok]))
+                if _max(r[clean]) > f["a_ratio"]:
+                    f["a_ratio"] = _max(r[clean])
+                    self.worst_a_at = float(allr[order:][clean][np.argmax(r[clean]), R.T_SEND])
+                n["a_violations"] += int((r[clean] > tol).sum())
+            else:  # all four cycles braking (the entry is judged on speedRef below)
+                b = brake[3:] & brake[2:-1] & brake[1:-2] & brake[:-3]
+                f["jerk_ratio_brake"] = max(f["jerk_ratio_brake"], _max(r[clean & b]))
+                f["jerk_ratio_normal"] = max(f["jerk_ratio_normal"], _max(r[clean & ~b]))
+                n["jerk_violations"] += int((r[clean & b] > self.jerk_tol).sum())
+            if key == "a":  # second differences of speedRef ending in a braking cycle
+                rr = (np.abs(np.diff(qd, n=2, axis=0)) / dt**2 / lim.j_max).max(axis=1)
+                sel = clean & brake[order:]
+                f["speedref_jerk_ratio_brake"] = max(f["speedref_jerk_ratio_brake"], _max(rr[sel]))
+
+    # ------------------------------------------------------------------ results
+    def summary(self) -> dict:
+        """Figures (rounded) and counts."""
+        out = {k: round(v, 4) for k, v in self.f.items()}
+        out.update(self.n)
+        c = self.n["cycles"]
+        out["answered_pct"] = round(100.0 * self.n["replied"] / c, 4) if c else None
+        out["missed_own_stall"] = self.missed_late
+        if self.resync_fail:
+            out["resync_failures"] = self.resync_fail
+        return out
+
+    def failures(self) -> list[str]:
+        """What broke a limit (empty: the commands passed every check)."""
+        f, n, tol, out = self.f, self.n, 1 + self.rtol, []
+        for key, what in (("v_ratio", "velocity"), ("a_ratio", "acceleration"),
+                          ("speedref_ratio", "speedRef")):  # fmt: skip
+            if f[key] > tol:
+                out.append(f"{what} {f[key]:.3f} x limit")
+        for key in ("jerk_ratio_brake", "speedref_jerk_ratio_brake"):
+            if f[key] > self.jerk_tol:
+                out.append(f"{key} {f[key]:.2f}")
+        if self.resync_fail:
+            out.append(f"{len(self.resync_fail)} resync(s) off the measured state")
+        for key in ("nonfinite", "outside_urdf", "bad_replies", "resync_unanswered"):
+            if n[key]:
+                out.append(f"{n[key]} {key}")
+        return out
+
+
+def _max(a: np.ndarray) -> float:
+    return float(a.max()) if a.size else 0.0
