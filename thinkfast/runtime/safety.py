@@ -17,8 +17,10 @@ previous state (their position step matches some ``|acc| <= a_max`` motion) pass
 anything else is replaced by the admissible velocity closest to one that tracks the request.
 
 Braking (on a stop signal, feedback deviation or a non-finite request)
-drives every joint's velocity to zero with ``|acc| <= a_max`` and ramps the acceleration at
-``j_max`` (a sqrt law, like a jerk-limited time-optimal stop). Jerk is honoured unless the state
+drives every joint's velocity to zero along the time-optimal jerk-limited stop from the commanded
+velocity and acceleration (:class:`JerkLimitedStop`, Ruckig's velocity interface), or, where
+Ruckig refuses the state, with ``|acc| <= a_max`` and the acceleration ramped at ``j_max`` (a
+sqrt law). Jerk is honoured unless the state
 when braking starts makes it impossible without reversing (then the velocity stops at zero), or
 a position limit demands a harder stop. Joints brake independently (each as fast as it may).
 """
@@ -30,6 +32,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
 
 from thinkfast.config import spec
 from thinkfast.errors import ThinkfastError
@@ -208,6 +211,53 @@ def brake_velocity(v_p, a_p, lim: SafetyLimits, dt: float) -> np.ndarray:
     return s * u_new
 
 
+class JerkLimitedStop:
+    """The time-optimal stop of every joint from velocity and acceleration (Ruckig's velocity
+    interface, joints independent), sampled tick by tick: the commanded velocity follows a
+    continuous jerk-limited profile, so braking honours j_max exactly (where the position
+    limits allow; :func:`limit_step` still guards them)."""
+
+    def __init__(self, traj: Trajectory, v0: np.ndarray):
+        self._traj, self._t = traj, 0.0
+        self._sign = np.sign(v0)  # a stop never reverses: a joint that reaches zero stays
+
+    @classmethod
+    def plan(cls, v0, a0, lim: SafetyLimits) -> JerkLimitedStop | None:
+        """The stop from ``v0`` [rad/s], ``a0`` [rad/s^2] (n,), or None when Ruckig refuses
+        (the supervisor then brakes with :func:`brake_velocity`)."""
+        n = lim.v_max.size
+        v0, a0 = np.asarray(v0, dtype=float), np.asarray(a0, dtype=float)
+        if not (np.isfinite(v0).all() and np.isfinite(a0).all()):
+            return None
+        inp = InputParameter(n)
+        inp.control_interface = ControlInterface.Velocity
+        inp.synchronization = Synchronization.No
+        inp.current_position = [0.0] * n
+        inp.current_velocity = v0.tolist()
+        inp.current_acceleration = np.clip(a0, -lim.a_max, lim.a_max).tolist()
+        inp.target_velocity = [0.0] * n
+        inp.target_acceleration = [0.0] * n
+        inp.max_velocity = np.maximum(lim.v_max, np.abs(v0) * (1 + 1e-9)).tolist()
+        inp.max_acceleration = lim.a_max.tolist()
+        inp.max_jerk = lim.j_max.tolist()
+        traj = Trajectory(n)
+        try:
+            result = Ruckig(n).calculate(inp, traj)
+        except Exception:  # ruckig.RuckigError: a state it cannot plan from
+            return None
+        if result not in (Result.Working, Result.Finished) or not math.isfinite(traj.duration):
+            return None
+        return cls(traj, v0)
+
+    def next(self, h: float) -> np.ndarray:
+        """The stop's velocity [rad/s] (n,) ``h`` seconds after the previous call."""
+        self._t = min(self._t + h, self._traj.duration)
+        v = np.array(self._traj.at_time(self._t)[1])
+        v = np.where((v * self._sign > 0.0) & (np.abs(v) >= 1e-9), v, 0.0)
+        self._sign = np.where(v == 0.0, 0.0, self._sign)
+        return v
+
+
 class StepResult(NamedTuple):
     """One filtered command: ``q`` [rad], ``qd`` [rad/s], shape (n,), and the kinds applied."""
 
@@ -346,6 +396,7 @@ class SafetySupervisor:
         v.setflags(write=False)
         self.q, self.qd, self.qdd = q, v, np.zeros(n)
         self.brake_reason: str | None = None
+        self._stop: JerkLimitedStop | None = None
         self._prepared: tuple | None = None
         self._recent = np.tile(q, (self._window, 1))  # ring of recent commands (envelope)
         self._head = 0
@@ -378,10 +429,12 @@ class SafetySupervisor:
         if self.brake_reason is None:
             self.brake_reason = reason
             self.counts[f"brake_{reason}"] += 1
+            self._stop = JerkLimitedStop.plan(self.qd, self.qdd, self.limits)
 
     def release(self) -> None:
         """Accept requests again (call when stopped and the cause is gone)."""
         self.brake_reason = None
+        self._stop = None
 
     def deviation(self, q_meas) -> np.ndarray | None:
         """Per joint [rad], how far ``q_meas`` lies outside the range commanded over the last
@@ -451,7 +504,10 @@ class SafetySupervisor:
             kinds = ("nonfinite",)
             self.request_brake("nonfinite")
         if self.braking:
-            v_des = brake_velocity(self.qd, self.qdd, lim, h)
+            if self._stop is not None:  # a joint that stood (a limit stopped it) stays
+                v_des = np.where(self.qd == 0.0, 0.0, self._stop.next(h))
+            else:
+                v_des = brake_velocity(self.qd, self.qdd, lim, h)
             q, v = limit_step(self.q, self.qd, v_des, lim, h)
             # rounding in the limit bounds can leave +-1e-13 rad/s of the wrong sign: a stop
             # is exactly zero, never a reversal
