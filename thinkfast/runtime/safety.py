@@ -234,7 +234,14 @@ class JerkLimitedStop:
         inp.synchronization = Synchronization.No
         inp.current_position = [0.0] * n
         inp.current_velocity = v0.tolist()
-        inp.current_acceleration = np.clip(a0, -lim.a_max, lim.a_max).tolist()
+        a0 = np.clip(a0, -lim.a_max, lim.a_max)
+        # an acceleration that would carry the speed past v_max before it ramps down is the
+        # estimate's error, not the plan's: take the largest that just reaches v_max
+        room = np.maximum(lim.v_max - np.abs(v0), 0.0)
+        a_top = np.sqrt(2.0 * lim.j_max * room)
+        away = a0 * np.sign(v0) > a_top
+        a0 = np.where(away, np.sign(v0) * a_top, a0)
+        inp.current_acceleration = a0.tolist()
         inp.target_velocity = [0.0] * n
         inp.target_acceleration = [0.0] * n
         inp.max_velocity = np.maximum(lim.v_max, np.abs(v0) * (1 + 1e-9)).tolist()
@@ -395,6 +402,7 @@ class SafetySupervisor:
         q.setflags(write=False)
         v.setflags(write=False)
         self.q, self.qd, self.qdd = q, v, np.zeros(n)
+        self._qdd_prev = self.qdd
         self.brake_reason: str | None = None
         self._stop: JerkLimitedStop | None = None
         self._prepared: tuple | None = None
@@ -429,7 +437,10 @@ class SafetySupervisor:
         if self.brake_reason is None:
             self.brake_reason = reason
             self.counts[f"brake_{reason}"] += 1
-            self._stop = JerkLimitedStop.plan(self.qd, self.qdd, self.limits)
+            # the acceleration at the end of the last tick, not its average over it: the
+            # average of a jerk-limited motion lags by half a tick of jerk
+            a_end = self.qdd + 0.5 * (self.qdd - self._qdd_prev)
+            self._stop = JerkLimitedStop.plan(self.qd, a_end, self.limits)
 
     def release(self) -> None:
         """Accept requests again (call when stopped and the cause is gone)."""
@@ -526,7 +537,7 @@ class SafetySupervisor:
         self.ticks += 1
         if kinds or self.braking:
             self.intervened += 1
-        self.qdd = (v - self.qd) / h
+        self._qdd_prev, self.qdd = self.qdd, (v - self.qd) / h
         q.setflags(write=False)  # fresh arrays each tick: safe to hand out read-only
         v.setflags(write=False)
         self.q, self.qd = q, v
