@@ -71,6 +71,14 @@ class SafetyConfig:
         lo=0.0,
         lo_open=True,
     )
+    servo_time_constant: float = spec(
+        0.05,
+        doc="ASSUMED settling time of the arm's servo: a following arm may overshoot the "
+        "commanded range by up to this times the largest commanded speed of the window "
+        "(calibrate from logged EGM feedback)",
+        unit="s",
+        lo=0.0,
+    )
     resync_after: float = spec(
         0.02,
         doc="an EGM silence longer than this restarts the setpoint stream from the measured "
@@ -407,6 +415,7 @@ class SafetySupervisor:
         self._stop: JerkLimitedStop | None = None
         self._prepared: tuple | None = None
         self._recent = np.tile(q, (self._window, 1))  # ring of recent commands (envelope)
+        self._recent_v = np.tile(v, (self._window, 1))
         self._head = 0
 
     def resync(self, q_meas, qd_meas=None) -> bool:
@@ -449,12 +458,15 @@ class SafetySupervisor:
 
     def deviation(self, q_meas) -> np.ndarray | None:
         """Per joint [rad], how far ``q_meas`` lies outside the range commanded over the last
-        ``tracking_lag``; None when ``q_meas`` is unusable (shape, non-finite)."""
+        ``tracking_lag``, less the overshoot a following servo may have at the speeds commanded
+        then (``servo_time_constant`` times the largest); None when ``q_meas`` is unusable."""
         q = _vector(q_meas, self.q.size)
         if q is None:
             return None
         recent = self._recent
-        return np.maximum(np.maximum(q - recent.max(axis=0), recent.min(axis=0) - q), 0.0)
+        outside = np.maximum(np.maximum(q - recent.max(axis=0), recent.min(axis=0) - q), 0.0)
+        overshoot = self.config.servo_time_constant * np.abs(self._recent_v).max(axis=0)
+        return np.maximum(outside - overshoot, 0.0)
 
     def prepare(self, q_req, qd_req) -> None:
         """Filter the next tick's request ahead of time, to take work out of :meth:`step`.
@@ -543,6 +555,7 @@ class SafetySupervisor:
         self.q, self.qd = q, v
         self._head = (self._head + 1) % self._window
         self._recent[self._head] = q
+        self._recent_v[self._head] = v
         return SafeCommand(q, v, self.braking, self.braking and not v.any(), kinds)
 
 
