@@ -66,7 +66,7 @@ class ReplyChecker:
         self.n = dict.fromkeys(
             ("cycles", "replied", "missed", "bad_replies", "nonfinite", "outside_urdf",
              "extra_replies", "gaps", "silences", "resyncs_checked", "resync_unanswered",
-             "brake_cycles", "v_violations", "a_violations", "jerk_violations"), 0,
+             "brake_cycles", "v_violations", "a_violations", "jerk_violations", "restarts"), 0,
         )  # fmt: skip
         self.missed_times: list[float] = []  # t_send of cycles without a reply
         self.missed_late: int = 0  # ... of which this process sent late (its own stall)
@@ -96,13 +96,26 @@ class ReplyChecker:
         self._count(rows)
         self._resyncs(rows)
         q, qd = self._applied(allr, has | ~np.isnan(allr[:, R.CMD_Q.start]))
-        gap = np.r_[True, np.diff(allr[:, R.K]) != 1]
+        gap = np.r_[True, np.diff(allr[:, R.K]) != 1] | self._restarts(allr, q, qd, new)
         self._differences(allr, q, qd, fresh, gap, brake, new)
         keep = slice(max(0, len(allr) - 3), len(allr))
         self.ctx, self.ctx_brake, self.ctx_has = allr[keep].copy(), brake[keep], has[keep]
         self.ctx[:, R.CMD_Q], self.ctx[:, R.CMD_QD] = q[keep], qd[keep]  # forward-filled
 
     # ------------------------------------------------------------------ pieces
+    def _restarts(self, allr: np.ndarray, q: np.ndarray, qd: np.ndarray, new) -> np.ndarray:
+        """Cycles where the command jumps to the measured position at rest: the daemon restarts
+        from the feedback (after a fault, once the arm stands); that cannot move the arm, so no
+        finite difference is taken across it. Counted in ``restarts``."""
+        lim, dt = self.lim, self.dt
+        step = np.abs(np.diff(q, axis=0)) > lim.v_max * dt * (1 + self.rtol)
+        jump = np.r_[False, step.any(axis=1)]
+        at_rest = (np.abs(qd) < 1e-9).all(axis=1)
+        measured = (np.abs(q - allr[:, R.Q_SENT]) <= self.pos_tol).all(axis=1)
+        restart = jump & at_rest & measured
+        self.n["restarts"] += int((restart & new).sum())
+        return restart
+
     def _count(self, rows: np.ndarray) -> None:
         n = self.n
         valid = rows[:, R.N_VALID]
