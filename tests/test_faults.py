@@ -187,9 +187,6 @@ def test_stalls_near_attributes_events_to_overlapping_stalls():
 
 
 # ---------------------------------------------------------------------- the real daemon
-TODAY = "today's daemon: supervisor passes position steps up to 1.25 a_max"
-
-
 @pytest.fixture(scope="module")
 def campaign_ctx(tmp_path_factory):
     from tests.conftest import compile_small_tree
@@ -201,23 +198,7 @@ def campaign_ctx(tmp_path_factory):
 
 @pytest.mark.parametrize(
     "name",
-    [
-        pytest.param("malformed", marks=pytest.mark.xfail(reason=TODAY, strict=False)),
-        pytest.param(
-            "second_sender",
-            marks=pytest.mark.xfail(reason="today's daemon answers every sender", strict=False),
-        ),  # fmt: skip
-        pytest.param(
-            "sigterm",
-            marks=pytest.mark.xfail(
-                reason="today's brake: v_max clamp and the final stop exceed j_max", strict=False
-            ),
-        ),  # fmt: skip
-        pytest.param(
-            "record_missing",
-            marks=pytest.mark.xfail(reason="today's daemon records only at exit", strict=False),
-        ),  # fmt: skip
-    ],
+    ["malformed", "duplicated", "second_sender", "sigterm", "silence_motion", "record_missing"],
 )
 def test_scenario_passes_against_the_real_daemon(campaign_ctx, name):
     """The scenario's checks (see bench/faults.py --list) hold for thinkfast-run, quick mode."""
