@@ -101,38 +101,37 @@ def fuzz_detections(ctx, opts):
 
 
 def _signal(name: str, sig: int, ctx, opts):
+    """Signal the daemon 0.15 s after the arm starts moving towards a far goal (naive planner:
+    it moves at once); it must brake smoothly (the checker's jerk checks), stop, exit 0."""
     t_start = time.time()
     cell = Cell(ctx, planner="naive", seed=ctx.seed)
     sent: list[float] = []
+    figures: dict = {}
+
+    def fire():
+        sent.append(time.time())
+        cell.send_signal(sig)
+
+    def after(fig):  # the cycles from the signal to the exit
+        fails = [] if sent else ["the arm never moved: no signal sent"]
+        rows = cell.rows_between(sent[0] if sent else 0.0, np.inf)
+        rows = rows[rows[:, R.N_VALID] > 0]
+        if len(rows) and np.abs(rows[-1, R.CMD_QD]).max() > 0:
+            fails.append("still moving when it exited")
+        if not fig.get("brake_cycles"):
+            fails.append("no brake seen")
+        speed = float(np.abs(rows[0, R.CMD_QD]).max()) if len(rows) else 0.0
+        figures.update({"speed_at_signal": round(speed, 3), "brake_s": round(len(rows) * 0.004, 3)})
+        return fails
+
     try:
         cell.start()
-
-        def fire():
-            sent.append(time.time())
-            cell.send_signal(sig)
-
         cell.throw(far_throw(1), 0, [(0.0, when_moving(cell, fire, delay=0.15))], settle=0.0)
         try:
             cell.proc.wait(15.0)
         except subprocess.TimeoutExpired:
             pass
-
-        def extra(fig):
-            fails = [] if sent else ["the arm never moved: no signal sent"]
-            rows = cell.rows_between(sent[0] if sent else 0.0, np.inf)
-            rows = rows[rows[:, R.N_VALID] > 0]
-            fig_speed = float(np.abs(rows[0, R.CMD_QD]).max()) if len(rows) else 0.0
-            if len(rows) and np.abs(rows[-1, R.CMD_QD]).max() > 0:
-                fails.append("still moving when it exited")
-            if not fig.get("brake_cycles"):
-                fails.append("no brake seen")
-            extra_fig.update({"speed_at_signal": round(fig_speed, 3),
-                              "brake_s": round(len(rows) * 0.004, 3)})  # fmt: skip
-            return fails
-
-        extra_fig: dict = {}
-        res = finish(name, cell, t_start, extra_fig, [], sig=sig, extra=extra, opts=opts)
-        return res
+        return finish(name, cell, t_start, figures, [], sig=sig, extra=after, opts=opts)
     except Exception as exc:
         cell.close()
         return error_result(name, t_start, exc)

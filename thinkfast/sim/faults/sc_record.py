@@ -16,14 +16,14 @@ import signal
 import socket
 import subprocess
 import tempfile
+import threading
 import time
 from pathlib import Path
-
-import numpy as np
 
 from thinkfast.sim.faults.cell import Cell
 from thinkfast.sim.faults.egm_pb import robot_message
 from thinkfast.sim.faults.scenario import (
+    Result,
     blocked_summary,
     easy_throw,
     error_result,
@@ -89,8 +89,6 @@ def _refusal(name: str, ctx, make_target):
     try:
         target, undo = make_target(tmp)
         fig, fails = _refused(name, ctx, target, t_start)
-        from thinkfast.sim.faults.scenario import Result
-
         return Result(name, not fails, {"target": str(target), **fig}, fails,
                       round(time.time() - t_start, 1))  # fmt: skip
     except Exception as exc:
@@ -136,25 +134,25 @@ def record_full(ctx, opts):
     tmp = Path(tempfile.mkdtemp(prefix="faults-rec-"))
     target = tmp / "rec.h5"
     cell = Cell(ctx, record=target, preexec_fn=_fsize_limit, seed=ctx.seed)
+    figures: dict = {}
+
+    def opens(fig):  # after the daemon exited: its partial record must open
+        figures["record_bytes"] = target.stat().st_size if target.exists() else None
+        try:
+            with h5py.File(target, "r") as f:
+                figures["record_datasets"] = {
+                    k: int(f[k].shape[0]) for k in f if isinstance(f[k], h5py.Dataset)
+                }
+        except Exception as exc:
+            return [f"the partial record does not open: {type(exc).__name__}: {exc}"[:160]]
+        return []
+
     try:
         cell.start()
         outs = [cell.throw(easy_throw(i), i) for i in range(1 if opts.quick else 3)]
-
-        def extra(fig):
-            out = {"record_bytes": target.stat().st_size if target.exists() else None}
-            try:
-                with h5py.File(target, "r") as f:
-                    out["record_datasets"] = {k: int(f[k].shape[0]) for k in f
-                                              if isinstance(f[k], h5py.Dataset)}  # fmt: skip
-                fails = []
-            except Exception as exc:
-                fails = [f"the partial record does not open: {type(exc).__name__}: {exc}"[:160]]
-            figs.update(out)
-            return fails
-
-        figs = blocked_summary(outs)
+        figures.update(blocked_summary(outs))
         fails = [] if all(o.executed for o in outs) else ["a throw was not executed"]
-        return finish("record_full", cell, t_start, figs, fails, extra=extra, opts=opts)
+        return finish("record_full", cell, t_start, figures, fails, extra=opens, opts=opts)
     except Exception as exc:
         cell.close()
         return error_result("record_full", t_start, exc)
@@ -163,38 +161,52 @@ def record_full(ctx, opts):
 
 
 def soak(ctx, opts, minutes: float):
-    """Throws every 3 s, the fuzz stream running, for ``minutes``; the daemon's RSS every 10 s."""
+    """Throws every 3 s, the fuzz stream running, for ``minutes``; the daemon's RSS every 10 s
+    (growth after the first fifth of the run: the warm-up)."""
     from thinkfast.sim.faults.sc_process import fuzz_result, start_fuzz
 
     t_start = time.time()
     tmp = Path(tempfile.mkdtemp(prefix="faults-soak-"))
     cell = Cell(ctx, record=tmp / "soak.h5" if opts.record else None, seed=ctx.seed)
     cell.keep_rows = False
-    seconds = 60.0 * minutes
+    seconds, rss, stop = 60.0 * minutes, [], threading.Event()
+
+    def sample() -> None:
+        t0 = time.time()
+        while not stop.wait(max(0.0, t0 + 10.0 * len(rss) - time.time())):
+            rss.append((round(time.time() - t0, 1), cell.rss_mb()))
+
     try:
         cell.start()
         fz = start_fuzz(cell, int(50 * seconds), seconds, ctx.seed)  # 50 payloads/s on average
-        rss, outs, i, next_rss = [], [], 0, time.time()
-        throws = sampled_throws(ctx, 200)
-        while time.time() - t_start < seconds:
-            slot = t_start + 3.0 * (i + 1)
+        sampler = threading.Thread(target=sample, daemon=True)
+        sampler.start()
+        outs, t_loop, throws = [], time.time(), sampled_throws(ctx, 200)
+        while time.time() - t_loop < seconds:
+            i = len(outs)
             outs.append(cell.throw(throws[i % len(throws)], i, settle=0.0))
-            i += 1
-            while time.time() < slot:
-                if time.time() >= next_rss:
-                    rss.append((round(time.time() - t_start, 1), cell.rss_mb()))
-                    next_rss += 10.0
-                    cell.feed()
-                time.sleep(0.05)
+            cell.feed()  # the checker keeps up; rows are not kept
+            time.sleep(max(0.0, t_loop + 3.0 * (i + 1) - time.time()))
+        stop.set()
+        sampler.join(1.0)
         fzr = fuzz_result(fz, 120.0)
-        mb = np.array([r[1] for r in rss if r[1] is not None])
-        warm = max(1, len(mb) // 5)
-        fig = {**blocked_summary(outs), "minutes": minutes, "record": bool(opts.record),
-               "fuzz_sent": fzr.get("sent"), "rss_mb": rss,
-               "rss_growth_after_warmup_mb": round(float(mb[-1] - mb[warm - 1]), 1)
-               if len(mb) > warm else None}  # fmt: skip
+        samples = [(t, m) for t, m in rss if m is not None]
+        warm = [s for s in samples if s[0] >= max(30.0, 0.2 * seconds)]  # after the warm-up
+        growth = span = None
+        if len(warm) >= 2:
+            growth, span = warm[-1][1] - warm[0][1], (warm[-1][0] - warm[0][0]) / 60.0
+        fig = {
+            **blocked_summary(outs),
+            "minutes": minutes,
+            "record": bool(opts.record),
+            "fuzz_sent": fzr.get("sent"),
+            "rss_mb": [(t, round(m, 1)) for t, m in samples],
+            "rss_growth_after_warmup_mb": None if growth is None else round(growth, 1),
+            "rss_growth_mb_per_min": None if growth is None else round(growth / span, 2),
+        }
         return finish("soak", cell, t_start, fig, [], opts=opts)
     except Exception as exc:
+        stop.set()
         cell.close()
         return error_result("soak", t_start, exc)
     finally:
