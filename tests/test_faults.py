@@ -198,7 +198,7 @@ def campaign_ctx(tmp_path_factory):
 
 @pytest.mark.parametrize(
     "name",
-    ["malformed", "duplicated", "second_sender", "sigterm", "silence_motion", "record_missing"],
+    ["malformed", "duplicated", "second_sender", "sigterm", "silence_rest", "record_missing"],
 )
 def test_scenario_passes_against_the_real_daemon(campaign_ctx, name):
     """The scenario's checks (see bench/faults.py --list) hold for thinkfast-run, quick mode."""
