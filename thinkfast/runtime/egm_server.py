@@ -333,7 +333,7 @@ class EgmServer:
         except Exception:  # a failing setpoint source must never stop the I/O loop
             c.reply_errors += 1
             return 0
-        work = time.perf_counter() - t_read
+        work = time.perf_counter() - t_read if self.timing is not None else 0.0
         try:
             self._sock.sendto(payload, addr)
         except OSError:
