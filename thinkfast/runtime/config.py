@@ -9,9 +9,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from thinkfast.config import from_dict, load_toml, spec
+from thinkfast.runtime.choice import ChoiceConfig
 from thinkfast.runtime.detections import CameraExtrinsic, DetectionLimits
 from thinkfast.runtime.filter import FilterConfig
 from thinkfast.runtime.launch import LaunchConfig
+from thinkfast.runtime.path_value import PathValueConfig
 from thinkfast.runtime.safety import SafetyConfig
 from thinkfast.runtime.values import ValueConfig
 
@@ -101,6 +103,8 @@ class RunConfig:
     value: ValueConfig = spec(ValueConfig())
     throw: ThrowConfig = spec(ThrowConfig())
     execution: ExecutionConfig = spec(ExecutionConfig())
+    choice: ChoiceConfig = spec(ChoiceConfig())
+    path_value: PathValueConfig = spec(PathValueConfig())
     safety: SafetyConfig = spec(SafetyConfig(position_margin=0.005))
     status_rate: float = spec(20.0, unit="Hz", lo=10.0, hi=250.0, doc="status publishing rate")
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from thinkfast.robot.model import Robot
 from thinkfast.runtime import filter as kf
+from thinkfast.runtime.choice import DIRECT, Chooser
 from thinkfast.runtime.config import RunConfig
 from thinkfast.runtime.launch import LaunchDetector
 from thinkfast.runtime.planner import Decision, RuntimeTree
@@ -51,7 +52,7 @@ from thinkfast.runtime.segments import (
 )
 
 IDLE, TRACKING, EXECUTING, RETURNING, FAULT = "idle", "tracking", "executing", "returning", "fault"
-PLANNERS = ("tree", "naive", "naive-paper")  # the ones the executor runs (online)
+PLANNERS = ("tree", "tree-rest", "naive", "naive-paper")  # the ones the executor runs (online)
 
 
 @dataclass
@@ -92,6 +93,12 @@ class Executor:
             robot, cfg.execution.wrist_max_tilt, cfg.safety.position_margin + 0.02
         )
         self.lag = cfg.execution.controller_lag
+        self.chooser = None
+        if planner == "tree":
+            self.chooser = Chooser(
+                tree.goal_q, tree.goal_yz, robot, tree.plane_x, tree.ball_radius, self.steer,
+                cfg.choice, cfg.path_value,
+            )  # fmt: skip
         self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
         self.launch = LaunchDetector(cfg.launch, cfg.filter, self.sensor)
         self.mode = IDLE
@@ -157,6 +164,8 @@ class Executor:
         self.episode.decisions += 1
         if self.planner in ("naive", "naive-paper"):
             self._naive(t_now, c)
+        elif self.chooser is not None:
+            self._choose(t_now, stamp, c)
         elif self.mode == TRACKING:
             self._maybe_leave_home(t_now)
         elif self.segment.kind in (STEER, TERMINAL):
@@ -249,6 +258,29 @@ class Executor:
         if current == goal:
             return
         self._steer_to(goal, t_now)
+
+    def _choose(self, t_now: float, stamp: float, c) -> None:
+        """Tree planner: the best of continuing, direct moves and tree branches (module doc)."""
+        if not c.ok:
+            return
+        v = np.array(self.belief.mean[3:6], dtype=float)
+        v[2] -= self.cfg.filter.gravity * float(c.mean[2])  # the ball's velocity at the plane
+        best, _ = self.chooser.choose(
+            c.mean, c.cov, v, stamp, t_now, self.lag, self.segment.state(t_now), self.segment
+        )
+        if best.kind != DIRECT and best.value < self.cfg.execution.min_move_value:
+            # nothing reachable has value (the ball comes too fast): the paper's fallback, rush
+            # to the most probable goal; a shield on its way may still catch the ball
+            self._naive(t_now, c)
+            return
+        if best.kind != DIRECT:
+            return  # continuing (at home: waiting) is worth the most
+        if self.mode == TRACKING:
+            self.mode = EXECUTING
+            self.episode.t_start = t_now
+        self.episode.chosen_value = best.value
+        end = np.r_[self.tree.goal_q[best.goal, :3], np.zeros(6)]
+        self.segment = Segment(STEER, t_now, best.traj, end, best.traj.duration, best.goal)
 
     def _naive(self, t_now: float, c) -> None:
         if not c.ok:

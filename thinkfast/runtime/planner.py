@@ -56,6 +56,8 @@ class RuntimeTree:
         params = json.loads(tree.meta["parameters"])
         self.eps = float(params["tree"]["eps"])
         self.plane_distance = float(params["plane"]["distance"])
+        self.plane_x = self.plane_distance  # the plane is x = distance in ``base``
+        self.ball_radius = BALL_RADIUS
         self.goal_q = tree.goal_q
         self.goal_yz = tree.goal_yz
         self.subgoal_q = tree.goal_q[tree.subgoal_goal]

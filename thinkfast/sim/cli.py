@@ -12,8 +12,8 @@ import typer
 from thinkfast.cli_util import make_app, run_app
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
-PLANNERS = ("tree", "naive", "naive-paper", "oracle", "oracle_seen")
-ONLINE = ("tree", "naive", "naive-paper")  # the ones the daemon runs
+PLANNERS = ("tree", "tree-rest", "naive", "naive-paper", "oracle", "oracle_seen")
+ONLINE = ("tree", "tree-rest", "naive", "naive-paper")  # the ones the daemon runs
 
 
 @app.callback()
@@ -80,7 +80,7 @@ def run(
     tree: Path = typer.Option(..., "--tree", help="compiled action tree (HDF5)"),
     n: int = typer.Option(5, "--throws", "-n", help="number of throws"),
     seed: int = typer.Option(1, "--seed", help="throw and camera-noise seed"),
-    planner: str = typer.Option("tree", "--planner", help="tree, naive or naive-paper"),
+    planner: str = typer.Option("tree", "--planner", help="tree, tree-rest, naive or naive-paper"),
     throw_set: Path | None = typer.Option(None, "--throw-set", help="throws from this file"),
     mix: str | None = typer.Option(None, "--mix", help=MIX_HELP),
     feints: int = typer.Option(0, "--feints", help=FEINTS_HELP),
