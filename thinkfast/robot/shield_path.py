@@ -52,6 +52,43 @@ class ShieldSampler:
                 "shield path: the shield centre must lie on link_5's x axis, normal along it"
             )
         self.offset = float(local[0])  # L [m]
+        self._chain = self._wrist_chain()
+
+    def _wrist_chain(self) -> list:
+        """The joints from ``base`` to the wrist centre, last first, as (R0, t0, axis, index):
+        the wrist centre needs joints 1-3 only (joints 4 and 5 turn about axes through it)."""
+        steps, link = [], self.wrist_link
+        by_child = {j.child: j for j in self.robot.chain}
+        while link in by_child:
+            j = by_child[link]
+            index = j.index if 0 <= j.index < 3 else -1
+            steps.append((j.T_parent_joint[:3, :3].copy(), j.T_parent_joint[:3, 3].copy(),
+                          np.asarray(j.axis, dtype=float), index))  # fmt: skip
+            link = j.parent
+        return steps
+
+    def wrist_centres(self, q123: np.ndarray) -> np.ndarray:
+        """Wrist centres [m] (N, 3) in ``base`` for joints 1-3 (N, 3) [rad]: the chain applied
+        to a point from the wrist back to ``base`` (the tests hold it to the batched FK)."""
+        q123 = np.asarray(q123, dtype=float)
+        p = np.zeros((len(q123), 3))
+        for R0, t0, axis, index in self._chain:
+            if index >= 0:  # p <- Rot(axis, q) p
+                a = q123[:, index]
+                k = int(np.argmax(np.abs(axis)))
+                if abs(abs(axis[k]) - 1.0) < 1e-12:  # about a frame axis: mix two components
+                    i, j = (k + 1) % 3, (k + 2) % 3
+                    c, s = np.cos(a), np.sign(axis[k]) * np.sin(a)
+                    p = p.copy()
+                    p[:, i], p[:, j] = c * p[:, i] - s * p[:, j], s * p[:, i] + c * p[:, j]
+                else:  # Rodrigues
+                    c, s = np.cos(a)[:, None], np.sin(a)[:, None]
+                    cross = np.column_stack([axis[1] * p[:, 2] - axis[2] * p[:, 1],
+                                             axis[2] * p[:, 0] - axis[0] * p[:, 2],
+                                             axis[0] * p[:, 1] - axis[1] * p[:, 0]])  # fmt: skip
+                    p = c * p + s * cross + (1.0 - c) * (p @ axis)[:, None] * axis
+            p = p @ R0.T + t0
+        return p
 
     def centres(self, q123: np.ndarray, normal=(1.0, 0.0, 0.0)) -> np.ndarray:
         """Shield centres [m], shape (..., 3), for joints 1-3 [rad], shape (..., 3).
@@ -62,9 +99,7 @@ class ShieldSampler:
         """
         q123 = np.asarray(q123, dtype=float)
         flat = q123.reshape(-1, 3)
-        q = np.zeros((len(flat), 6))
-        q[:, :3] = flat
-        wc = self.fk.link_poses(q, until=self.wrist_link)[self.wrist_link][:, :3, 3]
+        wc = self.wrist_centres(flat)
         n = np.asarray(normal, dtype=float)
         return (wc + self.offset * (n / np.linalg.norm(n))).reshape(q123.shape)
 

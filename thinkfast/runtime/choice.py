@@ -56,7 +56,7 @@ class ChoiceConfig:
         5.0,
         unit="sigma",
         lo=3.0,
-        doc="paths are sampled up to the mean crossing time plus this many of its std",
+        doc="paths are sampled over the mean crossing time +- this many of its std",
     )
 
 
@@ -146,10 +146,7 @@ class Chooser:
             if traj is not None:
                 trajs.append(traj)
                 options.append(Option(DIRECT, g, traj, math.nan))
-        horizon = mean[2] + self.cfg.horizon_sigmas * math.sqrt(max(crossing_cov[2][2], 0.0))
-        horizon = max(horizon + t_belief - t_plan - lag, 0.0)
-        n = int(math.ceil(horizon / self.cfg.path_dt)) + 1
-        times = np.arange(n) * self.cfg.path_dt  # path clock: 0 at t_plan
+        times = self._window(mean[2], crossing_cov[2][2], t_plan + lag - t_belief)
         joints = [_sample(current.traj, times + (t_plan - current.t0), current.end)]
         joints += [_sample(tr, times, None) for tr in trajs]
         values = self.score_joint_paths(
@@ -163,6 +160,14 @@ class Chooser:
             best = options[0]
         return best, options
 
+    def _window(self, tau: float, var_tau: float, t_start: float) -> np.ndarray:
+        """Sample times [s, path clock, 0 at t_plan] covering tau +- ``horizon_sigmas`` std: the
+        kernel reads a path only there (before its first sample it holds the first)."""
+        dt, half = self.cfg.path_dt, self.cfg.horizon_sigmas * math.sqrt(max(var_tau, 0.0))
+        lo = max(math.floor((tau - half - t_start) / dt), 0)
+        hi = max(math.ceil((tau + half - t_start) / dt), lo + 1)
+        return np.arange(lo, hi + 1) * dt
+
     # ------------------------------------------------------------------ values
     def score_joint_paths(self, joints, times, mean, cov, approach, t_start) -> np.ndarray:
         """P(block) of joint 1-3 paths (M, T, 3) sampled at ``times`` (T,) [s, path clock]
@@ -173,9 +178,7 @@ class Chooser:
     def score_paths(self, times, centres, mean, cov, approach, t_start) -> np.ndarray:
         """P(block) of shield-centre paths (M, T, 3) [m] in ``base``, shape (M,)."""
         packed = shield_paths(times, centres, self.geom)
-        return block_probability(
-            packed, mean, cov, self.geom, approach, t_start, self.quadrature
-        )
+        return block_probability(packed, mean, cov, self.geom, approach, t_start, self.quadrature)
 
 
 def _sample(traj, times: np.ndarray, end) -> np.ndarray:
