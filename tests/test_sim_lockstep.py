@@ -163,7 +163,18 @@ def test_bench_command_refuses_bad_planners_and_files(tree_path, tmp_path):
         "--planners",
     )
     assert_one_line_error(
-        run_cli("thinkfast-sim", "bench", "--tree", str(tree_path), "--reference", "oracle_seen"),
+        run_cli(
+            "thinkfast-sim",
+            "bench",
+            "--tree",
+            str(tree_path),
+            "--throws",
+            "2",
+            "--planners",
+            "tree,naive",
+            "--reference",
+            "oracle_seen",
+        ),  # fmt: skip
         "--reference",
     )
     bad = tmp_path / "x.h5"
@@ -208,7 +219,8 @@ def test_wind_ups_and_a_feint_run_end_to_end_and_are_reported_per_kind(tree_path
     plot_summary(s, str(tmp_path / "kinds.png"))
     assert (tmp_path / "kinds.png").stat().st_size > 10_000
     # the oracle leaves at the release: a wind-up's flight is its still twin's, bit for bit
-    twin = sample_throws(ThrowConfig(), 1, seed=5)[0]
+    still = dataclasses.replace(cfg.thrower, mix=(1.0, 0.0, 0.0))
+    twin = sample_throws(dataclasses.replace(cfg, thrower=still), 1, seed=5)[0]
     world = _Factory(tree_path)()
     a, b = simulate(world, throws[0], "oracle", 5), simulate(world, twin, "oracle", 5)
     assert (a.blocked, a.miss_distance, a.kind, b.kind) == (

@@ -11,7 +11,7 @@ from tests.conftest import assert_one_line_error, run_cli
 from thinkfast.errors import ConfigError, NoSolutionError, ThinkfastError
 from thinkfast.runtime.detections import CameraExtrinsic
 from thinkfast.sim.camera import CameraModelConfig, observe
-from thinkfast.sim.thrower import MINJERK_PEAK, ThrowerConfig, parse_mix
+from thinkfast.sim.thrower import MINJERK_PEAK, STILL_MIX, ThrowerConfig, parse_mix
 from thinkfast.sim.throws import ThrowConfig, ball_states, plane_crossing, sample_throws
 from thinkfast.sim.throwset import load_throw_set, save_throw_set
 
@@ -37,7 +37,7 @@ def feints():
 @pytest.fixture(scope="module")
 def stills():
     """The same draws as ``windups`` and ``feints``, every throw still."""
-    return sample_throws(CFG, 60, seed=13)
+    return sample_throws(_cfg(STILL_MIX), 60, seed=13)
 
 
 def _phases(th):
@@ -163,8 +163,8 @@ def test_parse_mix_reads_weights_and_refuses_nonsense():
 def test_all_still_sets_are_bit_identical_to_those_of_the_code_before_the_thrower_model():
     """Fixture: throw set and ball states written by commit cd9b2c4 (tests/data/)."""
     old = load_throw_set(DATA / "throws_v1_seed7.json")
-    assert old.config == CFG
-    new = sample_throws(CFG, 12, seed=7)
+    assert old.config == _cfg(STILL_MIX)  # a version 1 set is all still holds
+    new = sample_throws(old.config, 12, seed=7)
     states = json.loads((DATA / "throws_v1_seed7_states.json").read_text())["states"]
     for a, b, rec in zip(old.throws, new, states, strict=True):
         assert a.kind == "still"

@@ -29,7 +29,10 @@ def run(
     tree: Path = typer.Option(..., "--tree", help="compiled action tree (HDF5)"),
     config: Path | None = typer.Option(None, "--config", help="runtime configuration (TOML)"),
     planner: str = typer.Option(
-        "tree", "--planner", help="tree (belief-space), tree-rest (the paper's at-rest values), naive or naive-paper (baselines)"
+        "tree",
+        "--planner",
+        help="tree (belief-space), tree-rest (the paper's at-rest values), "
+        "naive or naive-paper (baselines)",
     ),
     egm_bind: str = typer.Option("0.0.0.0:6510", "--egm-bind", help="UDP HOST:PORT to serve EGM"),
     egm_controller: str | None = typer.Option(

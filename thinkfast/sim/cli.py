@@ -23,7 +23,7 @@ def _group() -> None:
 
 MIX_HELP = (
     "kinds of throw drawn, KIND=WEIGHT,... of still, windup, feint (default: "
-    "thinkfast/sim/thrower.py DEFAULT_MIX, all still)"
+    "thinkfast/sim/thrower.py DEFAULT_MIX: half still holds, half wind-ups)"
 )
 FEINTS_HELP = "feints appended to the drawn throws (ids s<seed>-f<j>)"
 
@@ -167,7 +167,9 @@ def bench(
     tree: Path = typer.Option(..., "--tree", help="compiled action tree (HDF5)"),
     n: int = typer.Option(500, "--throws", "-n", help="throws per planner"),
     seed: int = typer.Option(1, "--seed", help="throw and camera-noise seed"),
-    planners: str = typer.Option("tree,naive,oracle", "--planners", help="comma separated"),
+    planners: str = typer.Option(
+        "tree,naive,naive-paper,oracle,oracle_seen", "--planners", help="comma separated"
+    ),
     reference: str | None = typer.Option(
         None,
         "--reference",
@@ -176,7 +178,9 @@ def bench(
     ),
     throw_set: Path | None = typer.Option(None, "--throw-set", help="throws from this file"),
     mix: str | None = typer.Option(None, "--mix", help=MIX_HELP),
-    feints: int = typer.Option(0, "--feints", help=FEINTS_HELP),
+    feints: int = typer.Option(
+        -1, "--feints", help=FEINTS_HELP + "; default: a tenth of --throws (none with --throw-set)"
+    ),
     jobs: int = typer.Option(0, "--jobs", "-j", help="processes (0: all cores)"),
     config: Path | None = typer.Option(None, "--config", help="runtime config (TOML)"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object"),
@@ -203,6 +207,8 @@ def bench(
         raise ConfigError("--reference", None, f"{reference!r} is not one of --planners {names}")
     cfg = load_run_config(config)
     load_tree(tree)  # fail here, with the file's name, not in a worker
+    if feints == -1:
+        feints = 0 if throw_set is not None else n // 10
     balls = _throws(n, seed, throw_set, mix, feints)
     start = time.perf_counter()
     out = run_bench(

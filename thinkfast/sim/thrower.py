@@ -33,8 +33,10 @@ from thinkfast.config import spec
 from thinkfast.errors import ConfigError, NoSolutionError
 
 KINDS = ("still", "windup", "feint")
-DEFAULT_MIX = (1.0, 0.0, 0.0)
+DEFAULT_MIX = (0.5, 0.5, 0.0)
 """Default weights of (still, windup, feint). Switching the default mix is this one line."""
+STILL_MIX = (1.0, 0.0, 0.0)
+"""Every throw a still hold: the simulator before the thrower model (version 1 throw sets)."""
 MINJERK_PEAK = 1.875
 """Peak speed of a minimum-jerk rest-to-rest move over its mean speed."""
 DRAWS = 9

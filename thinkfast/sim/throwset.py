@@ -6,6 +6,7 @@ Version 2 records each throw's ``kind`` and, for wind-ups and feints, its swing;
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import NamedTuple
@@ -14,7 +15,7 @@ import numpy as np
 
 from thinkfast.config import from_dict, to_dict
 from thinkfast.errors import ThinkfastError
-from thinkfast.sim.thrower import check_motion
+from thinkfast.sim.thrower import STILL_MIX, check_motion
 from thinkfast.sim.throws import Throw, ThrowConfig
 
 FORMAT = "thinkfast-throws"
@@ -66,6 +67,8 @@ def load_throw_set(path: str | Path) -> ThrowSet:
             f"{path}: unknown version {version!r} (this reader knows {', '.join(map(str, READS))})"
         )
     cfg = from_dict(ThrowConfig, doc.get("config"), str(path), "config")
+    if version == 1:  # before the thrower model every throw was a still hold
+        cfg = dataclasses.replace(cfg, thrower=dataclasses.replace(cfg.thrower, mix=STILL_MIX))
     throws = []
     for i, rec in enumerate(doc.get("throws") or []):
         throws.append(_record(rec, version, f"{path}: throws[{i}]"))
