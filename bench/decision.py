@@ -5,6 +5,12 @@ child, on a synthetic action tree (or a compiled one with --tree).
     .venv/bin/python bench/decision.py --json     # one JSON object
     .venv/bin/python bench/decision.py --tree trees/irb1600_default.h5
 
+With ``--tree``, the daemon's planners are also timed side by side in one run: the executor's
+whole handling of a detection that ends in a decision (filter, launch fit, crossing belief and
+the planner's choice), on the same simulated detections (default throw mix, camera model, as
+``thinkfast-sim`` draws them) for ``tree-rest`` (the paper's at-rest tree values and backup),
+``tree`` (the re-rooted choice by the moving shield's block probability) and ``naive``.
+
 The beliefs come from simulated throws (6-8 m, 0.4-0.8 s flight, 50 Hz, a few cm of noise, with
 drag), so the belief width sweeps from wide (first frames) to tight (just before the crossing).
 """
@@ -14,6 +20,7 @@ from __future__ import annotations
 import argparse
 import gc
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -167,6 +174,67 @@ def time_updates(tree, n_throws: int = 40, repeat: int = 3) -> np.ndarray:
     return np.array(times)
 
 
+def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) -> dict:
+    """Per planner, durations [ms] of ``Executor.on_detection`` calls that made a decision, on the
+    same detections of ``n_throws`` simulated throws (planners interleaved per throw, so a
+    change of machine load hits them alike)."""
+    from thinkfast.compile.treefile import load_tree
+    from thinkfast.robot.model import load_robot
+    from thinkfast.runtime.config import RunConfig
+    from thinkfast.runtime.executor import Executor
+    from thinkfast.runtime.intake import Intake
+    from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
+    from thinkfast.sim.controller import ServoConfig
+    from thinkfast.sim.lockstep import DT, LEAD, World
+    from thinkfast.sim.throws import ThrowConfig, sample_throws
+
+    cfg = RunConfig()
+    world = World(load_tree(tree_path), load_robot(), cfg, ServoConfig(), CameraModelConfig())
+    balls = sample_throws(ThrowConfig(), n_throws, seed=seed)
+    out: dict[str, list[float]] = {p: [] for p in planners}
+    warm: dict[str, list[float]] = {p: [] for p in planners}
+    passes = [(0, balls[0], warm)] + [(i, b, out) for i, b in enumerate(balls)]
+    for i, ball, keep in passes:  # the first throw once more first, to warm up (not kept)
+        t_rel = LEAD + ball.t_release
+        dets = observe(ball, world.camera, cfg.camera, np.random.default_rng(seed + i), t_rel)
+        for planner in planners:
+            ex = Executor(world.tree, world.robot, cfg, planner)
+            ex.start_from(world.robot.home, 0.0)
+            intake = Intake(cfg.camera, cfg.detections)
+            t_end = t_rel + ball.flight_time + 0.3
+            k, t = 0, 0.0
+            while t <= t_end:  # the lockstep loop: detections as delivered, a setpoint per tick
+                while k < len(dets) and dets[k].delivery_time <= t:
+                    acc = intake.take(detection_payload(dets[k]), None)
+                    k += 1
+                    if acc is None:
+                        continue
+                    before = ex.episode.decisions + ex.episodes
+                    t0 = time.perf_counter()
+                    ex.on_detection(t, acc.stamp, acc.position)
+                    dt = time.perf_counter() - t0
+                    if ex.episode.decisions + ex.episodes > before:
+                        keep[planner].append(dt * 1e3)
+                ex.setpoint(t)
+                t += DT
+    return {p: np.array(v) for p, v in out.items()}
+
+
+def planner_rows(times: dict) -> list[dict]:
+    rows = []
+    for p, ms in times.items():
+        rows.append(
+            {
+                "planner": p,
+                "decisions": int(len(ms)),
+                "p50_ms": round(float(np.percentile(ms, 50)), 4) if len(ms) else None,
+                "p99_ms": round(float(np.percentile(ms, 99)), 4) if len(ms) else None,
+                "max_ms": round(float(ms.max()), 4) if len(ms) else None,
+            }
+        )
+    return rows
+
+
 def machine() -> dict:
     """The machine the figures come from (shared with the other benchmarks)."""
     return machine_info()
@@ -178,6 +246,12 @@ def main(argv=None) -> int:
     parser.add_argument("--tree", type=Path, help="compiled tree file (.h5) instead of synthetic")
     parser.add_argument("--throws", type=int, default=40, help="simulated throws per run")
     parser.add_argument("--no-scaling", action="store_true", help="skip the 10^3..10^6 table")
+    parser.add_argument(
+        "--planners",
+        default="tree-rest,tree,naive",
+        help="with --tree: daemon planners timed side by side (comma separated; '' skips)",
+    )
+    parser.add_argument("--planner-throws", type=int, default=60, help="throws for --planners")
     args = parser.parse_args(argv)
 
     if args.tree is not None:
@@ -199,6 +273,16 @@ def main(argv=None) -> int:
         "max_ms": round(float(times.max()), 4),
         "machine": machine(),
     }
+    if args.tree is not None and args.planners:
+        names = [p.strip() for p in args.planners.split(",") if p.strip()]
+        rows = planner_rows(time_planners(args.tree, names, args.planner_throws))
+        result["planners"] = rows
+        by = {r["planner"]: r for r in rows}
+        if by.get("tree-rest", {}).get("p99_ms") and by.get("tree", {}).get("p99_ms"):
+            result["tree_over_tree_rest_p99"] = round(
+                by["tree"]["p99_ms"] / by["tree-rest"]["p99_ms"], 3
+            )
+    result["load_average"] = [round(x, 2) for x in os.getloadavg()]
     if not args.no_scaling:
         rows = []
         for target in (10**3, 10**4, 10**5, 10**6):
@@ -238,6 +322,17 @@ def main(argv=None) -> int:
             f"  {row['terminals']:>10} {row['nodes']:>9} {row['p50_ms']:>9.3f} "
             f"{row['p99_ms']:>9.3f}"
         )
+    if "planners" in result:
+        print("executor decisions (on_detection that decided), same detections:")
+        print(f"  {'planner':>10} {'decisions':>9} {'p50 ms':>9} {'p99 ms':>9} {'max ms':>9}")
+        for r in result["planners"]:
+            print(
+                f"  {r['planner']:>10} {r['decisions']:>9} {r['p50_ms']:>9.3f} "
+                f"{r['p99_ms']:>9.3f} {r['max_ms']:>9.3f}"
+            )
+        if "tree_over_tree_rest_p99" in result:
+            print(f"  p99 tree / tree-rest: {result['tree_over_tree_rest_p99']:.2f}")
+    print(f"  load average at the end: {result['load_average']}")
     return 0
 
 

@@ -303,18 +303,15 @@ class Daemon:
         if self.recorder.enabled and ex.belief.n_meas >= 2:  # the crossing only for the record
             c = ex.tree.crossing(ex.belief.mean, ex.belief.cov, self.cfg.filter.gravity)
             self.recorder.belief(now, ex.belief, c)
-        d = ex.decision
-        if d is not None and d.backup is not None:
-            node = ex.node
-            self.recorder.decision(
-                now, ex.mode, node, float(d.backup.value[node]), int(d.backup.best_goal)
-            )
+        vg = ex.current_value()
+        if vg is not None:
+            self.recorder.decision(now, ex.mode, ex.node, vg[0], vg[1])
 
     def status(self, now: float) -> dict:
         """The status message (INTERFACES.md: at least stamp and state)."""
         ex, ctl, sup = self.executor, self.control, self.supervisor
-        d = ex.decision
-        value = float(d.backup.value[ex.node]) if d is not None and d.backup is not None else None
+        vg = ex.current_value()
+        value = None if vg is None else vg[0]
         fault = ctl.latched or (sup.braking and sup.brake_reason in FAULT_REASONS)
         return {
             "stamp": now,

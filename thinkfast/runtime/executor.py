@@ -104,6 +104,7 @@ class Executor:
         self.mode = IDLE
         self.belief = kf.empty(cfg.filter)
         self.decision: Decision | None = None
+        self.chosen: tuple[float, int] | None = None  # tree planner: (value, goal) of its choice
         self.segment = hold(np.r_[robot.home[:3], np.zeros(6)], -np.inf)
         self.node = 0
         self.confirm = 0
@@ -159,9 +160,10 @@ class Executor:
                 return
             if math.isnan(self.episode.t_confirmed):
                 self.episode.t_confirmed = t_now
-        t_start = self.episode.t_start if self.mode == EXECUTING else t_now
-        self.decision = self.tree.decide(c, stamp, t_start, self.lag)
         self.episode.decisions += 1
+        if self.chooser is None:  # the tree planner's choice does not need the at-rest values
+            t_start = self.episode.t_start if self.mode == EXECUTING else t_now
+            self.decision = self.tree.decide(c, stamp, t_start, self.lag)
         if self.planner in ("naive", "naive-paper"):
             self._naive(t_now, c)
         elif self.chooser is not None:
@@ -170,6 +172,16 @@ class Executor:
             self._maybe_leave_home(t_now)
         elif self.segment.kind in (STEER, TERMINAL):
             self._fallback(t_now)  # committed: follow the most probable goal as beliefs improve
+
+    def current_value(self) -> tuple[float, int] | None:
+        """(value, goal) of the last decision: the tree planner's choice, else the at-rest
+        backup at the current node and its most probable goal; None before any."""
+        if self.chosen is not None:
+            return self.chosen
+        d = self.decision
+        if d is None or d.backup is None:
+            return None
+        return float(d.backup.value[self.node]), int(d.backup.best_goal)
 
     def _approaching(self, c, sigmas: float | None = None) -> bool:
         """The belief predicts a throw: approaching faster than ``min_approach_speed`` at
@@ -268,6 +280,10 @@ class Executor:
         best, _ = self.chooser.choose(
             c.mean, c.cov, v, stamp, t_now, self.lag, self.segment.state(t_now), self.segment
         )
+        goal = best.goal if best.kind == DIRECT else -1
+        if best.kind != DIRECT and self.segment.kind == STEER:
+            goal = int(self.segment.ref)  # continuing the move to this goal
+        self.chosen = (float(best.value), int(goal))
         if best.kind != DIRECT and best.value < self.cfg.execution.min_move_value:
             # nothing reachable has value (the ball comes too fast): the paper's fallback, rush
             # to the most probable goal; a shield on its way may still catch the ball
@@ -357,6 +373,7 @@ class Executor:
         self.mode = mode
         self.belief = kf.empty(self.cfg.filter)
         self.decision = None
+        self.chosen = None
         self.confirm = 0
         self.node = 0
         self.episode = EpisodeLog()
