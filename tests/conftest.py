@@ -29,6 +29,12 @@ def kin(robot):
 
 
 @pytest.fixture(scope="session")
+def small_tree_015(tmp_path_factory):
+    """The small test tree with goals every 0.15 m, compiled once per session (read-only)."""
+    return compile_small_tree(tmp_path_factory.mktemp("small015"), spacing=0.15)
+
+
+@pytest.fixture(scope="session")
 def checker(robot):
     from thinkfast.robot.collision import CollisionChecker
 

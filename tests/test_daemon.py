@@ -12,7 +12,6 @@ import time
 import numpy as np
 import pytest
 
-from tests.conftest import compile_small_tree
 from tests.daemon_harness import (
     DaemonRun,
     ballistic_throw,
@@ -25,8 +24,8 @@ DT = 0.004
 
 
 @pytest.fixture(scope="module")
-def tree_file(tmp_path_factory):
-    return compile_small_tree(tmp_path_factory.mktemp("daemon"), spacing=0.15)
+def tree_file(small_tree_015):
+    return small_tree_015
 
 
 def _check_limits(rows: np.ndarray, robot, margin: float = 0.005) -> None:

@@ -320,7 +320,7 @@ class Executor:
     def setpoint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions [rad] (6,) and velocities [rad/s] (6,) to command at wall time ``t``."""
         self._end_of_throw(t)
-        if self.planner == "tree" and self.mode == EXECUTING:
+        if self.planner == "tree-rest" and self.mode == EXECUTING:
             self._advance_tree(t)
         s = self.segment.state(t)
         ball_v = None  # the shield turns towards the ball only in a confirmed throw
