@@ -99,10 +99,14 @@ def test_after_a_silence_in_motion_the_stream_restarts_at_the_measured_state(rtr
     assert np.abs(ctl.sup.qd).max() > 0.3  # moving
     q_meas = ctl.sup.q + 0.03  # the arm went on a little during 0.5 s of silence
     tm = 4 * 59 + 500
-    r = ctl.on_feedback(tm, q_meas, T0 + tm / 1000)
-    assert r.tick.resync and ctl.resyncs == 1 and events == ["resync"]
+    assert ctl.on_feedback(tm, q_meas, T0 + tm / 1000) is None  # one packet: no velocity yet
+    assert ctl.on_feedback(tm, q_meas, T0 + tm / 1000 + 3e-4) is None  # the same one again
+    assert ctl.deferred == 2 and ctl.resyncs == 0 and events == []
+    tm += 4
+    r = ctl.on_feedback(tm, q_meas, T0 + tm / 1000)  # the arm stands: measured at rest
+    assert ctl.resyncs == 1 and events == ["resync"]
     np.testing.assert_allclose(r.q, q_meas, atol=1e-12)  # within 1 mrad: exactly
-    assert not r.qd.any()  # one packet measures no velocity: at rest
+    assert not r.qd.any()
     assert ctl.ex.mode == RETURNING  # the plan goes on (home) from the measured state
     t, q, qd = [tm / 1000], [r.q], [r.qd]
     for k in range(1, 100):  # and it goes on smoothly
@@ -110,6 +114,45 @@ def test_after_a_silence_in_motion_the_stream_restarts_at_the_measured_state(rtr
         t.append((tm + 4 * k) / 1000), q.append(r.q), qd.append(r.qd)
     _assert_admissible_over_the_controller_clock(t, q, qd, robot)
     assert ctl.sup.intervened == 0
+
+
+def test_after_a_silence_in_motion_the_restart_takes_the_velocity_the_next_packet_measures(
+    rtree, robot
+):
+    """The arm still moves when the stream comes back (the controller ramps its last reference
+    out): the first packet is left unanswered, the second measures the velocity, and the restart
+    commands the measured position and velocity, not a standstill."""
+    ctl = _control(rtree, robot)
+    ctl.on_feedback(0, _away(robot), T0)
+    for k in range(1, 40):
+        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+    assert not ctl.at_rest()
+    v = np.array([0.3, -0.2, 0.1, 0.4, 0.0, -0.1])
+    q1 = ctl.sup.q + 0.01
+    tm = 4 * 39 + 60  # 60 ms of silence
+    assert ctl.on_feedback(tm, q1, T0 + tm / 1000) is None
+    r = ctl.on_feedback(tm + 4, q1 + v * DT, T0 + (tm + 4) / 1000)
+    np.testing.assert_allclose(r.q, q1 + v * DT, atol=1e-12)
+    np.testing.assert_allclose(r.qd, v, rtol=1e-9)
+    assert ctl.resyncs == 1 and ctl.deferred == 1
+
+
+def test_a_restart_waits_for_a_velocity_at_most_a_few_packets(rtree, robot):
+    """Packets that keep arriving too far apart to measure a velocity: the stream restarts
+    anyway (from the measured position at rest) after DEFER_MAX unanswered packets."""
+    from thinkfast.runtime.egm_control import DEFER_MAX
+
+    ctl = _control(rtree, robot)
+    ctl.on_feedback(0, _away(robot), T0)
+    for k in range(1, 40):
+        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+    q1, tm = ctl.sup.q.copy(), 4 * 39 + 60  # 60 ms of silence, then packets 4 cycles apart:
+    replies = []  # no silence each, but too far apart to measure a velocity
+    for k in range(DEFER_MAX + 1):
+        replies.append(ctl.on_feedback(tm + 16 * k, q1, T0 + (tm + 16 * k) / 1000))
+    assert replies[:DEFER_MAX] == [None] * DEFER_MAX and replies[-1] is not None
+    assert not replies[-1].qd.any()
+    np.testing.assert_allclose(replies[-1].q, q1, atol=1e-12)
 
 
 def test_a_superseded_packet_measures_the_velocity_a_restart_starts_with(rtree, robot):

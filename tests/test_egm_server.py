@@ -272,6 +272,30 @@ def test_a_failing_setpoint_source_is_counted_and_the_next_request_served(client
         assert egm.decode_sensor(c.recv(65535)).seqno == 1  # no seqno spent on unsent replies
 
 
+def test_a_deferred_request_sends_nothing_spends_no_seqno_and_is_counted(client):
+    """``reply_fn`` returning None leaves the request unanswered by design (the daemon does so
+    after a silence, to measure the velocity from the next packet)."""
+    c = client()
+    c.settimeout(0.2)
+    calls = []
+
+    def reply(fb, before=None):
+        calls.append(fb.seqno)
+        return None if len(calls) == 1 else _hold(fb)
+
+    with EgmServer(f"{LOOPBACK}:0", reply) as server:
+        c.sendto(egm.encode_robot(7, 100, np.zeros(6)), server.address)
+        _poll_until(server, 1)
+        with pytest.raises(TimeoutError):
+            c.recv(65535)
+        c.sendto(egm.encode_robot(8, 104, np.zeros(6)), server.address)
+        _poll_until(server, 2)
+        first = egm.decode_sensor(c.recv(65535))
+        k = server.counters
+        assert (k.deferred, k.replied, k.reply_errors) == (1, 1, 0)
+        assert first.seqno == 1 and calls == [7, 8]
+
+
 def test_serve_thread_replies_as_packets_arrive_and_stops_on_event(client):
     c = client()
     with EgmServer(f"{LOOPBACK}:0", _hold) as server:

@@ -180,6 +180,27 @@ def test_checker_wants_the_first_command_after_a_silence_at_the_measured_state(r
     assert good.f["resync_pos_err_mrad"] == 0.0 and not good.resync_fail
 
 
+@pytest.mark.parametrize("unanswered", [1, 2])
+def test_checker_excuses_one_unanswered_cycle_after_a_silence_and_counts_a_second(
+    robot, unanswered
+):
+    """The daemon leaves the first packet after a silence unanswered (it measures the velocity
+    from the next one): by design, not a missed reply; a second one is missed as usual. The
+    first reply is still checked against the measured state."""
+    n = 40
+    q = np.tile(robot.home, (n, 1))
+    k = np.r_[np.arange(20), 100 + np.arange(20)]  # 320 ms of silence after cycle 19
+    replied = np.ones(n, dtype=int)
+    replied[20 : 20 + unanswered] = 0
+    checker = ReplyChecker(robot)
+    checker.feed(_rows(q, k=k, qd=np.zeros((n, 6)), replied=replied))
+    assert checker.n["missed_after_silence"] == 1
+    assert checker.n["missed"] == unanswered - 1 and len(checker.missed_times) == unanswered - 1
+    assert checker.n["cycles"] == n - 1 and checker.n["resyncs_checked"] == 2
+    assert checker.summary()["answered_pct"] == pytest.approx(100.0 * (n - unanswered) / (n - 1))
+    assert checker.failures() == []
+
+
 def test_stalls_near_attributes_events_to_overlapping_stalls():
     stalls = np.array([[10.0, 0.005], [20.0, 0.1]])
     got = stalls_near(np.array([9.997, 10.02, 20.05, 30.0]), stalls, 0.006, 0.004)

@@ -122,7 +122,9 @@ class Daemon:
         self._peer = None
 
     # -------------------------------------------------------------- EGM path
-    def _reply(self, fb, before=None) -> tuple[np.ndarray, np.ndarray]:
+    def _reply(self, fb, before=None) -> tuple[np.ndarray, np.ndarray] | None:
+        """The setpoint answering ``fb``, or None to leave it unanswered (after a silence in
+        motion, until a second packet measures the velocity; see ``egm_control``)."""
         now = time.time()
         self.last_rx = now
         if self.stop_reason is not None:
@@ -132,6 +134,8 @@ class Daemon:
         r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev)
         if self.control.errors != errors:
             self._planner_error("setpoint", self.control.last_error)
+        if r is None:
+            return None
         self._watch_throw(r.tick.t)
         self.outbox.append((r.tick.t, r.q, r.qd, r.mode))
         self.recorder.egm(now, fb.seqno, fb.q_rad, r.q, r.qd, self.supervisor.braking)

@@ -10,7 +10,10 @@ and the supervisor's state at that time:
 * the first packet, or one after a silence longer than ``resync_after``: the stream restarts
   from the measured feedback (position, and velocity where the feedback measured it: two
   packets at most three cycles apart), and the executor plans on from there with the same
-  intent.
+  intent. After a silence in motion the arm may still be moving, and one packet measures no
+  velocity: that packet is left unanswered (the controller holds its last reference one cycle
+  more, as it did through the silence) and the stream restarts at the next one, from the
+  position and the velocity the pair measured (at most :data:`DEFER_MAX` packets wait).
 
 Every plan starts from the commanded state: when the supervisor had to change a request (it
 should almost never have to), the executor is resynchronised to what was actually commanded.
@@ -37,6 +40,7 @@ from thinkfast.runtime.safety import SafetyConfig, SafetySupervisor
 FAULT_REASONS = ("deviation", "nonfinite")
 REST_SPEED = 1e-3  # rad/s: a measured joint slower than this is at rest
 MEASURED_SPAN = 3  # cycles: feedback further apart measures no velocity
+DEFER_MAX = 3  # packets left unanswered after a silence in motion, waiting for a velocity
 
 
 class Reply(NamedTuple):
@@ -70,6 +74,8 @@ class EgmControl:
         self.last: Reply | None = None
         self.repeats = 0  # duplicate or stale packets answered with the same setpoint
         self.resyncs = 0  # restarts from the measured feedback (first packet excluded)
+        self.deferred = 0  # packets left unanswered after a silence (measuring the velocity)
+        self._waiting = -1  # packets deferred since the silence being resynchronised (-1: none)
         self.faults: collections.deque[float] = collections.deque()  # times, within the window
         self.fault_count = 0
         self.latched = False
@@ -112,17 +118,32 @@ class EgmControl:
         """The plan changed: a prepared setpoint is void."""
         self._prepared = None
 
-    def on_feedback(self, tm_ms: int | None, q_meas: np.ndarray, now: float, before=None) -> Reply:
+    def on_feedback(
+        self, tm_ms: int | None, q_meas: np.ndarray, now: float, before=None
+    ) -> Reply | None:
         """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, joints ``q_meas`` [rad])
-        received at ``now`` [s]. ``before``: ``(tm_ms, q_meas)`` of the peer's packet just
-        before it when that one was superseded unanswered (it measures the velocity after a
-        stall of this host). Never raises: a failing ``executor.setpoint`` is counted in
-        ``errors`` and brakes."""
+        received at ``now`` [s], or None: leave this packet unanswered (after a silence in
+        motion, until a second packet measures the velocity; counted in ``deferred``).
+        ``before``: ``(tm_ms, q_meas)`` of the peer's packet just before it when that one was
+        superseded unanswered (it measures the velocity after a stall of this host). Never
+        raises: a failing ``executor.setpoint`` is counted in ``errors`` and brakes."""
         tick = self.clock.tick(tm_ms, now, self.at_rest())
+        if tick.repeat and self._waiting >= 0:
+            self.deferred += 1  # the same packet again: still nothing measured
+            return None
         if tick.repeat and self.last is not None:
             self.repeats += 1
             return self.last._replace(tick=tick)
         qd_meas = self._measure(tick, q_meas, _earlier(tick, tm_ms, before))
+        if tick.resync and self.last is not None and not self.latched and not self.at_rest():
+            self._waiting = 0  # a silence in motion: the restart wants the measured velocity
+        if self._waiting >= 0:
+            if qd_meas is None and self._waiting < DEFER_MAX:
+                self._waiting += 1
+                self.deferred += 1
+                return None
+            self._waiting = -1
+            return self._restart(tick, q_meas, qd_meas)
         if tick.resync or self.last is None:
             return self._restart(tick, q_meas, qd_meas)
         prepared, self._prepared = self._prepared, None

@@ -49,7 +49,7 @@ from thinkfast.runtime.egm_proto import (
 )
 from thinkfast.runtime.reply_times import ReplyTimes
 
-ReplyFn = Callable[[RobotFeedback], "tuple[np.ndarray, np.ndarray]"]
+ReplyFn = Callable[..., "tuple[np.ndarray, np.ndarray] | None"]
 MAX_DATAGRAM = 65535
 SO_TIMESTAMPNS = 35  # Linux <asm-generic/socket.h> (also SCM_TIMESTAMPNS); Python lacks the name
 _TIMESPEC = struct.Struct("@qq")  # struct timespec on 64-bit Linux: seconds, nanoseconds
@@ -74,6 +74,8 @@ class EgmCounters:
         handovers: times the peer changed (the first peer included).
         reply_errors: valid requests left unanswered because ``reply_fn`` raised or returned an
             unencodable setpoint (wrong shape, non-finite).
+        deferred: valid requests left unanswered because ``reply_fn`` returned None (by
+            design: the daemon waits one packet after a silence to measure the velocity).
         socket_errors: ``recvfrom``/``sendto`` failures (the datagram is lost).
     """
 
@@ -84,6 +86,7 @@ class EgmCounters:
     superseded: int = 0
     handovers: int = 0
     reply_errors: int = 0
+    deferred: int = 0
     socket_errors: int = 0
 
 
@@ -153,7 +156,8 @@ class EgmServer:
         reply_fn: ``reply_fn(feedback, before) -> (q_rad, qd_rad_s)``, two sequences of 6 finite
             values: the setpoint to send in answer to ``feedback``; ``before`` is the peer's
             valid packet just before it when that one was superseded in the same drain (else
-            None). Called once per answered request, on the thread that calls :meth:`poll`.
+            None). Returning None leaves the request unanswered (counted in ``deferred``).
+            Called once per answered request, on the thread that calls :meth:`poll`.
         controller: ``"IP"`` or ``"IP:PORT"`` of the one controller to serve; None serves the
             first sender of a valid ``EgmRobot`` (see the module doc).
         handover: a silent peer [s] after which another sender may become the peer.
@@ -327,7 +331,11 @@ class EgmServer:
         c = self.counters
         self.last_rx_time = self._clock()
         try:
-            q, qd = self.reply_fn(fb, before)
+            out = self.reply_fn(fb, before)
+            if out is None:
+                c.deferred += 1
+                return 0
+            q, qd = out
             tm = int((self.last_rx_time - self._t0) * 1000.0)
             payload = encode_sensor((self.seqno + 1) & UINT32, tm, q, qd, mtype=MSGTYPE_CORRECTION)
         except Exception:  # a failing setpoint source must never stop the I/O loop

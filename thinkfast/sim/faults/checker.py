@@ -23,7 +23,10 @@ Checks (relative tolerance ``rtol``; ratios are value / limit, per joint, the ma
 * after a silence (``tm`` gap > ``silence``) and at the first reply, the first applied command
   lies within ``pos_tol`` of the measured position, moved along the measured velocity for at
   most one cycle (``q + s qd``, 0 <= s <= dt), and its ``speedRef`` is within ``a_max dt`` of the
-  measured velocity (what one cycle at the acceleration limit can change);
+  measured velocity (what one cycle at the acceleration limit can change). The first
+  :data:`RESYNC_WAIT` cycles after a silence may go unanswered by design (the daemon waits for a
+  second packet to measure the velocity): counted in ``missed_after_silence``, not in
+  ``missed`` nor in the cycles of ``answered_pct``; a further miss counts as usual;
 * every reply finite and inside the URDF limits.
 
 :meth:`ReplyChecker.feed` takes rows in batches (the soak feeds it every few seconds).
@@ -36,6 +39,7 @@ import numpy as np
 from thinkfast.sim.faults import rows as R
 
 SETTLE = 4  # cycles after a missed one whose replies may be stale
+RESYNC_WAIT = 1  # cycles after a silence that may go unanswered by design
 
 
 class ReplyChecker:
@@ -66,6 +70,7 @@ class ReplyChecker:
         self.n = dict.fromkeys(
             ("cycles", "replied", "missed", "bad_replies", "nonfinite", "outside_urdf",
              "extra_replies", "gaps", "silences", "resyncs_checked", "resync_unanswered",
+             "missed_after_silence",
              "brake_cycles", "v_violations", "a_violations", "jerk_violations", "restarts"), 0,
         )  # fmt: skip
         self.missed_times: list[float] = []  # t_send of cycles without a reply
@@ -77,6 +82,7 @@ class ReplyChecker:
         self._seen_reply = False
         self._waited = 0
         self._replies = self._copies = 0
+        self._counted_from = 0  # index in the current batch of the first row counted
 
     def feed(self, rows: np.ndarray, braking=None) -> None:
         """Check a batch of rows (in cycle order); ``braking(rows)`` -> bool (N,) (None: never)."""
@@ -122,9 +128,13 @@ class ReplyChecker:
         if not self.started:
             first = np.flatnonzero(valid > 0)
             if len(first) == 0:
+                self._counted_from = len(rows)
                 return
             rows, valid = rows[first[0] :], valid[first[0] :]
             self.started = True
+            self._counted_from = int(first[0])
+        else:
+            self._counted_from = 0
         n["cycles"] += len(rows)
         n["replied"] += int((valid > 0).sum())
         miss = valid == 0
@@ -161,11 +171,28 @@ class ReplyChecker:
                 if pending and seen and waited >= 5:  # 5 cycles sent after a silence, no reply
                     self.n["resync_unanswered"] += 1
                 pending, waited = True, 0
+            if pending and seen and waited < RESYNC_WAIT and rows[i, R.N_VALID] == 0:
+                self._excuse(rows[i], i >= self._counted_from)
             if pending and rows[i, R.N_VALID] > 0:
                 pending, seen = False, True
                 self._check_resync(rows[i])
             waited += 1
         self._pending_resync, self._seen_reply, self._waited = pending, seen, waited
+
+    def _excuse(self, row: np.ndarray, counted: bool) -> None:
+        """A cycle right after a silence went unanswered by design: not a missed reply."""
+        self.n["missed_after_silence"] += 1
+        if not counted:
+            return
+        self.n["missed"] -= 1
+        self.n["cycles"] -= 1
+        t = float(row[R.T_SEND])
+        for j in range(len(self.missed_times) - 1, -1, -1):
+            if self.missed_times[j] == t:
+                del self.missed_times[j]
+                break
+        if int(row[R.FLAGS]) & R.LATE:
+            self.missed_late -= 1
 
     def _check_resync(self, row: np.ndarray) -> None:
         q_meas, qd_meas = row[R.Q_TRUE], row[R.QD_TRUE]
