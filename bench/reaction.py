@@ -6,6 +6,8 @@
 2. ``same start``: for each planner, the oracle started at the moment the planner itself first
    moved: how much the planner loses to perfect knowledge given its own start.
 
+Both overall and by kind of throw (the default mix: still holds and wind-ups).
+
     python bench/reaction.py --throws 200 [--tree trees/irb1600_default.h5] [--json]
 """
 
@@ -49,10 +51,31 @@ def _one(job) -> dict:
     def oracle_from(delay: float) -> bool:
         return ls.simulate(w, th, "oracle", cam_seed, oracle_start=delay).blocked
 
-    out = {"seen": [k < len(seen) and oracle_from(seen[k] - t_rel) for k in range(5)]}
+    out = {
+        "kind": th.kind,
+        "seen": [k < len(seen) and oracle_from(seen[k] - t_rel) for k in range(5)],
+    }
+    out["first_seen"] = seen[0] - t_rel if seen else math.nan
     for p in ("tree", "naive"):
         o = ls.simulate(w, th, p, cam_seed)
-        out[p] = (o.blocked, math.isfinite(o.start) and oracle_from(o.start))
+        out[p] = (o.blocked, math.isfinite(o.start) and oracle_from(o.start), o.start)
+    return out
+
+
+def _summary(rows: list[dict]) -> dict:
+    n = len(rows)
+    out = {
+        "throws": n,
+        "seen_k": [sum(r["seen"][k] for r in rows) / n for k in range(5)],
+        "first_seen_median_s": float(np.nanmedian([r["first_seen"] for r in rows])),
+    }
+    for p in ("tree", "naive"):
+        starts = [r[p][2] for r in rows if math.isfinite(r[p][2])]
+        out[p] = {
+            "planner": sum(r[p][0] for r in rows) / n,
+            "oracle_same_start": sum(r[p][1] for r in rows) / n,
+            "start_median_s": float(np.median(starts)) if starts else math.nan,
+        }
     return out
 
 
@@ -68,29 +91,29 @@ def main() -> None:
     jobs = [(i, th, args.seed) for i, th in enumerate(throws)]
     with mp.get_context("fork").Pool(args.jobs, _init, (args.tree,)) as pool:
         rows = pool.map(_one, jobs)
-    n = len(rows)
-    seen = [sum(r["seen"][k] for r in rows) / n for k in range(5)]
-    same = {
-        p: {
-            "planner": sum(r[p][0] for r in rows) / n,
-            "oracle_same_start": sum(r[p][1] for r in rows) / n,
-        }
-        for p in ("tree", "naive")
-    }
-    out = {"throws": n, "seed": args.seed, "seen_k": seen, "same_start": same}
+    kinds = sorted({r["kind"] for r in rows})
+    out = {"seed": args.seed, "all": _summary(rows)}
+    out["by_kind"] = {k: _summary([r for r in rows if r["kind"] == k]) for k in kinds}
     out["machine"] = machine_info()
     if args.json:
         print(json.dumps(out))
         return
-    print(f"{n} throws (seed {args.seed})")
-    print("oracle from the k-th flight detection:")
-    for k, r in enumerate(seen, 1):
-        print(f"  k={k}: {100 * r:5.1f} %")
-    print("planner vs the oracle started when the planner first moved:")
-    for p, e in same.items():
-        print(
-            f"  {p:<6} {100 * e['planner']:5.1f} %   oracle {100 * e['oracle_same_start']:5.1f} %"
-        )
+    groups = [("all", out["all"])] + list(out["by_kind"].items())
+    print(f"{len(rows)} throws (seed {args.seed}), oracle from the k-th flight detection:")
+    print(f"  {'':<8}{'throws':>7}" + "".join(f"{'k=' + str(k):>8}" for k in range(1, 6)))
+    for name, g in groups:
+        print(f"  {name:<8}{g['throws']:>7}" + "".join(f"{100 * r:7.1f}%" for r in g["seen_k"]))
+    print(
+        "planner vs the oracle started when the planner first moved (median start after release):"
+    )
+    for name, g in groups:
+        for p in ("tree", "naive"):
+            e = g[p]
+            print(
+                f"  {name:<8}{p:<6} {100 * e['planner']:5.1f} %   oracle same start "
+                f"{100 * e['oracle_same_start']:5.1f} %   start {1e3 * e['start_median_s']:4.0f} ms"
+                f"   (first detection {1e3 * g['first_seen_median_s']:3.0f} ms)"
+            )
 
 
 if __name__ == "__main__":

@@ -126,3 +126,14 @@ def test_continuing_is_kept_unless_a_new_move_is_worth_the_margin(setup):
     assert best.kind == CONTINUE  # the direct move to goal 12 is the same motion: no switch
     same = next(o for o in options if o.goal == 12)
     assert same.value == pytest.approx(options[0].value, abs=1e-3)
+
+
+def test_a_new_chooser_builds_the_disk_table_before_its_first_decision(setup, robot):
+    """The table takes ~0.1 s to build: in the first decision of a daemon that is 26 unanswered
+    EGM cycles (measured). The chooser builds it when it is made."""
+    from thinkfast.runtime import iso_disk
+
+    chooser, goal_q, c, _ = setup
+    iso_disk._tables.cache_clear()
+    Chooser(goal_q, c[:, 1:], robot, PLANE_X, BALL_R, chooser.steer, ChoiceConfig())
+    assert iso_disk._tables.cache_info().currsize == 1

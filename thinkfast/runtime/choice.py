@@ -32,6 +32,7 @@ import numpy as np
 
 from thinkfast.config import spec
 from thinkfast.robot.shield_path import ShieldSampler
+from thinkfast.runtime import iso_disk
 from thinkfast.runtime.path_value import PathValueConfig, block_probability
 from thinkfast.runtime.segments import Steering
 from thinkfast.runtime.shield_paths import block_geometry, shield_paths
@@ -103,6 +104,7 @@ class Chooser:
         self.steer = steer
         self.cfg = cfg
         self.quadrature = quadrature
+        iso_disk.warm_up()  # its table (~0.1 s) now, not in the first decision (26 EGM cycles)
 
     # ------------------------------------------------------------------ candidates
     def candidate_goals(self, mean_yz: np.ndarray, cov_yz: np.ndarray) -> np.ndarray:

@@ -48,7 +48,19 @@ class ThrowConfig:
         2, lo=1, doc="approaching beliefs (net of non-approaching ones) that start a throw"
     )
     detection_timeout: float = spec(
-        0.25, unit="s", lo=0.0, lo_open=True, doc="no detection this long ends a throw"
+        0.25,
+        unit="s",
+        lo=0.0,
+        lo_open=True,
+        doc="no detection this long ends a throw, unless the arm is executing and the predicted "
+        "crossing is still ahead (the ball may leave the camera's view before the plane)",
+    )
+    max_blind: float = spec(
+        1.0,
+        unit="s",
+        lo=0.0,
+        lo_open=True,
+        doc="no detection this long ends a throw in execution even with its crossing ahead",
     )
     after_crossing: float = spec(
         0.15, unit="s", lo=0.0, doc="hold the pose this long after the predicted crossing"

@@ -348,11 +348,17 @@ class Executor:
         if self.mode not in (TRACKING, EXECUTING):
             return
         th = self.cfg.throw
-        silent = t - self.t_last_det > th.detection_timeout + 0.05  # stamps lag the wall clock
-        crossed = t > self.episode.t_cross + self.lag + th.after_crossing
+        since = t - self.t_last_det - 0.05  # detection stamps lag the wall clock
+        silent = since > th.detection_timeout
+        end = self.episode.t_cross + self.lag + th.after_crossing
+        crossed = t > end
         if self.mode == TRACKING and silent:
             self._reset_episode(IDLE)
-        elif self.mode == EXECUTING and (silent or crossed):
+        elif self.mode == EXECUTING and (
+            crossed or since > th.max_blind or (silent and math.isnan(end))
+        ):
+            # a silence alone does not end a throw whose crossing is still ahead: the camera may
+            # lose the ball before the plane (out of view, occluded); the arm holds its plan
             self._start_return(t)
 
     def _start_return(self, t: float) -> None:

@@ -104,6 +104,12 @@ class Monitor:
                 out.append(mode)
         return out
 
+    def first_mode_after(self, modes, t0: float) -> float:
+        """Wall time of the first setpoint at or after ``t0`` in one of ``modes`` (nan: none)."""
+        with self.lock:
+            points = list(self.modes)
+        return next((t for t, m in points if t >= t0 and m in modes), float("nan"))
+
     def braking(self, rows: np.ndarray) -> np.ndarray:
         """Per row: the daemon was braking when the applied reply left (the mode of the last
         setpoint stamped before its arrival; the send time for a cycle without a reply)."""

@@ -127,7 +127,7 @@ def _throw_series(name, ctx, opts, planner, servo=ServoConfig(), pauses=False):
         rng = np.random.default_rng(ctx.seed)
         if pauses:
             cell.ctl.random_pauses(2.0, 0.06, 0.2)
-        outs, at_risk, lost, lost_ids, latched_at = [], 0, 0, [], None
+        outs, at_risk, lost, lost_ids, latched_at, lost_detail = [], 0, 0, [], None, []
         for i, th in enumerate(sampled_throws(ctx, 2 if opts.quick else opts.throws)):
             hooks = []
             if pauses:
@@ -145,6 +145,13 @@ def _throw_series(name, ctx, opts, planner, servo=ServoConfig(), pauses=False):
                     if any(m in ABANDON for m in modes):
                         lost += 1
                         lost_ids.append(th.id)
+                        since = o.t_first  # times below: seconds after the first frame
+                        lost_detail.append({
+                            "id": th.id, "modes": modes, "cross_s": round(o.t_cross - since, 3),
+                            "pause_s": [round(w0 - since, 3), round(w1 - since, 3)],
+                            "abandon_s": round(cell.monitor.first_mode_after(
+                                ABANDON, max(w0, o.t_first)) - since, 3),
+                        })  # fmt: skip
                         break
             if cell.monitor.ever_latched():  # the verdict is in: no point in waiting out the rest
                 latched_at = i + 1
@@ -153,7 +160,8 @@ def _throw_series(name, ctx, opts, planner, servo=ServoConfig(), pauses=False):
         fails = []
         if pauses:
             fig.update({"pauses": len(cell.ctl.gap_log), "throws_with_pause_before_crossing":
-                        at_risk, "lost_to_pause": lost, "lost_ids": lost_ids[:10]})  # fmt: skip
+                        at_risk, "lost_to_pause": lost, "lost_ids": lost_ids[:10],
+                        "lost_detail": lost_detail[:5]})  # fmt: skip
             if lost:
                 fails.append(f"{lost} throws lost to a pause that ended before the crossing")
         return fig, fails
