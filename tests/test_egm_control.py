@@ -101,8 +101,9 @@ def test_after_a_silence_in_motion_the_stream_restarts_at_the_measured_state(rtr
     tm = 4 * 59 + 500
     assert ctl.on_feedback(tm, q_meas, T0 + tm / 1000) is None  # one packet: no velocity yet
     assert ctl.on_feedback(tm, q_meas, T0 + tm / 1000 + 3e-4) is None  # the same one again
-    assert ctl.deferred == 2 and ctl.resyncs == 0 and events == []
-    tm += 4
+    assert ctl.on_feedback(tm + 4, q_meas, T0 + (tm + 4) / 1000) is None  # two: not yet
+    assert ctl.deferred == 3 and ctl.resyncs == 0 and events == []
+    tm += 8
     r = ctl.on_feedback(tm, q_meas, T0 + tm / 1000)  # the arm stands: measured at rest
     assert ctl.resyncs == 1 and events == ["resync"]
     np.testing.assert_allclose(r.q, q_meas, atol=1e-12)  # within 1 mrad: exactly
@@ -116,25 +117,33 @@ def test_after_a_silence_in_motion_the_stream_restarts_at_the_measured_state(rtr
     assert ctl.sup.intervened == 0
 
 
-def test_after_a_silence_in_motion_the_restart_takes_the_velocity_the_next_packet_measures(
-    rtree, robot
+@pytest.mark.parametrize("decel", [0.0, 2.0])
+def test_after_a_silence_in_motion_the_restart_takes_the_velocity_the_next_packets_measure(
+    rtree, robot, decel
 ):
-    """The arm still moves when the stream comes back (the controller ramps its last reference
-    out): the first packet is left unanswered, the second measures the velocity, and the restart
-    commands the measured position and velocity, not a standstill."""
+    """The arm still moves when the stream comes back (the controller slows it down, here at
+    ``decel`` times a_max): the first two packets are left unanswered, and the restart at the
+    third commands its measured position and the velocity at that moment, not a standstill
+    nor the average over the last cycle."""
     ctl = _control(rtree, robot)
     ctl.on_feedback(0, _away(robot), T0)
     for k in range(1, 40):
         ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
     assert not ctl.at_rest()
-    v = np.array([0.3, -0.2, 0.1, 0.4, 0.0, -0.1])
+    v0 = np.array([0.3, -0.2, 0.1, 0.4, 0.0, -0.1])
+    a = -decel * robot.a_max * np.sign(v0)
     q1 = ctl.sup.q + 0.01
     tm = 4 * 39 + 60  # 60 ms of silence
-    assert ctl.on_feedback(tm, q1, T0 + tm / 1000) is None
-    r = ctl.on_feedback(tm + 4, q1 + v * DT, T0 + (tm + 4) / 1000)
-    np.testing.assert_allclose(r.q, q1 + v * DT, atol=1e-12)
-    np.testing.assert_allclose(r.qd, v, rtol=1e-9)
-    assert ctl.resyncs == 1 and ctl.deferred == 1
+
+    def q_at(k):  # the arm k cycles after the first packet
+        return q1 + v0 * k * DT + 0.5 * a * (k * DT) ** 2
+
+    assert ctl.on_feedback(tm, q_at(0), T0 + tm / 1000) is None
+    assert ctl.on_feedback(tm + 4, q_at(1), T0 + (tm + 4) / 1000) is None
+    r = ctl.on_feedback(tm + 8, q_at(2), T0 + (tm + 8) / 1000)
+    np.testing.assert_allclose(r.q, q_at(2), atol=1e-12)
+    np.testing.assert_allclose(r.qd, v0 + a * 2 * DT, atol=1e-9)
+    assert ctl.resyncs == 1 and ctl.deferred == 2
 
 
 def test_a_restart_waits_for_a_velocity_at_most_a_few_packets(rtree, robot):

@@ -10,10 +10,12 @@ and the supervisor's state at that time:
 * the first packet, or one after a silence longer than ``resync_after``: the stream restarts
   from the measured feedback (position, and velocity where the feedback measured it: two
   packets at most three cycles apart), and the executor plans on from there with the same
-  intent. After a silence in motion the arm may still be moving, and one packet measures no
-  velocity: that packet is left unanswered (the controller holds its last reference one cycle
-  more, as it did through the silence) and the stream restarts at the next one, from the
-  position and the velocity the pair measured (at most :data:`DEFER_MAX` packets wait).
+  intent. After a silence in motion the arm may still be moving (the controller slowing it
+  down), and one packet measures no velocity: the first two packets are left unanswered (the
+  controller holds its last reference two cycles more, as it did through the silence) and the
+  stream restarts at the third, from its position and the velocity the three measure (exact
+  for a constant deceleration; at most :data:`DEFER_MAX` packets wait, then a pair or nothing
+  is used).
 
 Every plan starts from the commanded state: when the supervisor had to change a request (it
 should almost never have to), the executor is resynchronised to what was actually commanded.
@@ -76,6 +78,7 @@ class EgmControl:
         self.resyncs = 0  # restarts from the measured feedback (first packet excluded)
         self.deferred = 0  # packets left unanswered after a silence (measuring the velocity)
         self._waiting = -1  # packets deferred since the silence being resynchronised (-1: none)
+        self._track: list[tuple[float, np.ndarray]] = []  # (s, q): consecutive packets since
         self.faults: collections.deque[float] = collections.deque()  # times, within the window
         self.fault_count = 0
         self.latched = False
@@ -136,14 +139,15 @@ class EgmControl:
             return self.last._replace(tick=tick)
         qd_meas = self._measure(tick, q_meas, _earlier(tick, tm_ms, before))
         if tick.resync and self.last is not None and not self.latched and not self.at_rest():
-            self._waiting = 0  # a silence in motion: the restart wants the measured velocity
+            self._waiting, self._track = 0, []  # a silence in motion: measure the velocity
         if self._waiting >= 0:
-            if qd_meas is None and self._waiting < DEFER_MAX:
+            qd_end = self._track_velocity(tick, q_meas, qd_meas)
+            if qd_end is None and self._waiting < DEFER_MAX:
                 self._waiting += 1
                 self.deferred += 1
                 return None
             self._waiting = -1
-            return self._restart(tick, q_meas, qd_meas)
+            return self._restart(tick, q_meas, qd_end if qd_end is not None else qd_meas)
         if tick.resync or self.last is None:
             return self._restart(tick, q_meas, qd_meas)
         prepared, self._prepared = self._prepared, None
@@ -211,6 +215,26 @@ class EgmControl:
         else:
             self._rest_since = math.inf
         return qd
+
+    def _track_velocity(self, tick: ClockTick, q_meas, qd_meas) -> np.ndarray | None:
+        """Velocity [rad/s] (6,) at this packet from the packets since the silence, once three
+        consecutive ones measure it (exact for a constant acceleration: an arm that the
+        controller is slowing down decelerates fast), else None. A pair measures only the
+        average over its cycle, up to ``a dt / 2`` off, and the reply acts a cycle later."""
+        track = self._track
+        if qd_meas is None:  # not consecutive with the one before: start again from this one
+            track.clear()
+        s = track[-1][0] + tick.elapsed if track else 0.0  # time since the first one [s]
+        track.append((s, np.asarray(q_meas, dtype=float)))
+        if len(track) < 3:
+            return None
+        (s0, q0), (s1, q1), (s2, q2) = track[-3:]
+        h1, h2 = s1 - s0, s2 - s1
+        if not (h1 > 0.0 and h2 > 0.0):
+            return None
+        # derivative at s2 of the parabola through the three points (in differences: a standing
+        # arm measures exactly zero)
+        return (q2 - q1) / h2 * ((2 * h2 + h1) / (h1 + h2)) - (q1 - q0) / h1 * (h2 / (h1 + h2))
 
     def _restart(self, tick: ClockTick, q_meas, qd_meas) -> Reply:
         """First packet or after a silence: command the measured state, plan on from it."""

@@ -24,8 +24,8 @@ Checks (relative tolerance ``rtol``; ratios are value / limit, per joint, the ma
   lies within ``pos_tol`` of the measured position, moved along the measured velocity for at
   most one cycle (``q + s qd``, 0 <= s <= dt), and its ``speedRef`` is within ``a_max dt`` of the
   measured velocity (what one cycle at the acceleration limit can change). The first
-  :data:`RESYNC_WAIT` cycles after a silence may go unanswered by design (the daemon waits for a
-  second packet to measure the velocity): counted in ``missed_after_silence``, not in
+  :data:`RESYNC_WAIT` cycles after a silence may go unanswered by design (the daemon waits for
+  three packets to measure the velocity): counted in ``missed_after_silence``, not in
   ``missed`` nor in the cycles of ``answered_pct``; a further miss counts as usual;
 * every reply finite and inside the URDF limits.
 
@@ -39,7 +39,7 @@ import numpy as np
 from thinkfast.sim.faults import rows as R
 
 SETTLE = 4  # cycles after a missed one whose replies may be stale
-RESYNC_WAIT = 1  # cycles after a silence that may go unanswered by design
+RESYNC_WAIT = 2  # cycles after a silence that may go unanswered by design
 
 
 class ReplyChecker:
