@@ -20,7 +20,7 @@ import json
 import numpy as np
 
 from thinkfast.machine import machine_info
-from thinkfast.runtime.config import RunConfig
+from thinkfast.runtime.config import RunConfig, load_run_config
 from thinkfast.runtime.launch import LaunchDetector
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.throws import ThrowConfig, sample_throws
@@ -33,10 +33,11 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=21)
     ap.add_argument("--outlier-prob", type=float, default=None, help="camera outlier rate")
     ap.add_argument("--depth-only", action="store_true", help="outliers along the ray only")
+    ap.add_argument("--config", help="runtime config (TOML): its [launch] table is tested")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
-    cfg = RunConfig()
+    cfg = RunConfig() if args.config is None else load_run_config(args.config)
     cam = CameraModelConfig()
     if args.outlier_prob is not None:
         cam = dataclasses.replace(cam, outlier_prob=args.outlier_prob)
