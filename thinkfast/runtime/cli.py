@@ -23,6 +23,10 @@ from thinkfast.cli_util import (
 
 app = make_app("thinkfast runtime daemon: ball detections over zenoh in, EGM setpoints out.")
 
+# Where the daemon serves EGM. The controller's UDP unicast device sends to this port
+# (robots/irb1600/controller/sys_cfg_udpuc.cfg; tests/test_controller_kit.py keeps them equal).
+EGM_BIND_DEFAULT = "0.0.0.0:6510"
+
 
 @app.command()
 def run(
@@ -34,7 +38,7 @@ def run(
         help="tree (belief-space), tree-rest (the paper's at-rest values), "
         "naive or naive-paper (baselines)",
     ),
-    egm_bind: str = typer.Option("0.0.0.0:6510", "--egm-bind", help="UDP HOST:PORT to serve EGM"),
+    egm_bind: str = typer.Option(EGM_BIND_DEFAULT, "--egm-bind", help="UDP HOST:PORT to serve EGM"),
     egm_controller: str | None = typer.Option(
         None,
         "--egm-controller",
