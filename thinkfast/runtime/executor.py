@@ -336,12 +336,21 @@ class Executor:
         # on the way back the wrist goes to its home angles, never to the equivalent branch
         home = self.robot.home[3:] if self.mode in (RETURNING, IDLE) else None
         w = self.wrist.step(t, s[:3], self.wrist.normal_for(ball_v), home)
-        if self.mode == RETURNING and t >= self.segment.t_end:
-            home = np.all(np.abs(w[3:6]) < 1e-4) and np.all(
-                np.abs(w[:3] - self.robot.home[3:]) < 1e-3
+        if self.mode == RETURNING and (self.segment.kind != RETURN or t >= self.segment.t_end):
+            arm_home = np.all(np.abs(s[:3] - self.robot.home[:3]) < 1e-6) and np.all(
+                np.abs(s[3:]) < 1e-6
             )
-            if home or t > self.segment.t_end + 2.0:  # (a wrist that cannot get home: give up)
-                self._finish_return(t)  # the whole arm is home and at rest: ready
+            if not arm_home:
+                # the way home was replaced (a resync) or never planned (Ruckig failed): plan
+                # it again from the commanded state, or the arm would wait here for good
+                if t >= self.segment.t_end or self.segment.kind == HOLD:
+                    self._start_return(t)
+            else:
+                wrist_home = np.all(np.abs(w[3:6]) < 1e-4) and np.all(
+                    np.abs(w[:3] - self.robot.home[3:]) < 1e-3
+                )
+                if wrist_home or t > self.segment.t_end + 2.0:  # (a wrist that cannot: give up)
+                    self._finish_return(t)  # the whole arm is home and at rest: ready
         return np.r_[s[:3], w[:3]], np.r_[s[3:6], w[3:6]]
 
     def _end_of_throw(self, t: float) -> None:

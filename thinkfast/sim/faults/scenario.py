@@ -137,7 +137,18 @@ def finish(name: str, cell: Cell, t_start: float, figures: dict, failures: list[
     figures = {**{k: fig.get(k) for k in _KEEP}, **figures, "exit": code, "latched": latched,
                "load_avg_1min": round(os.getloadavg()[0], 2),
                "controller_rt": getattr(cell, "controller_rt", None)}  # fmt: skip
-    for key in ("egm", "egm_timing", "safety", "faults", "interventions", "egm_peer", "recorder"):
+    for key in (
+        "egm",
+        "egm_timing",
+        "safety",
+        "faults",
+        "interventions",
+        "egm_peer",
+        "recorder",
+        "detections",
+        "throws",
+        "state",
+    ):
         if key in status:
             figures[f"daemon_{key}"] = status[key]
     if "resync_failures" in fig:
