@@ -126,7 +126,7 @@ class EgmControl:
     ) -> Reply | None:
         """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, joints ``q_meas`` [rad])
         received at ``now`` [s], or None: leave this packet unanswered (after a silence in
-        motion, until a second packet measures the velocity; counted in ``deferred``).
+        motion, until three packets measure the velocity; counted in ``deferred``).
         ``before``: ``(tm_ms, q_meas)`` of the peer's packet just before it when that one was
         superseded unanswered (it measures the velocity after a stall of this host). Never
         raises: a failing ``executor.setpoint`` is counted in ``errors`` and brakes."""

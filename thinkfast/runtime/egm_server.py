@@ -75,7 +75,7 @@ class EgmCounters:
         reply_errors: valid requests left unanswered because ``reply_fn`` raised or returned an
             unencodable setpoint (wrong shape, non-finite).
         deferred: valid requests left unanswered because ``reply_fn`` returned None (by
-            design: the daemon waits one packet after a silence to measure the velocity).
+            design: after a silence the daemon waits for packets that measure the velocity).
         socket_errors: ``recvfrom``/``sendto`` failures (the datagram is lost).
     """
 

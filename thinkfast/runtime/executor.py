@@ -341,10 +341,10 @@ class Executor:
                 np.abs(s[3:]) < 1e-6
             )
             if not arm_home:
-                # the way home was replaced (a resync) or never planned (Ruckig failed): plan
-                # it again from the commanded state, or the arm would wait here for good
-                if t >= self.segment.t_end or self.segment.kind == HOLD:
-                    self._start_return(t)
+                # the way home ended elsewhere, was replaced by a hold (a resync) or never
+                # planned (Ruckig failed): plan it again from the commanded state, or the arm
+                # would wait here for good
+                self._start_return(t)
             else:
                 wrist_home = np.all(np.abs(w[3:6]) < 1e-4) and np.all(
                     np.abs(w[:3] - self.robot.home[3:]) < 1e-3

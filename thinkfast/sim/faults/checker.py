@@ -82,7 +82,6 @@ class ReplyChecker:
         self._seen_reply = False
         self._waited = 0
         self._replies = self._copies = 0
-        self._counted_from = 0  # index in the current batch of the first row counted
 
     def feed(self, rows: np.ndarray, braking=None) -> None:
         """Check a batch of rows (in cycle order); ``braking(rows)`` -> bool (N,) (None: never)."""
@@ -99,8 +98,8 @@ class ReplyChecker:
             fresh[s:] &= ~missed[:-s]
         new = np.zeros(len(allr), dtype=bool)
         new[len(self.ctx) :] = True
-        self._count(rows)
-        self._resyncs(rows)
+        counted_from = self._count(rows)
+        self._resyncs(rows, counted_from)
         q, qd = self._applied(allr, has | ~np.isnan(allr[:, R.CMD_Q.start]))
         gap = np.r_[True, np.diff(allr[:, R.K]) != 1] | self._restarts(allr, q, qd, new)
         self._differences(allr, q, qd, fresh, gap, brake, new)
@@ -122,19 +121,20 @@ class ReplyChecker:
         self.n["restarts"] += int((restart & new).sum())
         return restart
 
-    def _count(self, rows: np.ndarray) -> None:
+    def _count(self, rows: np.ndarray) -> int:
+        """Count the batch's cycles from the first reply ever on; returns the index of the
+        first row counted."""
         n = self.n
         valid = rows[:, R.N_VALID]
         if not self.started:
             first = np.flatnonzero(valid > 0)
             if len(first) == 0:
-                self._counted_from = len(rows)
-                return
+                return len(rows)
             rows, valid = rows[first[0] :], valid[first[0] :]
             self.started = True
-            self._counted_from = int(first[0])
+            counted_from = int(first[0])
         else:
-            self._counted_from = 0
+            counted_from = 0
         n["cycles"] += len(rows)
         n["replied"] += int((valid > 0).sum())
         miss = valid == 0
@@ -156,8 +156,9 @@ class ReplyChecker:
         if len(cmd):
             sr = np.abs(rows[valid > 0][:, R.CMD_QD]) / self.lim.v_max
             self.f["speedref_ratio"] = max(self.f["speedref_ratio"], float(sr.max()))
+        return counted_from
 
-    def _resyncs(self, rows: np.ndarray) -> None:
+    def _resyncs(self, rows: np.ndarray, counted_from: int) -> None:
         """First applied command after each silence (and the first ever): at the measured state."""
         k = rows[:, R.K]
         prev_k = self.ctx[-1, R.K] if len(self.ctx) else np.nan
@@ -172,7 +173,7 @@ class ReplyChecker:
                     self.n["resync_unanswered"] += 1
                 pending, waited = True, 0
             if pending and seen and waited < RESYNC_WAIT and rows[i, R.N_VALID] == 0:
-                self._excuse(rows[i], i >= self._counted_from)
+                self._excuse(rows[i], i >= counted_from)
             if pending and rows[i, R.N_VALID] > 0:
                 pending, seen = False, True
                 self._check_resync(rows[i])
