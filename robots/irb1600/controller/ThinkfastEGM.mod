@@ -71,6 +71,11 @@ MODULE ThinkfastEGM
     PERS bool tf_start_request := FALSE;
     ! Set TRUE to end the running session with EGMStop (HOLD, EGM_RAMP_OUT_TIME).
     PERS bool tf_stop_request := FALSE;
+    ! Where the program is, for RWS clients (thinkfast-cell): "homing" (moving home),
+    ! "waiting" (tf_start_request is cleared and will be taken), "session" (an EGM
+    ! session is set up or running), "lost" (the daemon went silent; program stopped).
+    ! Written by the program only; after a RAPID stop it names where the program stopped.
+    PERS string tf_status := "";
 
     VAR egmident egm_id;
     VAR intnum tf_stop_int;
@@ -78,6 +83,7 @@ MODULE ThinkfastEGM
     PROC main()
         ! The one ordinary move, at low speed with an operator watching: a stop point at
         ! thinkfast's home. Every session starts from a standing arm.
+        tf_status := "homing";
         MoveAbsJ TF_HOME, v100, fine, tool0;
         tf_stop_request := FALSE;
         IDelete tf_stop_int;
@@ -86,6 +92,8 @@ MODULE ThinkfastEGM
         IPers tf_stop_request, tf_stop_int;
         WHILE TRUE DO
             tf_start_request := FALSE;
+            ! After the clear: a request made once "waiting" shows is never lost.
+            tf_status := "waiting";
             TPWrite "thinkfast: waiting for tf_start_request";
             WaitUntil tf_start_request;
             tf_start_request := FALSE;
@@ -95,6 +103,7 @@ MODULE ThinkfastEGM
 
     ! One EGM session: set up, activate, run until EGMStop, \CondTime or a lost daemon.
     PROC tf_session()
+        tf_status := "session";
         WaitRob \InPos;
         EGMReset egm_id;
         EGMGetId egm_id;
@@ -126,6 +135,7 @@ MODULE ThinkfastEGM
                 \RL4:="set tf_start_request.";
             TPWrite "thinkfast: EGM session lost (daemon silent), program stopped";
             EGMReset egm_id;
+            tf_status := "lost";
             ! No RETRY: an operator acknowledges with Start once the daemon runs again;
             ! the program then waits for a new tf_start_request.
             Stop \NoRegain;
