@@ -46,3 +46,19 @@ class RecorderError(ThinkfastError):
 
 class RecordFileError(ThinkfastError):
     """A flight record file is refused: the message names the path and the reason."""
+
+
+class CellError(ThinkfastError):
+    """The robot controller (over Robot Web Services) cannot do what ``thinkfast-cell`` asked."""
+
+
+class CellUnreachable(CellError):
+    """No HTTP answer from the controller: wrong URL, controller off, network or firewall."""
+
+
+class CellAuthError(CellError):
+    """The controller refused the user name or password (HTTP 401)."""
+
+
+class CellRefused(CellError):
+    """The controller's state forbids the command (manual mode, motors off, kit not loaded)."""

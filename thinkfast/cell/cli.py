@@ -1,0 +1,125 @@
+"""``thinkfast-cell``: the controller's state, and start/stop of the EGM kit, over RWS 1.0."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import typer
+
+from thinkfast.cell.client import (
+    DEFAULT_PASSWORD,
+    DEFAULT_TASK,
+    DEFAULT_URL,
+    DEFAULT_USER,
+    HTTP_TIMEOUT,
+)
+from thinkfast.cli_util import make_app, run_app
+
+app = make_app(
+    "Controller state, and start/stop of the EGM RAPID program of the controller kit, over ABB "
+    "Robot Web Services 1.0 (RobotWare 6; RobotWare 7 is not supported, see docs/CELL_RWS.md)."
+)
+
+URL = typer.Option(
+    DEFAULT_URL,
+    "--url",
+    help="controller, http://HOST[:PORT]: the default is a RobotStudio virtual controller; a "
+    "real IRC5 answers on its WAN port's IP",
+)
+USER = typer.Option(
+    DEFAULT_USER, "--user", help="RWS user (default: ABB's documented default user)"
+)
+PASSWORD = typer.Option(
+    DEFAULT_PASSWORD,
+    "--password",
+    help="RWS password (default: the documented password of 'Default User'; change it on a "
+    "real controller)",
+)
+TASK = typer.Option(DEFAULT_TASK, "--task", help="RAPID task holding ThinkfastEGM.mod")
+TIMEOUT = typer.Option(HTTP_TIMEOUT, "--timeout", help="seconds to wait for each HTTP answer")
+
+
+@app.callback()
+def _group() -> None:
+    """Controller state, and start/stop of the EGM RAPID program, over RWS 1.0 (RobotWare 6)."""
+
+
+def _cell(url: str, user: str, password: str, task: str, timeout: float):
+    from thinkfast.cell.client import Cell
+    from thinkfast.errors import ConfigError
+
+    if not timeout > 0:
+        raise ConfigError("--timeout", None, f"must be > 0 s, got {timeout}")
+    return Cell(url, user, password, task=task, timeout=timeout)
+
+
+@app.command()
+def state(
+    url: str = URL,
+    user: str = USER,
+    password: str = PASSWORD,
+    task: str = TASK,
+    timeout: float = TIMEOUT,
+    as_json: bool = typer.Option(False, "--json", help="print one JSON object"),
+) -> None:
+    """Motors, operation mode, RAPID execution, tasks, speed ratio and the kit's variables."""
+    from thinkfast.cell.client import format_state
+
+    snapshot = _cell(url, user, password, task, timeout).read_state()
+    if as_json:
+        print(json.dumps(snapshot.to_json()))
+    else:
+        print(format_state(snapshot))
+
+
+@app.command()
+def start(
+    url: str = URL,
+    user: str = USER,
+    password: str = PASSWORD,
+    task: str = TASK,
+    timeout: float = TIMEOUT,
+    resetpp: bool = typer.Option(
+        False,
+        "--resetpp",
+        help="move the program pointer to main first (RAPID must be stopped; the program then "
+        "moves home at v100)",
+    ),
+    wait: float = typer.Option(
+        30.0, "--wait", help="seconds to wait for the program (home move) and for the session"
+    ),
+) -> None:
+    """Start RAPID if stopped and request one EGM session (needs auto mode and motors on).
+
+    Waits until the program shows tf_status "waiting" (it clears requests made while it moves
+    home), sets tf_start_request, and waits for "session". Start thinkfast-run first.
+    """
+    cell = _cell(url, user, password, task, timeout)
+    print(cell.start(resetpp=resetpp, wait=wait))
+
+
+@app.command()
+def stop(
+    url: str = URL,
+    user: str = USER,
+    password: str = PASSWORD,
+    task: str = TASK,
+    timeout: float = TIMEOUT,
+    halt: bool = typer.Option(
+        False, "--halt", help="then stop RAPID execution (also if the session did not end)"
+    ),
+    wait: float = typer.Option(5.0, "--wait", help="seconds to wait for the session to end"),
+) -> None:
+    """End the EGM session with the module's ramp-out (tf_stop_request); --halt stops RAPID."""
+    cell = _cell(url, user, password, task, timeout)
+    print(cell.stop(halt=halt, wait=wait))
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point."""
+    sys.exit(run_app(app, "thinkfast-cell", argv))
+
+
+if __name__ == "__main__":
+    main()
