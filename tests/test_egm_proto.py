@@ -77,7 +77,30 @@ def test_sensor_message_has_the_interface_layout_in_degrees():
     assert {f.name: f.number for f in d.fields} == {"header": 1, "planned": 2, "speedRef": 3}
     r = egm.EgmRobot.DESCRIPTOR
     numbers = {f.name: f.number for f in r.fields}
-    assert numbers == {"header": 1, "feedBack": 2, "planned": 3, "motorState": 4, "mciState": 5}
+    assert numbers == {
+        "header": 1, "feedBack": 2, "planned": 3, "motorState": 4, "mciState": 5,
+        "rapidExecState": 8,
+    }  # fmt: skip
+
+
+def test_controller_state_decodes_and_gates_ready():
+    q = np.zeros(6)
+    fb = egm.decode_robot(egm.encode_robot(1, 2, q))
+    assert (fb.motors_on, fb.mci_running, fb.rapid_running, fb.ready) == (True, True, True, True)
+    for kw, field in (
+        ({"motors_on": False}, "motors_on"),
+        ({"mci_running": False}, "mci_running"),
+        ({"rapid_running": False}, "rapid_running"),
+    ):
+        fb = egm.decode_robot(egm.encode_robot(1, 2, q, **kw))
+        assert getattr(fb, field) is False and not fb.ready
+    fb = egm.decode_robot(egm.encode_robot(1, 2, q, rapid_running=None))
+    assert fb.rapid_running is None and fb.ready  # not reported: motors and MCI decide
+    bare = egm.EgmRobot()
+    bare.header.seqno = 1
+    bare.feedBack.joints.joints.extend([0.0] * 6)
+    fb = egm.decode_robot(bare.SerializeToString())
+    assert not fb.motors_on and not fb.mci_running and not fb.ready  # unknown reads as off
 
 
 def test_round_trips_are_exact_to_rounding_for_random_values():

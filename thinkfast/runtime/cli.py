@@ -56,6 +56,27 @@ def run(
     zenoh_config: ZenohConfigFile = ZENOH_CONFIG,
     record: Path | None = typer.Option(None, "--record", help="flight recorder file (HDF5)"),
     log_level: str = typer.Option("info", "--log-level", help="debug, info, warning or error"),
+    log_format: str = typer.Option(
+        "text", "--log-format", help="text, or json (one JSON object per line, for collectors)"
+    ),
+    shadow: bool = typer.Option(
+        False,
+        "--shadow",
+        help="first light: plan and publish everything, command the position measured when "
+        "the stream starts (the arm does not move; status.shadow shows the plan)",
+    ),
+    speed_scale: float = typer.Option(
+        1.0,
+        "--speed-scale",
+        help="scale the velocity, acceleration and jerk limits by this (0 < S <= 1; not with "
+        "--planner tree-rest, whose compiled edges use the full limits)",
+    ),
+    go_home: bool = typer.Option(
+        False,
+        "--go-home",
+        help="arm away from home at start-up: move it home (return speed) once the way is "
+        "checked against the cell; without it the arm holds where it stands",
+    ),
     busy_poll: bool = typer.Option(
         False,
         "--busy-poll",
@@ -78,7 +99,7 @@ def run(
     from thinkfast.errors import ConfigError, RobotModelError
     from thinkfast.robot.model import default_robot_path, load_robot
     from thinkfast.runtime.config import load_run_config
-    from thinkfast.runtime.daemon import Daemon, Endpoints
+    from thinkfast.runtime.daemon import Daemon, Endpoints, Modes
     from thinkfast.runtime.egm_server import parse_controller, parse_hostport
     from thinkfast.runtime.executor import PLANNERS
     from thinkfast.runtime.zenoh_io import session_config
@@ -87,11 +108,14 @@ def run(
         raise ConfigError("--planner", None, f"{planner!r} is not one of {', '.join(PLANNERS)}")
     if log_level.upper() not in ("DEBUG", "INFO", "WARNING", "ERROR"):
         raise ConfigError("--log-level", None, f"{log_level!r} is not one of debug, info, ...")
-    logging.basicConfig(
-        level=log_level.upper(),
-        stream=sys.stderr,
-        format="%(asctime)s %(name)s %(levelname)s %(message)s",
-    )
+    if not 0.0 < speed_scale <= 1.0:
+        raise ConfigError("--speed-scale", None, f"{speed_scale} is not in (0, 1]")
+    if speed_scale < 1.0 and planner == "tree-rest":
+        raise ConfigError(
+            "--speed-scale", None, "not with --planner tree-rest (its compiled edges use the full "
+            "limits); use tree, naive or naive-paper",
+        )  # fmt: skip
+    setup_logging(log_level, log_format)
     parse_hostport(egm_bind)
     parse_controller(egm_controller)
     if not 0.0 < egm_handover < math.inf:
@@ -113,11 +137,59 @@ def run(
         raise RobotModelError(
             f"{tree}: compiled for another robot description than {robot.toml_path}; recompile it"
         )
+    robot = scale_limits(robot, speed_scale)
     conf = session_config(zenoh_connect or (), zenoh_listen or (), zenoh_config)
     ends = Endpoints(egm_bind, egm_controller, egm_handover, key_prefix, record)
+    modes = Modes(shadow=shadow, go_home=go_home, speed_scale=speed_scale)
     spin = math.inf if busy_poll else spin_ahead / 1e3
-    daemon = Daemon(t, robot, cfg, planner, ends, conf, spin_ahead=spin, cpu=cpu, fifo=fifo)
+    daemon = Daemon(
+        t, robot, cfg, planner, ends, conf, spin_ahead=spin, cpu=cpu, fifo=fifo, modes=modes
+    )
     sys.exit(daemon.run())
+
+
+def scale_limits(robot, scale: float):
+    """``robot`` with its velocity, acceleration and jerk limits scaled by ``scale``."""
+    import dataclasses
+
+    if scale == 1.0:
+        return robot
+    return dataclasses.replace(
+        robot, v_max=robot.v_max * scale, a_max=robot.a_max * scale, j_max=robot.j_max * scale
+    )
+
+
+class JsonFormatter(logging.Formatter):
+    """One JSON object per record: time, level, logger, message (and the exception)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        out = {
+            "time": round(record.created, 6),
+            "level": record.levelname.lower(),
+            "logger": record.name,
+            "message": record.getMessage(),
+        }
+        if hasattr(record, "event"):  # daemon events: the same fields, structured
+            out["event"], out["detail"] = record.event, record.detail
+        if record.exc_info:
+            out["exception"] = self.formatException(record.exc_info)
+        return json.dumps(out)
+
+
+def setup_logging(level: str, fmt: str) -> None:
+    """Root logging on stderr in ``fmt`` (text or json) at ``level``."""
+    from thinkfast.errors import ConfigError
+
+    if fmt not in ("text", "json"):
+        raise ConfigError("--log-format", None, f"{fmt!r} is not one of text, json")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(
+        JsonFormatter() if fmt == "json"
+        else logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s")
+    )  # fmt: skip
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(level.upper())
 
 
 def _tree_robot(tree) -> Path | None:

@@ -47,12 +47,13 @@ from thinkfast.runtime.config import RunConfig
 from thinkfast.runtime.cycle import Cycle
 from thinkfast.runtime.egm_control import FAULT_REASONS, EgmControl
 from thinkfast.runtime.egm_server import EgmServer
-from thinkfast.runtime.executor import FAULT, IDLE, Executor
+from thinkfast.runtime.executor import EXECUTING, FAULT, IDLE, Executor
 from thinkfast.runtime.intake import Intake
 from thinkfast.runtime.planner import runtime_tree
 from thinkfast.runtime.recorder import Recorder
 from thinkfast.runtime.rt_thread import pin_thread, set_fifo
 from thinkfast.runtime.safety import SafetySupervisor, robot_limits
+from thinkfast.runtime.way_home import WayHome
 from thinkfast.runtime.zenoh_io import ZenohIO
 
 log = logging.getLogger("thinkfast.run")
@@ -70,6 +71,23 @@ class Endpoints:
     record: Path | None = None
 
 
+@dataclass(frozen=True)
+class Modes:
+    """First-light options (from the command line; docs/CELL.md).
+
+    Attributes:
+        shadow: plan and publish everything, command the position measured at the start.
+        go_home: away from home at start-up, move home once the way is checked against the cell
+            (without it the arm holds where it stands and balls are ignored).
+        speed_scale: the robot's velocity, acceleration and jerk limits are scaled by this
+            (already applied to the robot the daemon is given; reported here).
+    """
+
+    shadow: bool = False
+    go_home: bool = False
+    speed_scale: float = 1.0
+
+
 class Daemon:
     """Composes executor, supervisor, EGM server, zenoh and recorder (see the module doc)."""
 
@@ -84,8 +102,10 @@ class Daemon:
         spin_ahead: float = 0.0,
         cpu: int | None = None,
         fifo: int | None = None,
+        modes: Modes = Modes(),
     ):
-        self.cfg, self.robot, self.planner = cfg, robot, planner
+        self.cfg, self.robot, self.planner, self.modes = cfg, robot, planner, modes
+        self.tree_meta = tree.meta
         self.cycle, self.cpu, self.fifo = Cycle(cfg.safety.dt, spin_ahead), cpu, fifo
         self.recorder = Recorder(
             endpoints.record,
@@ -96,10 +116,23 @@ class Daemon:
                 "started": time.time(),
             },
         )  # first: a record target that cannot be written stops the start, before serving
-        self.executor = Executor(runtime_tree(tree, robot, cfg), robot, cfg, planner)
+        rt = runtime_tree(tree, robot, cfg)
+        self.executor = Executor(rt, robot, cfg, planner)
+        self.executor.home_on_start = False  # the way home is checked first (--go-home)
+        self._new_executor = lambda: Executor(rt, robot, cfg, "naive")
+        self._checker = None  # collision model of the cell, built for the first way home
+        self.way_home: WayHome | None = None
+        self._away_logged: tuple | None = None
         self.limits = robot_limits(robot, cfg.safety.position_margin)
         self.supervisor = SafetySupervisor(self.limits, cfg.safety, robot.home)
-        self.control = EgmControl(self.executor, self.supervisor, cfg.safety, self._event)
+        self.control = EgmControl(
+            self.executor, self.supervisor, cfg.safety, self._event, shadow=modes.shadow
+        )
+        self.controller_state: dict | None = None  # motors, MCI, RAPID as last reported
+        self.planned: tuple[np.ndarray, np.ndarray, str] | None = None  # shadow: virtual arm
+        self._drops: dict[str, int] = {}  # rejected detections by reason (log throttling)
+        self._was_connected = False
+        self._last_mode = IDLE
         self.intake = Intake(cfg.camera, cfg.detections)
         self.egm = EgmServer(
             endpoints.egm_bind,
@@ -131,15 +164,37 @@ class Daemon:
             self.control.brake("signal")
         errors = self.control.errors
         prev = None if before is None else (before.tm_ms, before.q_rad)
-        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev)
+        ctl = self.controller_state
+        if (
+            ctl is None
+            or ctl["motors_on"] != fb.motors_on
+            or ctl["mci_running"] != fb.mci_running
+            or ctl["rapid_running"] != fb.rapid_running
+        ):
+            self._controller_changed(fb)
+        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, ready=fb.ready)
         if self.control.errors != errors:
             self._planner_error("setpoint", self.control.last_error)
         if r is None:
             return None
         self._watch_throw(r.tick.t)
-        self.outbox.append((r.tick.t, r.q, r.qd, r.mode))
-        self.recorder.egm(now, fb.seqno, fb.q_rad, r.q, r.qd, self.supervisor.braking)
-        return r.q, r.qd
+        q, qd, mode = r.q, r.qd, r.mode
+        if self.modes.shadow:  # the plan is shown, the arm holds (egm_control)
+            self.planned = (q, qd, mode)
+            q, qd, mode = self.control.hold_q, np.zeros(6), "shadow"
+        self.outbox.append((r.tick.t, q, qd, mode))
+        self.recorder.egm(now, fb.seqno, fb.q_rad, q, qd, self.supervisor.braking)
+        return q, qd
+
+    def _controller_changed(self, fb) -> None:
+        """The controller reports another motor, MCI or RAPID state: status and a log line."""
+        self.controller_state = {
+            "motors_on": fb.motors_on,
+            "mci_running": fb.mci_running,
+            "rapid_running": fb.rapid_running,
+            "ready": fb.ready,
+        }
+        self._event(self.control.clock.t, "controller_state", self.controller_state)
 
     def _planner_error(self, where: str, exc: BaseException | None) -> None:
         self.planner_errors += 1
@@ -148,7 +203,7 @@ class Daemon:
 
     def _event(self, t: float, kind: str, detail: dict) -> None:
         """Something worth a log line and a record row (from the control core or here)."""
-        log.info("%s %s", kind, json.dumps(detail))
+        log.info("%s %s", kind, json.dumps(detail), extra={"event": kind, "detail": detail})
         self.recorder.event(t, kind, detail)
 
     def _watch_throw(self, t: float) -> None:
@@ -190,6 +245,7 @@ class Daemon:
                 self.recorder.move_writer(others)
             if self.fifo is not None:  # this thread only
                 set_fifo(self.fifo)
+            self._event(time.time(), "start", self.summary())
             while True:
                 since = time.time() - self.last_rx
                 if self.prepared_for != self.last_rx and cycle.in_window(since):
@@ -199,6 +255,7 @@ class Daemon:
                 self._flush_outbox()
                 self._watch_peer()
                 self._take_detections(replied)
+                self._watch_home()
                 now = time.time()
                 if now >= next_status and self._time_left(now) > STATUS_COST:
                     self.zio.publish_status(self.status(now))
@@ -232,6 +289,61 @@ class Daemon:
         if self.egm.peer != self._peer:
             self._peer = self.egm.peer
             self._event(self.control.clock.t, "egm_peer", {"peer": _peer_text(self._peer)})
+        connected = self._connected(time.time())
+        if connected != self._was_connected:
+            self._was_connected = connected
+            kind = "egm_connected" if connected else "egm_lost"
+            self._event(self.control.clock.t, kind, {"peer": _peer_text(self.egm.peer)})
+
+    def _watch_home(self) -> None:
+        """Away from home: hold and say so; with ``go_home``, check the way home between
+        replies and command it once clear (:mod:`thinkfast.runtime.way_home`)."""
+        ex = self.executor
+        if not ex.away or self.control.standby or self.control.last is None:
+            return
+        q0 = np.array(self.supervisor.q)
+        key = tuple(np.round(q0, 4))
+        if self._away_logged != key:
+            self._away_logged = key
+            far = np.abs(q0 - self.robot.home)
+            joint = int(np.argmax(far))
+            self._event(
+                self.control.clock.t,
+                "away_from_home",
+                {
+                    "q": np.round(q0, 4).tolist(),
+                    "furthest": f"joint_{joint + 1} {far[joint]:.3f} rad",
+                    "action": "checking the way home" if self.modes.go_home else "holding here "
+                    "(balls ignored): jog the arm home, or restart with --go-home",
+                },
+            )  # fmt: skip
+            self.way_home = None
+        if not self.modes.go_home:
+            return
+        if self.way_home is None:
+            if self._checker is None:
+                from thinkfast.robot.collision import CollisionChecker
+
+                self._checker = CollisionChecker(self.robot)
+            self.way_home = WayHome(self._new_executor, self._checker, q0, self.cfg.safety.dt)
+        if self.way_home.result is not None:
+            return
+        now = time.time()
+        budget = min(0.002, self._time_left(now) - 0.0005)
+        if budget <= 0.0:
+            return
+        r = self.way_home.step(time.perf_counter() + budget)
+        if r is None:
+            return
+        detail = {"clear": r.clear, "duration": round(r.duration, 3), "samples": r.samples}
+        if r.clear:
+            ex.go_home(self._plan_time(time.time()))
+            self.control.invalidate()
+            self.prepared_for = -math.inf
+            self._event(self.control.clock.t, "way_home", detail)
+        else:
+            log.error("the way home collides (%s): holding; jog the arm home", r.detail)
+            self._event(self.control.clock.t, "way_home", {**detail, "collision": r.detail})
 
     def _flush_outbox(self) -> None:
         for stamp, q, qd, mode in self.outbox:
@@ -291,6 +403,7 @@ class Daemon:
         self.recorder.raw(now, payload)
         det = self.intake.take(payload, now)
         if det is None:
+            self._log_drop()
             return
         self.control.invalidate()  # plan changes: prepare again
         self.prepared_for = -math.inf
@@ -310,6 +423,22 @@ class Daemon:
         vg = ex.current_value()
         if vg is not None:
             self.recorder.decision(now, ex.mode, ex.node, vg[0], vg[1])
+        if ex.mode == EXECUTING and self._last_mode != EXECUTING:
+            self._event(
+                self.control.clock.t,
+                "throw_start",
+                {"throw": ex.episodes + 1, "value": None if vg is None else round(vg[0], 3)},
+            )
+        self._last_mode = ex.mode
+
+    def _log_drop(self) -> None:
+        """A dropped detection: log the first of each reason, then at 10, 100, 1000, ..."""
+        reason = self.intake.last_drop
+        if reason is None:
+            return
+        n = self._drops[reason[0]] = self._drops.get(reason[0], 0) + 1
+        if n == 1 or math.log10(n).is_integer():
+            log.warning("detection dropped (%s: %s), %d so far for this reason", *reason, n)
 
     def status(self, now: float) -> dict:
         """The status message (INTERFACES.md: at least stamp and state)."""
@@ -342,7 +471,53 @@ class Daemon:
             "planner_errors": self.planner_errors,
             "recorder": self.recorder.status(),
             "egm_timing": self.egm.timing.summary(),
+            "controller": {
+                **(self.controller_state or {}),
+                "standby": ctl.standby,
+                "standby_replies": ctl.standby_replies,
+            },
+            "away_from_home": ex.away,
+            "way_home": None if self.way_home is None else _way_text(self.way_home.result),
+            "shadow": None if not self.modes.shadow else _planned(self.planned),
+            "speed_scale": self.modes.speed_scale,
         }
+
+    def summary(self) -> dict:
+        """What the daemon runs with (logged at start-up)."""
+        cfg, robot, meta = self.cfg, self.robot, self.tree_meta
+        return {
+            "tree_config_sha256": str(meta.get("config_sha256", ""))[:16],
+            "tree_urdf_sha256": str(meta.get("urdf_sha256", ""))[:16],
+            "planner": self.planner,
+            "plane_x": float(self.executor.tree.plane_x),
+            "camera": {"xyz": list(cfg.camera.xyz), "rpy": list(cfg.camera.rpy)},
+            "egm": _peer_text(self.egm.address),
+            "zenoh": self.zio.describe(),
+            "limits": {
+                "v_max": np.round(robot.v_max, 3).tolist(),
+                "a_max": np.round(robot.a_max, 2).tolist(),
+                "j_max": np.round(robot.j_max, 1).tolist(),
+                "position_margin": cfg.safety.position_margin,
+            },
+            "controller_lag": cfg.execution.controller_lag,
+            "shadow": self.modes.shadow,
+            "go_home": self.modes.go_home,
+            "speed_scale": self.modes.speed_scale,
+            "record": str(self.recorder.path) if self.recorder.enabled else None,
+        }
+
+
+def _way_text(result) -> str:
+    if result is None:
+        return "checking"
+    return "clear" if result.clear else f"blocked: {result.detail}"
+
+
+def _planned(planned) -> dict | None:
+    if planned is None:
+        return None
+    q, qd, mode = planned
+    return {"q": np.round(q, 6).tolist(), "qd": np.round(qd, 6).tolist(), "mode": mode}
 
 
 def _peer_text(peer) -> str | None:

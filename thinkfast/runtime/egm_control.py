@@ -20,6 +20,16 @@ and the supervisor's state at that time:
 Every plan starts from the commanded state: when the supervisor had to change a request (it
 should almost never have to), the executor is resynchronised to what was actually commanded.
 
+Controller state. The controller follows references only with its motors on and EGM motion
+running (``EgmRobot.motorState``, ``mciState``; RAPID not stopped). Otherwise (``ready`` False)
+every reply commands the measured position at rest (*standby*: the arm may be jogged, and the
+reference must be where it stands when EGM motion starts again), the planner keeps tracking but
+nothing it plans is commanded, and the first ready packet restarts the stream from the measured
+position like a silence does. ``shadow`` (first light) plans and supervises a virtual arm that
+follows every command exactly while the daemon sends the position measured when the stream
+started (a reference that followed the measurement would have no restoring force): the status
+and the mirrored setpoints show what would have been commanded.
+
 Faults. A deviation brake (the arm left the envelope of its recent commands) or a non-finite
 request stops the arm smoothly. Once the commanded stop is complete and the *measured* arm has
 been at rest for ``recover_after``, the stream restarts from the measured position and the arm
@@ -62,6 +72,7 @@ class EgmControl:
         supervisor: the safety supervisor (the last stage before the wire).
         cfg: supervisor and recovery parameters.
         on_event: ``on_event(t, kind, detail)`` for things worth logging and recording.
+        shadow: plan a virtual arm, command the position measured at the start (module doc).
     """
 
     def __init__(
@@ -70,8 +81,14 @@ class EgmControl:
         supervisor: SafetySupervisor,
         cfg: SafetyConfig,
         on_event=lambda t, kind, detail: None,
+        shadow: bool = False,
     ):
         self.ex, self.sup, self.cfg, self.on_event = executor, supervisor, cfg, on_event
+        self.shadow = shadow
+        self.standby = False  # the controller does not follow references (module doc)
+        self.standby_replies = 0
+        self.hold_q: np.ndarray | None = None  # shadow: the position sent [rad] (6,)
+        self._last_rx = -math.inf  # receive time of the last packet (shadow) [s]
         self.clock = ControllerClock(cfg.dt, cfg.resync_after)
         self.last: Reply | None = None
         self.repeats = 0  # duplicate or stale packets answered with the same setpoint
@@ -122,15 +139,35 @@ class EgmControl:
         self._prepared = None
 
     def on_feedback(
-        self, tm_ms: int | None, q_meas: np.ndarray, now: float, before=None
+        self, tm_ms: int | None, q_meas: np.ndarray, now: float, before=None, ready: bool = True
     ) -> Reply | None:
         """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, joints ``q_meas`` [rad])
         received at ``now`` [s], or None: leave this packet unanswered (after a silence in
         motion, until three packets measure the velocity; counted in ``deferred``).
         ``before``: ``(tm_ms, q_meas)`` of the peer's packet just before it when that one was
-        superseded unanswered (it measures the velocity after a stall of this host). Never
-        raises: a failing ``executor.setpoint`` is counted in ``errors`` and brakes."""
+        superseded unanswered (it measures the velocity after a stall of this host). ``ready``:
+        the controller follows references (motors on, EGM motion running); otherwise the reply
+        is the measured position (module doc). Never raises: a failing ``executor.setpoint``
+        is counted in ``errors`` and brakes.
+
+        In shadow mode the reply's ``q``/``qd`` are the virtual arm's; the caller sends
+        :attr:`hold_q` at rest instead."""
+        if not (ready or self.shadow):
+            return self._standby(tm_ms, q_meas, now)
+        if self.shadow:  # hold where the arm stands when the stream (re)starts
+            silent = now - self._last_rx > self.cfg.resync_after
+            if not ready or silent or self.hold_q is None:
+                self.hold_q = np.array(q_meas, dtype=float)
+            self._last_rx = now
+        return self._on_feedback(tm_ms, q_meas, now, before)
+
+    def _on_feedback(self, tm_ms, q_meas, now, before) -> Reply | None:
         tick = self.clock.tick(tm_ms, now, self.at_rest())
+        if self.standby:  # the controller follows references again: restart from the arm
+            self.standby = False
+            self._waiting = -1
+            self.on_event(tick.t, "controller_ready", {"q": np.round(q_meas, 4).tolist()})
+            return self._restart(tick._replace(resync=True), q_meas, np.zeros(6))
         if tick.repeat and self._waiting >= 0:
             self.deferred += 1  # the same packet again: still nothing measured
             return None
@@ -161,7 +198,7 @@ class EgmControl:
         else:
             q_req, qd_req = self._plan(tick.t)
         was_braking = self.sup.braking
-        cmd = self.sup.step(q_req, qd_req, q_meas=q_meas, dt=h)
+        cmd = self.sup.step(q_req, qd_req, q_meas=None if self.shadow else q_meas, dt=h)
         if cmd.braking and not was_braking:
             dev = self.sup.deviation(q_meas)
             self.on_event(
@@ -178,6 +215,24 @@ class EgmControl:
         if cmd.braking:
             self._while_braking(tick.t, q_meas, qd_meas)
         self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
+        return self.last
+
+    def _standby(self, tm_ms, q_meas, now: float) -> Reply:
+        """The controller does not follow references: command the measured position at rest
+        and keep the planner's state on the arm (module doc)."""
+        tick = self.clock.tick(tm_ms, now, True)
+        q = np.array(q_meas, dtype=float)
+        first = self.last is None
+        self.sup.reset(q)
+        if first:
+            self.ex.start_from(np.array(self.sup.q), tick.t)
+        if not self.standby:
+            self.standby = True
+            self.on_event(tick.t, "controller_standby", {"q": np.round(q, 4).tolist()})
+        self.standby_replies += 1
+        self._prepared = None
+        self._fb = (tick.t, q)
+        self.last = Reply(self.sup.q, np.zeros(6), "standby", tick)
         return self.last
 
     def brake(self, reason: str) -> None:
@@ -246,6 +301,9 @@ class EgmControl:
             self.sup.reset(q_meas)
             self.sup.request_brake("deviation")  # latched: hold where the arm stands
             self.ex.hold_fault(np.array(self.sup.q), tick.t)
+        elif self.ex.away:  # held away from home: start again from where the arm stands now
+            self.sup.reset(q_meas)
+            self.ex.start_from(np.array(self.sup.q), tick.t)
         elif not self.sup.resync(q_meas, qd_meas):
             pass  # unusable measurement: the supervisor brakes from the old state
         else:

@@ -36,6 +36,7 @@ MSGTYPE_UNDEFINED, MSGTYPE_COMMAND, MSGTYPE_DATA, MSGTYPE_CORRECTION, MSGTYPE_PA
 )
 MOTORS_UNDEFINED, MOTORS_ON, MOTORS_OFF = range(3)
 MCI_UNDEFINED, MCI_ERROR, MCI_STOPPED, MCI_RUNNING = range(4)
+RAPID_UNDEFINED, RAPID_STOPPED, RAPID_RUNNING = range(3)
 
 
 class EgmDecodeError(ThinkfastError):
@@ -89,6 +90,11 @@ def _schema() -> descriptor_pb2.FileDescriptorProto:
         [("MCIStateType", ["MCI_UNDEFINED", "MCI_ERROR", "MCI_STOPPED", "MCI_RUNNING"])],
     )
     message(
+        "EgmRapidCtrlExecState",
+        [("state", 1, opt, enum, ".abb.egm.EgmRapidCtrlExecState.RapidCtrlExecStateType")],
+        [("RapidCtrlExecStateType", ["RAPID_UNDEFINED", "RAPID_STOPPED", "RAPID_RUNNING"])],
+    )
+    message(
         "EgmRobot",
         [
             ("header", 1, opt, msg, ".abb.egm.EgmHeader"),
@@ -96,6 +102,7 @@ def _schema() -> descriptor_pb2.FileDescriptorProto:
             ("planned", 3, opt, msg, ".abb.egm.EgmPlanned"),
             ("motorState", 4, opt, msg, ".abb.egm.EgmMotorState"),
             ("mciState", 5, opt, msg, ".abb.egm.EgmMCIState"),
+            ("rapidExecState", 8, opt, msg, ".abb.egm.EgmRapidCtrlExecState"),
         ],
     )
     message(
@@ -127,6 +134,11 @@ class RobotFeedback(NamedTuple):
         q_rad: measured joint angles [rad], shape (6,), read-only.
         motors_on: ``motorState`` is ``MOTORS_ON``.
         mci_running: ``mciState`` is ``MCI_RUNNING`` (the EGM motion is active).
+        rapid_running: ``rapidExecState`` is ``RAPID_RUNNING``; None when the controller does
+            not report it.
+
+    A missing ``motorState`` or ``mciState`` reads as off / stopped: the daemon commands motion
+    only when the controller says both are on (:attr:`ready`).
     """
 
     seqno: int
@@ -134,6 +146,12 @@ class RobotFeedback(NamedTuple):
     q_rad: np.ndarray
     motors_on: bool
     mci_running: bool
+    rapid_running: bool | None = None
+
+    @property
+    def ready(self) -> bool:
+        """The controller follows references: motors on, EGM motion running, RAPID not stopped."""
+        return self.motors_on and self.mci_running and self.rapid_running is not False
 
 
 class SensorCommand(NamedTuple):
@@ -275,6 +293,9 @@ def decode_robot(data: bytes) -> RobotFeedback:
         q_rad=q,
         motors_on=msg.motorState.state == MOTORS_ON,
         mci_running=msg.mciState.state == MCI_RUNNING,
+        rapid_running=(
+            msg.rapidExecState.state == RAPID_RUNNING if msg.HasField("rapidExecState") else None
+        ),
     )
 
 
@@ -285,6 +306,7 @@ def encode_robot(
     motors_on: bool = True,
     mci_running: bool = True,
     planned_q_rad=None,
+    rapid_running: bool | None = True,
 ) -> bytes:
     """Serialize one ``EgmRobot`` as a controller would (simulator and tests).
 
@@ -295,6 +317,8 @@ def encode_robot(
         motors_on: motor state ``MOTORS_ON`` (else ``MOTORS_OFF``).
         mci_running: MCI state ``MCI_RUNNING`` (else ``MCI_STOPPED``).
         planned_q_rad: optional planned joint angles [rad], 6 values.
+        rapid_running: RAPID execution state ``RAPID_RUNNING`` (False: ``RAPID_STOPPED``; None:
+            not sent, as by a controller that does not report it).
 
     Raises:
         EgmEncodeError: wrong count or a non-finite value.
@@ -308,6 +332,8 @@ def encode_robot(
         msg.planned.joints.joints.extend(_wire_joints(planned_q_rad, "planned joints"))
     msg.motorState.state = MOTORS_ON if motors_on else MOTORS_OFF
     msg.mciState.state = MCI_RUNNING if mci_running else MCI_STOPPED
+    if rapid_running is not None:
+        msg.rapidExecState.state = RAPID_RUNNING if rapid_running else RAPID_STOPPED
     return msg.SerializeToString()
 
 

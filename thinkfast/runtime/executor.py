@@ -22,6 +22,10 @@ time. States:
   goals), with neither the launch detector nor the confirmation.
 - ``returning``: after the crossing (plus ``after_crossing``) or when detections stop, a move to
   home within the limits; then ``idle``.
+- away from home at start (``away``): with ``home_on_start`` (the simulators) the arm returns
+  home first; without it (the daemon, unless ``--go-home``) it holds where it stands and ignores
+  balls until :meth:`go_home` (called once the way home was checked against the cell) or until
+  it starts again at home.
 - ``fault``: latched by the daemon after repeated supervisor faults (:meth:`hold_fault`); left
   only by a restart. A single fault is recovered from: :meth:`recover` returns home.
 """
@@ -52,6 +56,7 @@ from thinkfast.runtime.segments import (
 )
 
 IDLE, TRACKING, EXECUTING, RETURNING, FAULT = "idle", "tracking", "executing", "returning", "fault"
+HOME_TOLERANCE = 1e-3  # rad: a joint further than this from home is away from home
 PLANNERS = ("tree", "tree-rest", "naive", "naive-paper")  # the ones the executor runs (online)
 
 
@@ -113,11 +118,13 @@ class Executor:
         self.episode = EpisodeLog()
         self.episodes = 0
         self.wrist.reset(robot.home[3:], -np.inf)
+        self.home_on_start = True  # away from home at start: go home at once (module doc)
+        self.away = False  # holding away from home, balls ignored, until go_home
 
     # ---------------------------------------------------------------- measurements
     def on_detection(self, t_now: float, stamp: float, p_base: np.ndarray) -> None:
         """Fuse a detection (ball centre in ``base`` [m], captured at ``stamp``) at ``t_now``."""
-        if self.mode in (RETURNING, FAULT):
+        if self.mode in (RETURNING, FAULT) or self.away:
             return
         if stamp - self.t_last_det > self.cfg.throw.detection_timeout:
             self.belief = kf.empty(self.cfg.filter)  # a new ball: start the filter afresh
@@ -394,11 +401,20 @@ class Executor:
         self.episode = EpisodeLog()
 
     def start_from(self, q: np.ndarray, t: float) -> None:
-        """Begin at the measured joints ``q`` (6,) at rest; away from home, return there first."""
-        self.wrist.reset(np.asarray(q[3:], dtype=float), t)
+        """Begin at the measured joints ``q`` (6,) at rest. Away from home: return there first
+        with ``home_on_start``, else hold ``q`` and ignore balls until :meth:`go_home`."""
+        q = np.asarray(q, dtype=float)
+        self._reset_episode(IDLE)
+        self.wrist.reset(q[3:], t)
         self.segment = hold(np.r_[q[:3], np.zeros(6)], t)
-        if np.max(np.abs(np.asarray(q) - self.robot.home)) > 1e-3:
-            self._start_return(t)
+        self.away = bool(np.max(np.abs(q - self.robot.home)) > HOME_TOLERANCE)
+        if self.away and self.home_on_start:
+            self.go_home(t)
+
+    def go_home(self, t: float) -> None:
+        """Leave a hold away from home: return home within the return limits."""
+        self.away = False
+        self._start_return(t)
 
     def recover(self, q: np.ndarray, t: float) -> None:
         """After the supervisor stopped the arm at ``q`` (6,): drop the throw and return home."""

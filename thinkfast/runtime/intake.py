@@ -49,6 +49,7 @@ class Intake:
         self.order = {"duplicate": 0, "out_of_order": 0, "stale": 0, "future": 0}
         self.last_stamp: float | None = None
         self.last_seq: int | None = None
+        self.last_drop: tuple[str, str] | None = None  # (reason, detail) of the last drop
 
     def take(self, payload: bytes, now: float | None) -> Accepted | None:
         """Validate one payload received at ``now`` (None: no clock checks, for lockstep runs)."""
@@ -58,10 +59,12 @@ class Intake:
             det = Rejection("not_json", "internal error")
         if isinstance(det, Rejection):
             self.counters.count(det)
+            self.last_drop = (det.reason, det.detail)
             return None
         cls = classify_order(det.stamp, det.seq, self.last_stamp, self.last_seq, now, self.limits)
         if cls != "new":
             self.order[cls] += 1
+            self.last_drop = (cls, f"stamp {det.stamp:.3f}")
             return None
         self.counters.count(det)
         self.last_stamp, self.last_seq = det.stamp, det.seq

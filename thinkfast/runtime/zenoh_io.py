@@ -76,6 +76,14 @@ def session_config(
     return conf
 
 
+def _conf_json(conf: zenoh.Config, key: str):
+    """A configuration value as plain data, or None when zenoh has none for ``key``."""
+    try:
+        return json.loads(conf.get_json(key))
+    except Exception:
+        return None
+
+
 class ZenohIO:
     """Subscriber and publishers of the daemon on one session.
 
@@ -91,6 +99,20 @@ class ZenohIO:
         )
         self.pub_setpoints = self.session.declare_publisher(f"{prefix}/setpoints")
         self.pub_status = self.session.declare_publisher(f"{prefix}/status")
+        self.prefix = prefix
+        self._described = {
+            "mode": _conf_json(conf, "mode"),
+            "connect": _conf_json(conf, "connect/endpoints"),
+            "listen": _conf_json(conf, "listen/endpoints"),
+        }
+
+    def describe(self) -> dict:
+        """Mode, endpoints, key prefix and session id (for the start-up log line)."""
+        try:
+            zid = str(self.session.info.zid())
+        except Exception:
+            zid = None
+        return {**self._described, "prefix": self.prefix, "zid": zid}
 
     def drain(self, limit: int = 256) -> list[bytes]:
         """Payloads received since the last call (at most ``limit``)."""

@@ -106,11 +106,28 @@ class SimController:
         )
         self._lim = tuple(np.array(x) for x in (config.q_min, config.q_max, config.v_max))
         self._a_max = np.array(config.a_max)
+        # What the controller reports in every EgmRobot. Motors off, or EGM motion not running
+        # (MCI stopped), the arm stops and references are ignored; RAPID stopped ends EGM too.
+        self.motors_on = True
+        self.mci_running = True
+        self.rapid_running: bool | None = True
+
+    @property
+    def following(self) -> bool:
+        """The servo follows the sensor's references (motors on, MCI and RAPID running)."""
+        return self.motors_on and self.mci_running and self.rapid_running is not False
 
     def robot_message(self) -> bytes:
         """The next ``EgmRobot`` datagram: current joint angles, sequence number +1."""
         self.seqno += 1
-        return encode_robot(self.seqno, int(round(self.t * 1000.0)), self.q)
+        return encode_robot(
+            self.seqno,
+            int(round(self.t * 1000.0)),
+            self.q,
+            motors_on=self.motors_on,
+            mci_running=self.mci_running,
+            rapid_running=self.rapid_running,
+        )
 
     def handle_sensor(self, data: bytes, t: float | None = None) -> bool:
         """Take one ``EgmSensor`` datagram as a command received at ``t`` [s] (default: now).
@@ -145,6 +162,10 @@ class SimController:
         q, qd = self.q.copy(), self.qd.copy()
         fq, fqd = self._filt
         with self._lock:
+            if not self.following:  # references ignored: the servo stops the arm where it is
+                self._queue.clear()
+                self._ref = (q + qd * np.abs(qd) / (2.0 * a), np.zeros(6))
+                fq, fqd = self._ref
             for i in range(n):
                 t = self.t + i * h
                 while self._queue and self._queue[0][0] <= t + 1e-12:
