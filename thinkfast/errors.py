@@ -46,3 +46,7 @@ class RecorderError(ThinkfastError):
 
 class RecordFileError(ThinkfastError):
     """A flight record file is refused: the message names the path and the reason."""
+
+
+class CalibRecordError(ThinkfastError):
+    """A calibration record is refused: the message names the path and the reason."""
