@@ -68,6 +68,43 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(str(path), None, f"invalid TOML ({exc})") from None
 
 
+def include_table(
+    data: dict[str, Any], source: str | Path, file_key: str, table: str, cls: type | None = None
+) -> dict:
+    """``data`` with its ``file_key`` (a path) replaced by the ``[table]`` of the file it names.
+
+    One source of truth for a table several configs share (e.g. the calibrated ``[camera]``
+    pose): ``camera_file = "camera.toml"`` in a config reads ``[camera]`` from that file, a
+    relative path being relative to the config's own directory. Other tables of the included
+    file are ignored. ``data`` without ``file_key`` is returned unchanged. With ``cls`` (the
+    table's dataclass) the included table is validated here, so errors name the included file.
+
+    Raises:
+        ConfigError: ``file_key`` is not a string, the config also has its own ``[table]``, or
+            the included file is unreadable or has no ``[table]`` table (names file and key).
+    """
+    if file_key not in data:
+        return data
+    name = data[file_key]
+    if not isinstance(name, str) or not name:
+        raise ConfigError(str(source), file_key, f"expected a file name, got {_kind(name)}")
+    if table in data:
+        raise ConfigError(
+            str(source), file_key, f"give either {file_key} or a [{table}] table, not both"
+        )
+    path = Path(name)
+    if not path.is_absolute():
+        path = Path(source).parent / path
+    included = load_toml(path)
+    if not isinstance(included.get(table), dict):
+        raise ConfigError(str(path), table, f"missing [{table}] table (named by {file_key})")
+    if cls is not None:
+        from_dict(cls, included[table], str(path), table)
+    out = {k: v for k, v in data.items() if k != file_key}
+    out[table] = included[table]
+    return out
+
+
 def from_dict(cls: type[T], data: Any, source: str, prefix: str = "", base: T | None = None) -> T:
     """Build the frozen dataclass ``cls`` from a TOML table, validating every key.
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from thinkfast.config import from_dict, load_toml, spec
+from thinkfast.config import from_dict, include_table, load_toml, spec
 from thinkfast.errors import ConfigError
 from thinkfast.runtime.detections import CameraExtrinsic
 
@@ -136,9 +136,12 @@ def check(cfg: DetectConfig, source: str) -> DetectConfig:
 def load_detect_config(path: str | Path | None) -> DetectConfig:
     """The detector configuration from ``path`` (None: all defaults).
 
+    ``camera_file = "camera.toml"`` takes ``[camera]`` from that file, as in the run config.
+
     Raises:
         ConfigError: unreadable file, unknown key, wrong type or impossible value (names the key).
     """
     if path is None:
         return DetectConfig()
-    return check(from_dict(DetectConfig, load_toml(path), str(path)), str(path))
+    data = include_table(load_toml(path), path, "camera_file", "camera", CameraExtrinsic)
+    return check(from_dict(DetectConfig, data, str(path)), str(path))

@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from thinkfast.config import from_dict, load_toml, spec
+from thinkfast.config import from_dict, include_table, load_toml, spec
 from thinkfast.runtime.choice import ChoiceConfig
 from thinkfast.runtime.detections import CameraExtrinsic, DetectionLimits
 from thinkfast.runtime.filter import FilterConfig
@@ -124,9 +124,14 @@ class RunConfig:
 def load_run_config(path: str | Path | None) -> RunConfig:
     """The runtime configuration from ``path`` (None: all defaults).
 
+    A top-level ``camera_file = "camera.toml"`` takes the ``[camera]`` table from that file
+    (``thinkfast-calib camera`` writes it; relative to this file's directory) instead of an
+    inline ``[camera]`` table.
+
     Raises:
         ConfigError: unreadable file, unknown key, wrong type or impossible value (names the key).
     """
     if path is None:
         return RunConfig()
-    return from_dict(RunConfig, load_toml(path), str(path))
+    data = include_table(load_toml(path), path, "camera_file", "camera", CameraExtrinsic)
+    return from_dict(RunConfig, data, str(path))

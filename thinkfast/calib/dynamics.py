@@ -1,0 +1,263 @@
+"""Controller lag, achieved acceleration and jerk from commanded vs measured joints.
+
+Input: the ``egm`` table of a flight record (docs/RECORD_FORMAT.md): per exchange the time, the
+measured joints ``q_fb`` and the setpoint sent ``q_cmd``, ``qd_cmd`` (rows while braking are
+left out). Both are resampled on a uniform grid at the median cycle (4 ms for EGM).
+
+* **Lag** per joint and motion segment: the shift ``tau`` minimising
+  ``sum (q_fb(t) - q_cmd(t - tau) - offset)^2``, the commanded path interpolated with its
+  velocity (cubic Hermite), ``tau`` in [0, ``max_lag``] to 0.1 ms (bounded scalar search after a
+  0.5 ms grid); a segment is a stretch of commanded motion, and a joint counts in it when it
+  moved more than ``min_travel``. The joint's lag is the median over its segments, the
+  controller lag the median over all (segment, joint) pairs: moves the arm could not follow
+  (limits reached) shift only a minority.
+* **Acceleration and jerk** per joint: second and third derivatives of Savitzky-Golay fits
+  (cubic over ``accel_window`` and ``jerk_window``), then the largest value *held* for at least
+  ``hold``: the maximum of a running minimum of the magnitude over ``hold``, so single-sample
+  noise never counts. The same for the commanded path tells whether the arm was *limited*
+  (achieved below ``limited_ratio`` times commanded): only then is its limit measured; a joint
+  that followed everything it was given has a limit of at least what it achieved.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.interpolate import CubicHermiteSpline
+from scipy.ndimage import minimum_filter1d
+from scipy.optimize import minimize_scalar
+from scipy.signal import savgol_filter
+
+from thinkfast.errors import RecordFileError
+from thinkfast.runtime.record_format import read_record
+
+
+class DynamicsOptions(NamedTuple):
+    """Estimator settings (defaults suit EGM at 4 ms and encoder-grade feedback noise)."""
+
+    max_lag: float = 0.2  # s, longest lag searched
+    min_travel: float = 0.05  # rad, a joint counts in a segment when it moved this much
+    motion_speed: float = 0.02  # rad/s, commanded speed that marks motion
+    accel_window: float = 0.052  # s, Savitzky-Golay window for the acceleration (13 samples)
+    jerk_window: float = 0.084  # s, Savitzky-Golay window for the jerk (21 samples)
+    hold: float = 0.02  # s, an acceleration or jerk counts when held this long
+    limited_ratio: float = 0.9  # achieved below this times commanded: the arm was limited
+    min_seconds: float = 1.0  # shortest record accepted
+
+
+class JointDynamics(NamedTuple):
+    """Per joint: ``lag`` [s] (NaN: never moved enough), ``segments`` used for it, achieved and
+    commanded peak acceleration [rad/s^2] and jerk [rad/s^3], and whether each was limited."""
+
+    lag: float
+    segments: int
+    accel: float
+    accel_cmd: float
+    accel_limited: bool
+    jerk: float
+    jerk_cmd: float
+    jerk_limited: bool
+
+
+class DynamicsEstimate(NamedTuple):
+    """``lag`` [s] (median over segments and joints), ``joints`` (6), ``dt`` [s] grid,
+    ``seconds`` of record used, ``segments`` of motion found."""
+
+    lag: float
+    joints: list[JointDynamics]
+    dt: float
+    seconds: float
+    segments: int
+
+
+def egm_arrays(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``t`` [s] (N,), ``q_fb``, ``q_cmd`` [rad], ``qd_cmd`` [rad/s] (N, 6) of a flight record's
+    ``egm`` table, without the rows sent while braking.
+
+    Raises:
+        RecordFileError: not a readable flight record, or no EGM rows (names the path).
+    """
+    rec = read_record(path)
+    egm = rec.tables["egm"]
+    if egm.ndim != 2 or egm.shape[0] == 0:
+        raise RecordFileError(f"{path}: no egm rows (record a run with thinkfast-run --record)")
+    egm = egm[egm[:, 20] == 0.0]
+    if len(egm) == 0:
+        raise RecordFileError(f"{path}: every egm row was sent while braking")
+    return egm[:, 0], egm[:, 2:8], egm[:, 8:14], egm[:, 14:20]
+
+
+def estimate_dynamics(
+    t: np.ndarray,
+    q_fb: np.ndarray,
+    q_cmd: np.ndarray,
+    qd_cmd: np.ndarray,
+    opts: DynamicsOptions = DynamicsOptions(),
+    source: str = "record",
+) -> DynamicsEstimate:
+    """Lag and achieved acceleration and jerk from commanded vs measured joints (see module).
+
+    Args:
+        t: exchange times [s] (N,), increasing.
+        q_fb: measured joints [rad] (N, 6).
+        q_cmd, qd_cmd: setpoints sent [rad], [rad/s] (N, 6).
+        opts: estimator settings.
+        source: name for messages.
+
+    Raises:
+        RecordFileError: too short, times not increasing, or no motion to measure.
+    """
+    t = np.asarray(t, dtype=float)
+    if len(t) < 3 or t[-1] - t[0] < opts.min_seconds:
+        raise RecordFileError(
+            f"{source}: {len(t)} egm rows over {t[-1] - t[0] if len(t) else 0.0:.2f} s; "
+            f"at least {opts.min_seconds:g} s needed"
+        )
+    if not (np.diff(t) > 0).all():
+        raise RecordFileError(f"{source}: egm times are not increasing")
+    dt = float(np.median(np.diff(t)))
+    grid = np.arange(t[0], t[-1], dt)
+    cmd = CubicHermiteSpline(t, q_cmd, qd_cmd, axis=0)
+    fb = np.column_stack([np.interp(grid, t, q_fb[:, j]) for j in range(6)])
+    qc = cmd(grid)
+    segs = motion_segments(cmd(grid, 1), dt, opts)
+    if not segs:
+        raise RecordFileError(
+            f"{source}: no commanded motion (speed above {opts.motion_speed} rad/s) to measure"
+        )
+    lags: list[list[float]] = [[] for _ in range(6)]
+    for a, b in segs:
+        for j in range(6):
+            if np.ptp(qc[a:b, j]) < opts.min_travel:
+                continue
+            lags[j].append(best_shift(grid[a:b], fb[a:b, j], cmd, j, opts.max_lag))
+    joints = []
+    for j in range(6):
+        acc, acc_c = held_peak(fb[:, j], dt, 2, opts), held_peak(qc[:, j], dt, 2, opts)
+        jrk, jrk_c = held_peak(fb[:, j], dt, 3, opts), held_peak(qc[:, j], dt, 3, opts)
+        joints.append(
+            JointDynamics(
+                lag=float(np.median(lags[j])) if lags[j] else float("nan"),
+                segments=len(lags[j]),
+                accel=acc,
+                accel_cmd=acc_c,
+                accel_limited=bool(acc < opts.limited_ratio * acc_c),
+                jerk=jrk,
+                jerk_cmd=jrk_c,
+                jerk_limited=bool(jrk < opts.limited_ratio * jrk_c),
+            )
+        )
+    every = [x for row in lags for x in row]
+    if not every:
+        raise RecordFileError(
+            f"{source}: no joint moved more than {opts.min_travel} rad in a motion segment"
+        )
+    return DynamicsEstimate(float(np.median(every)), joints, dt, grid[-1] - grid[0], len(segs))
+
+
+def motion_segments(qd: np.ndarray, dt: float, opts: DynamicsOptions) -> list[tuple[int, int]]:
+    """Index ranges ``[a, b)`` of commanded motion (any joint faster than ``motion_speed``),
+    padded by ``max_lag`` after each so the arm's catching up is inside."""
+    moving = (np.abs(qd) > opts.motion_speed).any(axis=1)
+    pad = int(np.ceil(opts.max_lag / dt))
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], moving.astype(int), [0]])))
+    out: list[tuple[int, int]] = []
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        a, b = max(a, pad), min(b + pad, len(qd))
+        if b - a < 3 * pad:
+            continue
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], b)
+        else:
+            out.append((a, b))
+    return out
+
+
+def best_shift(
+    t: np.ndarray, q_fb: np.ndarray, cmd: CubicHermiteSpline, joint: int, max_lag: float
+) -> float:
+    """The shift ``tau`` [s] in [0, max_lag] best aligning ``q_cmd(t - tau)`` (plus an offset)
+    with ``q_fb(t)`` for one joint (grid at 0.5 ms, then a bounded scalar search)."""
+
+    def cost(tau: float) -> float:
+        e = q_fb - cmd(t - tau)[:, joint]
+        e = e - e.mean()
+        return float(e @ e)
+
+    taus = np.arange(0.0, max_lag + 1e-12, 0.0005)
+    costs = np.array([cost(x) for x in taus])
+    k = int(np.argmin(costs))
+    lo, hi = taus[max(k - 1, 0)], taus[min(k + 1, len(taus) - 1)]
+    if hi <= lo:
+        return float(taus[k])
+    res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+    return float(res.x)
+
+
+def held_peak(q: np.ndarray, dt: float, order: int, opts: DynamicsOptions) -> float:
+    """Largest ``|d^order q / dt^order|`` held for ``opts.hold`` (Savitzky-Golay, cubic)."""
+    window = opts.accel_window if order == 2 else opts.jerk_window
+    n = max(order + 2, int(round(window / dt)) | 1)
+    if len(q) < n:
+        return float("nan")
+    d = np.abs(savgol_filter(q, n, 3 if order <= 3 else order, deriv=order, delta=dt))
+    held = minimum_filter1d(d, max(1, int(round(opts.hold / dt))), mode="nearest")
+    return float(held.max())
+
+
+def dynamics_report(est: DynamicsEstimate, source: str) -> str:
+    """A person's summary: lag and limits per joint."""
+    lines = [
+        f"{source}: {est.seconds:.1f} s at {1e3 * est.dt:.1f} ms, {est.segments} motion segments",
+        f"controller lag {1e3 * est.lag:.1f} ms (median over segments and joints)",
+        "",
+        "joint  lag_ms  segs  accel  accel_cmd  limited   jerk  jerk_cmd  limited",
+    ]
+    for j, d in enumerate(est.joints, start=1):
+        lines.append(
+            f"{j:5d}  {1e3 * d.lag:6.1f}  {d.segments:4d}  {d.accel:5.1f}  {d.accel_cmd:9.1f}  "
+            f"{'yes' if d.accel_limited else 'no':>7}  {d.jerk:5.0f}  {d.jerk_cmd:8.0f}  "
+            f"{'yes' if d.jerk_limited else 'no':>7}"
+        )
+    lines.append(
+        "accel [rad/s^2], jerk [rad/s^3]: largest held for 20 ms; 'limited': the arm achieved "
+        "less than commanded, so its limit was measured"
+    )
+    return "\n".join(lines)
+
+
+def dynamics_patch(
+    est: DynamicsEstimate,
+    source: str,
+    a_max: np.ndarray,
+    j_max: np.ndarray,
+    robot_path: str,
+) -> str:
+    """The config patch (TOML): ``[run.execution] controller_lag`` for the run config, and
+    ``[robot] max_acceleration`` / ``max_jerk`` for robot.toml, measured where the arm was
+    limited and the current value elsewhere."""
+    acc = [d.accel if d.accel_limited else float(a) for d, a in zip(est.joints, a_max, strict=True)]
+    jrk = [d.jerk if d.jerk_limited else float(x) for d, x in zip(est.joints, j_max, strict=True)]
+    acc_src = ["measured" if d.accel_limited else "kept" for d in est.joints]
+    jrk_src = ["measured" if d.jerk_limited else "kept" for d in est.joints]
+    return (
+        f"# thinkfast-calib dynamics: config patch from {source}\n"
+        "# [run.execution]: keys of the run config (thinkfast-run --config): put them under\n"
+        "# [execution] there. [robot]: keys of robot.toml: replace them there, then recompile\n"
+        "# the tree (thinkfast-compile tree) so that plans use the new limits.\n"
+        "[run.execution]\n"
+        f"controller_lag = {est.lag:.4f}  # s, median over {est.segments} motion segments\n"
+        "\n"
+        f"[robot]  # {robot_path}\n"
+        f"# per joint: {', '.join(acc_src)}\n"
+        f"max_acceleration = [{', '.join(f'{v:.2f}' for v in acc)}]\n"
+        f"# per joint: {', '.join(jrk_src)}\n"
+        f"max_jerk = [{', '.join(f'{v:.1f}' for v in jrk)}]\n"
+    )
+
+
+def estimate_from_record(path: str, opts: DynamicsOptions = DynamicsOptions()) -> DynamicsEstimate:
+    """:func:`estimate_dynamics` on the ``egm`` table of the flight record at ``path``."""
+    t, q_fb, q_cmd, qd_cmd = egm_arrays(path)
+    return estimate_dynamics(t, q_fb, q_cmd, qd_cmd, opts, str(path))
