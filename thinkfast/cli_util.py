@@ -13,7 +13,7 @@ import typer
 
 from thinkfast.errors import ThinkfastError
 
-# zenoh options shared by every long-running command (INTERFACES.md names them)
+# zenoh options shared by every long-running command (docs/INTERFACES.md names them)
 KEY_PREFIX = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix")
 ZENOH_CONNECT = typer.Option(
     None, "--zenoh-connect", help="zenoh endpoint to connect to (repeatable)"

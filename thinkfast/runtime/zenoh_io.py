@@ -2,7 +2,7 @@
 
 Detections are queued by zenoh's own thread into a bounded FIFO and drained by the control loop
 with ``try_recv`` (nothing runs inside a zenoh callback). Setpoints and status go out as UTF-8
-JSON on ``<prefix>/setpoints`` and ``<prefix>/status`` (INTERFACES.md).
+JSON on ``<prefix>/setpoints`` and ``<prefix>/status`` (docs/INTERFACES.md).
 """
 
 from __future__ import annotations
