@@ -1,4 +1,4 @@
-"""Detection payloads: the contract of INTERFACES.md, fuzzing, ordering, camera -> base."""
+"""Detection payloads: the contract of docs/INTERFACES.md, fuzzing, ordering, camera -> base."""
 
 import json
 import math

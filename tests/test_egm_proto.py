@@ -1,4 +1,4 @@
-"""EGM wire format: field numbers from INTERFACES.md, units, round trips, refusal of bad data."""
+"""EGM wire format: field numbers of docs/INTERFACES.md, units, round trips, bad data refused."""
 
 import math
 import struct
@@ -35,7 +35,7 @@ def _joints(values_deg, packed: bool = False) -> bytes:
 
 
 def _robot_bytes(seqno=7, tm=1234, deg=(10, -20, 30, -40, 50, -60), packed=False, extra=b""):
-    """An EgmRobot written from the field numbers in INTERFACES.md, independent of the schema."""
+    """An EgmRobot from the field numbers of docs/INTERFACES.md, independent of the schema."""
     header = _int_field(1, seqno) + _int_field(2, tm) + _int_field(3, 2)
     feedback = _len_field(1, _joints(deg, packed))
     return (
@@ -71,7 +71,7 @@ def test_sensor_message_has_the_interface_layout_in_degrees():
     assert (msg.header.seqno, msg.header.tm, msg.header.mtype) == (5, 99, egm.MSGTYPE_CORRECTION)
     np.testing.assert_allclose(msg.planned.joints.joints, np.degrees(q), rtol=1e-15)
     np.testing.assert_allclose(msg.speedRef.joints.joints, np.degrees(2 * q), rtol=1e-15)
-    # Field numbers from INTERFACES.md: header=1, planned=2, speedRef=3; mtype=3 in the header.
+    # Field numbers from docs/INTERFACES.md: header=1, planned=2, speedRef=3; mtype=3 in the header.
     assert data[0] == (1 << 3 | 2) and data.count(bytes([2 << 3 | 2])) >= 1
     d = egm.EgmSensor.DESCRIPTOR
     assert {f.name: f.number for f in d.fields} == {"header": 1, "planned": 2, "speedRef": 3}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-# OPW parameters of the IRB 1600-10/1.45 (FACTS.md); joint_3 carries a -pi/2 offset in OPW.
+# OPW parameters of the IRB 1600-10/1.45 (docs/FACTS.md); joint_3 carries a -pi/2 offset in OPW.
 A1, C1, C2, C3, C4 = 0.150, 0.4865, 0.700, 0.600, 0.065
 
 

@@ -211,6 +211,6 @@ def test_payloads_follow_the_contract_and_come_back_to_base_within_noise(throws)
 
 
 def test_depth_sigma_matches_the_published_figures():
-    # FACTS.md: 0.1-0.25 px -> 2.5-6 cm at 4 m, 10-25 cm at 8 m
+    # docs/FACTS.md: 0.1-0.25 px -> 2.5-6 cm at 4 m, 10-25 cm at 8 m
     assert depth_sigma(4.0, 0.1, CAM) == pytest.approx(0.025, abs=0.001)
     assert depth_sigma(8.0, 0.25, CAM) == pytest.approx(0.25, abs=0.01)

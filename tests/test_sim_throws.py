@@ -85,7 +85,7 @@ def test_sampling_is_deterministic_by_seed_and_each_throw_independent_of_n():
 def test_drag_k_is_that_of_a_tennis_ball():
     k = CFG.drag_k()
     assert k == pytest.approx(0.0204, rel=0.01)
-    assert k * 15.0**2 == pytest.approx(4.6, rel=0.01)  # FACTS.md: ~4.6 m/s^2 at 15 m/s
+    assert k * 15.0**2 == pytest.approx(4.6, rel=0.01)  # docs/FACTS.md: ~4.6 m/s^2 at 15 m/s
 
 
 def test_drag_makes_the_ball_slower_than_gravity_only(throws):

@@ -13,7 +13,7 @@ import typer
 
 from thinkfast.errors import ThinkfastError
 
-# zenoh options shared by every long-running command (INTERFACES.md names them)
+# zenoh options shared by every long-running command (docs/INTERFACES.md names them)
 KEY_PREFIX = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix")
 ZENOH_CONNECT = typer.Option(
     None, "--zenoh-connect", help="zenoh endpoint to connect to (repeatable)"
@@ -38,10 +38,17 @@ def make_app(help_text: str) -> typer.Typer:
 def run_app(app: typer.Typer, prog: str, argv: list[str] | None = None) -> int:
     """Run ``app`` and turn every failure into ``prog: error: ...`` and an exit status.
 
+    ``--version`` anywhere before ``--`` prints ``prog thinkfast VERSION`` and returns 0.
+
     Returns:
         The exit status (0 success; 1 thinkfast error or a command's own failure; 2 usage error;
         130 interrupted).
     """
+    if asks_version(sys.argv[1:] if argv is None else argv):
+        from thinkfast import __version__
+
+        print(f"{prog} thinkfast {__version__}")
+        return 0
     try:
         result = app(args=argv, prog_name=prog, standalone_mode=False)
     except typer.Exit as exc:
@@ -62,6 +69,15 @@ def run_app(app: typer.Typer, prog: str, argv: list[str] | None = None) -> int:
         _error(prog, f"internal error: {type(exc).__name__}: {exc} (THINKFAST_DEBUG=1 for details)")
         return 1
     return int(result) if isinstance(result, int) else 0
+
+
+def asks_version(argv: list[str]) -> bool:
+    """True when ``--version`` is among the options (before any ``--``), whatever else is there:
+    it answers before typer parses, so it works on every command and subcommand."""
+    args = list(argv)
+    if "--" in args:
+        args = args[: args.index("--")]
+    return "--version" in args
 
 
 def _error(prog: str, message: str) -> None:

@@ -13,7 +13,9 @@ An array of tables is a value, not an override: each element starts from its cla
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+import re
 import tomllib
 import types
 import typing
@@ -154,6 +156,94 @@ def to_dict(obj: Any) -> dict[str, Any]:
     return plain(obj)
 
 
+def to_toml(obj: Any, title: str = "") -> str:
+    """The frozen config ``obj`` as commented TOML that :func:`from_dict` reads back to ``obj``.
+
+    Every key is written with its value in ``obj``, its doc (a comment above it) and its unit
+    and bounds (a comment after it), all from the fields' :func:`spec` metadata; a nested config
+    becomes a ``[table]`` headed by its class's first docstring line, a tuple of configs an
+    array of tables. A key whose value is None (unset) is written commented out.
+
+    Args:
+        obj: a config dataclass instance.
+        title: comment lines for the top of the file ('' for none).
+    """
+    lines = [*(f"# {t}" if t else "#" for t in title.splitlines()), ""] if title else []
+    _toml_table(obj, "", lines)
+    return "\n".join(lines).strip("\n") + "\n"
+
+
+def _toml_table(obj: Any, prefix: str, lines: list[str]) -> None:
+    """Append ``obj``'s keys, then its tables and arrays of tables, to ``lines``."""
+    tables, arrays = [], []
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if dataclasses.is_dataclass(v):
+            tables.append((f.name, v))
+            continue
+        if isinstance(v, tuple) and v and all(dataclasses.is_dataclass(x) for x in v):
+            arrays.append((f.name, v))
+            continue
+        doc = _plain_doc(f.metadata.get("doc", ""))
+        lines += [f"# {t}" for t in _wrap(doc, 96)]
+        note = _bounds_note(f.metadata)
+        text = f"{f.name} = {_toml_value(v)}" if v is not None else f"# {f.name} = (unset)"
+        lines.append(f"{text}  # {note}" if note else text)
+    for name, v in tables:
+        _toml_header(f"[{_join(prefix, name)}]", v, lines)
+        _toml_table(v, _join(prefix, name), lines)
+    for name, items in arrays:
+        for item in items:
+            _toml_header(f"[[{_join(prefix, name)}]]", item, lines)
+            _toml_table(item, _join(prefix, name), lines)
+
+
+def _toml_header(header: str, obj: Any, lines: list[str]) -> None:
+    doc = (type(obj).__doc__ or "").strip().splitlines()
+    first = _plain_doc(doc[0]) if doc else ""
+    lines += ["", f"{header}" + (f"  # {first}" if first else "")]
+
+
+def _plain_doc(text: str) -> str:
+    """A docstring line without reStructuredText roles and literals."""
+    text = re.sub(r":(func|class|mod|data|meth|attr):", "", text)
+    return " ".join(text.replace("``", "").replace("`", "").split())
+
+
+def _toml_value(v: Any) -> str:
+    """One TOML value: strings quoted, numbers as Python writes them, sequences as arrays."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)  # JSON's escapes are TOML's basic-string escapes
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else f"{v:+}"[:4])
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, tuple | list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"no TOML form for {v!r}")  # programming error
+
+
+def _bounds_note(meta: Any) -> str:
+    """``unit, bounds, choices`` of a field, e.g. ``s, > 0, <= 0.5``."""
+    parts = [meta["unit"]] if meta.get("unit") else []
+    if meta.get("lo") is not None:
+        parts.append(f"{'>' if meta.get('lo_open') else '>='} {meta['lo']:g}")
+    if meta.get("hi") is not None:
+        parts.append(f"<= {meta['hi']:g}")
+    if meta.get("choices"):
+        parts.append("one of " + ", ".join(meta["choices"]))
+    return ", ".join(parts)
+
+
+def _wrap(text: str, width: int) -> list[str]:
+    """``text`` split into lines of at most ``width`` characters at spaces."""
+    import textwrap
+
+    return textwrap.wrap(" ".join(text.split()), width) if text else []
+
+
 def _field_default(f: dataclasses.Field) -> Any:
     """The field's default value (MISSING for a required field)."""
     if f.default_factory is not dataclasses.MISSING:
@@ -220,10 +310,11 @@ def _check_range(v: float, meta: Any, source: str, key: str) -> None:
     if not meta:
         return
     lo, hi = meta.get("lo"), meta.get("hi")
+    unit = f" {meta['unit']}" if meta.get("unit") else ""
     if lo is not None:
         if meta.get("lo_open") and not v > lo:
-            raise ConfigError(source, key, f"must be > {lo:g}, got {v:g}")
+            raise ConfigError(source, key, f"must be > {lo:g}{unit}, got {v:g}")
         if not meta.get("lo_open") and not v >= lo:
-            raise ConfigError(source, key, f"must be >= {lo:g}, got {v:g}")
+            raise ConfigError(source, key, f"must be >= {lo:g}{unit}, got {v:g}")
     if hi is not None and not v <= hi:
-        raise ConfigError(source, key, f"must be <= {hi:g}, got {v:g}")
+        raise ConfigError(source, key, f"must be <= {hi:g}{unit}, got {v:g}")

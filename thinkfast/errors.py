@@ -63,5 +63,6 @@ class CellAuthError(CellError):
 class CellRefused(CellError):
     """The controller's state forbids the command (manual mode, motors off, kit not loaded)."""
 
+
 class CalibRecordError(ThinkfastError):
     """A calibration record is refused: the message names the path and the reason."""

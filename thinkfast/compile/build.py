@@ -11,7 +11,7 @@ import numpy as np
 
 from thinkfast import __version__
 from thinkfast.compile.config import LoadedConfig
-from thinkfast.compile.goals import solve_goal_grid
+from thinkfast.compile.goals import require_reachable, solve_goal_grid
 from thinkfast.compile.grow import GrowInputs, Progress, grow, subgoals
 from thinkfast.compile.tree import ActionTree
 from thinkfast.config import to_dict
@@ -59,6 +59,7 @@ def compile_tree(
     cfg = loaded.config
     robot = load_robot(loaded.robot_path)
     grid = solve_goal_grid(robot, cfg.goals, cfg.plane.distance)
+    require_reachable(grid, str(loaded.path))
     reach = grid.goal_index
     goal_q = np.array(grid.q[reach])
     goal_yz = np.array(grid.yz[reach])

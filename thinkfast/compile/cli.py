@@ -51,7 +51,7 @@ def goals(
 ) -> None:
     """Solve the IK goal grid on the intercept plane and print it with a summary."""
     from thinkfast.compile.config import load_compile_config
-    from thinkfast.compile.goals import solve_goal_grid
+    from thinkfast.compile.goals import require_reachable, solve_goal_grid
     from thinkfast.compile.report import goal_png, goal_summary, goal_table
     from thinkfast.robot.kinematics import Kinematics
     from thinkfast.robot.model import load_robot
@@ -66,6 +66,7 @@ def goals(
     if png is not None:
         goal_png(grid, robot, str(png))
         print(f"wrote {png}")
+    require_reachable(grid, str(config))
 
 
 @app.command()

@@ -17,13 +17,14 @@ free; the reason says which test failed.
 
 from __future__ import annotations
 
-from collections import deque
+from collections import Counter, deque
 from typing import NamedTuple
 
 import numpy as np
 
 from thinkfast.compile.config import GoalsConfig
 from thinkfast.compile.ik import solve_shield_ik
+from thinkfast.errors import ConfigError
 from thinkfast.robot.collision import CollisionChecker
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
@@ -176,6 +177,29 @@ def solve_goal_grid(
     for arr in (q, pos_err, ang_err, reachable, yz):
         arr.setflags(write=False)
     return GoalGrid(plane_distance, y, z, yz, q, reachable, tuple(reason), pos_err, ang_err)
+
+
+def require_reachable(grid: GoalGrid, source: str) -> None:
+    """Refuse a grid without one reachable goal (nothing to compile a tree towards).
+
+    Args:
+        grid: the solved grid.
+        source: the compile configuration's file name, for the message.
+
+    Raises:
+        ConfigError: naming ``plane.distance`` and the ``goals`` ranges, with the reasons counted.
+    """
+    if grid.reachable.any():
+        return
+    reasons = Counter(r.split(":")[0] for r in grid.reason)
+    why = ", ".join(f"{n} {k}" for k, n in sorted(reasons.items()))
+    raise ConfigError(
+        source,
+        "plane.distance",
+        f"no goal is reachable on the plane x = {grid.plane_distance:g} m ({len(grid.reason)} "
+        f"points: {why}); move the plane nearer the robot (plane.distance) or the grid into the "
+        "arm's reach (goals.y_min/y_max/z_min/z_max)",
+    )
 
 
 def _solved_neighbours(i: int, ny: int, nz: int, q: np.ndarray) -> list[int]:

@@ -17,6 +17,10 @@ from thinkfast.compile.treefile import tree_fingerprint
 
 ROBOT_KEYS = ("urdf_sha256", "robot_toml_sha256")
 GOAL_KEY_SCALE = 1e6  # goals of two trees are the same goal when (y, z) agree to 1e-6 m
+ARRIVAL_TOL = 1e-6  # s: arrival times closer than this are unchanged (float noise, not a change)
+MIN_COLOUR_SPAN = 1e-3  # s: the B - A colour scale spans at least +-1 ms (noise stays white)
+# plane plots share the goal table's layout: y increasing to the right, as the thrower sees it
+Y_LABEL = "base y [m] (robot's left +, seen from the thrower)"
 LARGEST = 10
 
 
@@ -271,20 +275,27 @@ def _goal_lines(a: ActionTree, b: ActionTree) -> list[str]:
     if not both:
         return lines
     delta = tb - ta
-    better, worse = delta < 0, delta > 0
+    better, worse = delta < -ARRIVAL_TOL, delta > ARRIVAL_TOL
     lines.append(
         f"  mean change {delta.mean():+.4f}; improved {int(better.sum())}"
         f" (max {-delta.min() if better.any() else 0.0:.4f}), regressed {int(worse.sum())}"
         f" (max {delta.max() if worse.any() else 0.0:.4f}),"
-        f" unchanged {int((delta == 0).sum())}"
+        f" unchanged {int((~better & ~worse).sum())} (within {ARRIVAL_TOL:g} s)"
     )
-    order = [i for i in np.argsort(-np.abs(delta), kind="stable") if delta[i] != 0][:LARGEST]
+    changed = better | worse
+    order = [i for i in np.argsort(-np.abs(delta), kind="stable") if changed[i]][:LARGEST]
     if order:
         lines.append("  largest changes (B - A):")
     lines += [
         f"    {_key_yz(both[i])}: {ta[i]:.4f} -> {tb[i]:.4f} ({delta[i]:+.4f})" for i in order
     ]
     return lines
+
+
+def colour_span(delta: np.ndarray) -> float:
+    """Half-range of the B - A colour scale [s]: the largest |change|, never below
+    :data:`MIN_COLOUR_SPAN` (float noise would otherwise fill the scale)."""
+    return max(float(np.abs(delta).max()) if np.size(delta) else 0.0, MIN_COLOUR_SPAN)
 
 
 def _set_change(label: str, a: set, b: set) -> str:
@@ -294,7 +305,8 @@ def _set_change(label: str, a: set, b: set) -> str:
 def diff_png(a: ActionTree, b: ActionTree, path: str) -> None:
     """Draw earliest arrival time over the plane for A, B and B - A into a PNG file.
 
-    The plane is drawn as the robot sees it: base y horizontal with +y on the left, z up. Goals
+    The plane is drawn as ``thinkfast-compile goals`` prints it, as the thrower sees it: base y
+    increasing to the right, z up. Goals
     without a terminal edge are grey crosses; B - A uses a diverging map centred on 0 (blue is
     faster in B) over the goals covered in both, the others crossed.
     """
@@ -317,7 +329,7 @@ def diff_png(a: ActionTree, b: ActionTree, path: str) -> None:
         ax.scatter(*t.goal_yz[~ok].T, c="0.6", marker="x", label="no terminal edge")
         ax.set_title(f"{title}: earliest arrival ({int(ok.sum())}/{len(e)} goals)")
         fig.colorbar(sc, ax=ax, shrink=0.8, label="earliest arrival time [s]")
-    span = float(np.abs(delta).max()) if delta.size and np.abs(delta).max() > 0 else 1e-3
+    span = colour_span(delta)
     sc = axes[2].scatter(
         *yz_both.T, c=delta, cmap="RdBu_r", vmin=-span, vmax=span, marker="s", edgecolors="0.7"
     )
@@ -327,8 +339,7 @@ def diff_png(a: ActionTree, b: ActionTree, path: str) -> None:
     axes[2].set_title(f"B - A: {len(both)} goals covered in both")
     fig.colorbar(sc, ax=axes[2], shrink=0.8, label="B - A earliest arrival [s] (blue: B faster)")
     for ax in axes:
-        ax.set(xlabel="base y [m] (left +)", ylabel="base z [m]", aspect="equal")
-        ax.invert_xaxis()  # as the robot sees the plane: base +y on the left
+        ax.set(xlabel=Y_LABEL, ylabel="base z [m]", aspect="equal")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), frameon=False)
     fig.tight_layout()

@@ -7,6 +7,7 @@ from collections import Counter
 import numpy as np
 
 from thinkfast.compile.goals import GoalGrid
+from thinkfast.compile.inspect import Y_LABEL
 from thinkfast.robot.model import Robot
 
 
@@ -66,6 +67,16 @@ def goal_summary(grid: GoalGrid) -> str:
 
 def goal_png(grid: GoalGrid, robot: Robot, path: str) -> None:
     """Draw reachable goals coloured by travel time from home; unreachable ones as grey crosses."""
+    import matplotlib.pyplot as plt
+
+    fig = goal_figure(grid, robot)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def goal_figure(grid: GoalGrid, robot: Robot):
+    """The figure of :func:`goal_png`, laid out like :func:`goal_table`: base y increasing to the
+    right and z up, i.e. the plane as the thrower sees it (the robot's left, +y, on the right)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -77,10 +88,8 @@ def goal_png(grid: GoalGrid, robot: Robot, path: str) -> None:
     sc = ax.scatter(grid.yz[ok, 0], grid.yz[ok, 1], c=t[ok], cmap="viridis", s=120, marker="s")
     ax.scatter(grid.yz[~ok, 0], grid.yz[~ok, 1], c="0.6", marker="x", s=60, label="unreachable")
     fig.colorbar(sc, ax=ax, label="joint travel from home: max |q - home| / v_max [s]")
-    ax.set(xlabel="base y [m] (left +)", ylabel="base z [m]", aspect="equal")
+    ax.set(xlabel=Y_LABEL, ylabel="base z [m]", aspect="equal")
     ax.set_title(f"IK goals on plane x = {grid.plane_distance:.2f} m ({int(ok.sum())}/{len(ok)})")
-    ax.invert_xaxis()  # as the robot sees the plane: base +y on the left
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), frameon=False)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    return fig

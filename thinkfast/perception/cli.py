@@ -39,6 +39,9 @@ def run(
         None, "--source", help="colour, boxes or auto (default: the config's)"
     ),
     threads: int = typer.Option(1, "--threads", help="OpenCV threads (1: one core)"),
+    print_config: bool = typer.Option(
+        False, "--print-config", help="print every detector config default as TOML and exit"
+    ),
 ) -> None:
     """Run until SIGINT/SIGTERM, then print the counts (one JSON line) and exit 0."""
     import dataclasses
@@ -50,6 +53,11 @@ def run(
     from thinkfast.perception.node import DetectorNode
     from thinkfast.runtime.zenoh_io import session_config
 
+    if print_config:
+        from thinkfast.perception.config import detect_config_toml
+
+        print(detect_config_toml(), end="")
+        return
     cfg = load_detect_config(config)
     if frame is not None:
         if frame not in ("camera", "base"):

@@ -117,7 +117,7 @@ def detection_payload(
     R_base_camera: np.ndarray | None = None,
     p_base_camera: np.ndarray | None = None,
 ) -> bytes:
-    """The contract's detection (INTERFACES.md, "Detections in") as UTF-8 JSON.
+    """The contract's detection (docs/INTERFACES.md, "Detections") as UTF-8 JSON.
 
     Args:
         found: the detection (position in ``camera``).

@@ -31,7 +31,13 @@ from thinkfast.perception.boxes import (
 from thinkfast.perception.config import DetectConfig
 from thinkfast.perception.detect import MISS_REASONS, Found, detect, detection_payload
 from thinkfast.perception.frame import FRAME_REJECT_REASONS, FrameRejection, parse_frame
-from thinkfast.runtime.zenoh_io import close_session, drain, open_session
+from thinkfast.runtime.zenoh_io import (
+    ALONE_AFTER,
+    close_session,
+    drain,
+    open_session,
+    warn_if_alone,
+)
 
 FRAME_RING = 4  # frames buffered between two drains
 BOX_QUEUE = 256
@@ -111,6 +117,9 @@ class DetectorNode:
             self.sub_boxes = self.session.declare_subscriber(boxes_key(prefix), fifo)
         self.pub = self.session.declare_publisher(f"{prefix}/detections")
         self.pub_status = self.session.declare_publisher(status_key(prefix))
+        self.alone = warn_if_alone(
+            self.session, f"{prefix}/detections (and no frames arrive)", ALONE_AFTER
+        )
         self.next_status = 0.0
 
     def step(self) -> bool:
@@ -217,4 +226,5 @@ class DetectorNode:
         self.pub_status.put(json.dumps(status).encode())
 
     def close(self) -> None:
+        self.alone.cancel()
         close_session(self.session)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
+import math
 import os
 import tempfile
 import xml.etree.ElementTree as ET
@@ -43,7 +44,14 @@ class CellObject:
         doc="box: [x, y, z]; cylinder: [radius, length]; sphere: [radius]",
     )
     xyz: tuple[float, ...] = spec((0.0, 0.0, 0.0), length=3, unit="m", doc="centre in base")
-    rpy: tuple[float, ...] = spec((0.0, 0.0, 0.0), length=3, unit="rad", doc="orientation in base")
+    rpy: tuple[float, ...] = spec(
+        (0.0, 0.0, 0.0),
+        length=3,
+        unit="rad",
+        lo=-math.tau,
+        hi=math.tau,
+        doc="orientation in base (radians, within one turn)",
+    )
 
 
 @dataclass(frozen=True)

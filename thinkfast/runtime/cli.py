@@ -30,8 +30,14 @@ EGM_BIND_DEFAULT = "0.0.0.0:6510"
 
 @app.command()
 def run(
-    tree: Path = typer.Option(..., "--tree", help="compiled action tree (HDF5)"),
+    tree: Path | None = typer.Option(None, "--tree", help="compiled action tree (HDF5); required"),
     config: Path | None = typer.Option(None, "--config", help="runtime configuration (TOML)"),
+    print_config: bool = typer.Option(
+        False, "--print-config", help="print every runtime config default as TOML and exit"
+    ),
+    check_config: Path | None = typer.Option(
+        None, "--check-config", help="load and validate this runtime config, print OK and exit"
+    ),
     planner: str = typer.Option(
         "tree",
         "--planner",
@@ -104,6 +110,13 @@ def run(
     from thinkfast.runtime.executor import PLANNERS
     from thinkfast.runtime.zenoh_io import session_config
 
+    if print_config or check_config is not None:
+        _config_tool(print_config, check_config)
+        return
+    if tree is None:
+        raise typer.BadParameter(
+            "missing (required unless --print-config or --check-config)", param_hint="'--tree'"
+        )
     if planner not in PLANNERS:
         raise ConfigError("--planner", None, f"{planner!r} is not one of {', '.join(PLANNERS)}")
     if log_level.upper() not in ("DEBUG", "INFO", "WARNING", "ERROR"):
@@ -190,6 +203,24 @@ def setup_logging(level: str, fmt: str) -> None:
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level.upper())
+
+
+def _config_tool(print_config: bool, check: Path | None) -> None:
+    """``--print-config``: the defaults as TOML on stdout; ``--check-config FILE``: load and
+    validate FILE (and the robot it names), print ``FILE: OK`` (errors raise, naming the key)."""
+    from thinkfast.runtime.config import load_run_config, run_config_toml
+
+    if print_config and check is not None:
+        raise typer.BadParameter("not with --check-config", param_hint="'--print-config'")
+    if print_config:
+        print(run_config_toml(), end="")
+        return
+    cfg = load_run_config(check)
+    if cfg.robot:
+        from thinkfast.robot.model import load_robot
+
+        load_robot(Path(cfg.robot))
+    print(f"{check}: OK")
 
 
 def _tree_robot(tree) -> Path | None:

@@ -75,10 +75,19 @@ class CameraExtrinsic:
     """
 
     xyz: tuple[float, float, float] = spec(
-        (0.46, 0.0, 0.30), doc="camera origin in base", unit="m", length=3
+        (0.46, 0.0, 0.30),
+        doc="camera origin in base (ASSUMED default cell: lens on the pedestal at the robot base)",
+        unit="m",
+        length=3,
     )
     rpy: tuple[float, float, float] = spec(
-        (0.0, 0.0, 0.0), doc="camera orientation in base (roll, pitch, yaw)", unit="rad", length=3
+        (0.0, 0.0, 0.0),
+        doc="camera orientation in base (roll, pitch, yaw), radians: within one turn, so that "
+        "degrees are refused",
+        unit="rad",
+        length=3,
+        lo=-math.tau,
+        hi=math.tau,
     )
 
     def rotation(self) -> np.ndarray:

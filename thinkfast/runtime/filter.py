@@ -276,8 +276,8 @@ def stereo_r(z: np.ndarray, sensor: np.ndarray | None, cfg: FilterConfig) -> np.
     """Range-dependent stereo noise [m^2] (3, 3) of a measurement ``z`` seen from ``sensor``.
 
     Depth noise grows with range squared along the viewing ray, lateral noise with range
-    (FACTS.md): ``R = s_l^2 I + (s_d^2 - s_l^2) u u^T``. Zero when the model is off or no sensor
-    position is given.
+    (docs/FACTS.md): ``R = s_l^2 I + (s_d^2 - s_l^2) u u^T``. Zero when the model is off or no
+    sensor position is given.
     """
     if sensor is None or (cfg.stereo_depth == 0.0 and cfg.stereo_lateral == 0.0):
         return _ZERO33

@@ -84,7 +84,7 @@ class LaunchConfig:
         unit="m/s",
         lo=0.0,
         doc="approach speed a launch must exceed with confidence (throws of 6-8 m in 0.4-0.8 s "
-        "leave the hand at 8.5 m/s or more, FACTS.md; a hand moves the ball at under 1 m/s)",
+        "leave the hand at 8.5 m/s or more, docs/FACTS.md; a hand moves the ball at under 1 m/s)",
     )
     sigmas: float = spec(
         2.0, unit="sigma", lo=0.0, doc="confidence of the approach-speed test (2: ~98 %)"

@@ -22,7 +22,7 @@ from thinkfast.runtime import backup as bk
 from thinkfast.runtime import delta
 from thinkfast.runtime import values as vl
 
-BALL_RADIUS = 0.0335  # m, tennis ball (FACTS.md); counts towards the blocking radius
+BALL_RADIUS = 0.0335  # m, tennis ball (docs/FACTS.md); counts towards the blocking radius
 
 
 class Decision(NamedTuple):

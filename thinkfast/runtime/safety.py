@@ -62,6 +62,7 @@ class SafetyConfig:
         "commanded during this window",
         unit="s",
         lo=0.0,
+        hi=2.0,
     )
     max_deviation: float = spec(
         0.1,
@@ -78,6 +79,7 @@ class SafetyConfig:
         "(calibrate from logged EGM feedback)",
         unit="s",
         lo=0.0,
+        hi=1.0,
     )
     resync_after: float = spec(
         0.02,

@@ -2,12 +2,14 @@
 
 Detections are queued by zenoh's own thread into a bounded FIFO and drained by the control loop
 with ``try_recv`` (nothing runs inside a zenoh callback). Setpoints and status go out as UTF-8
-JSON on ``<prefix>/setpoints`` and ``<prefix>/status`` (INTERFACES.md).
+JSON on ``<prefix>/setpoints`` and ``<prefix>/status`` (docs/INTERFACES.md).
 """
 
 from __future__ import annotations
 
 import json
+import logging
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,6 +18,8 @@ import zenoh
 from thinkfast.errors import ConfigError
 
 QUEUE = 4096  # detections buffered between two drains (80 s at 50 Hz)
+ALONE_AFTER = 3.0  # s: a session with no peer and no router this long after opening is warned
+log = logging.getLogger("thinkfast.zenoh")
 
 
 def open_session(conf: zenoh.Config) -> zenoh.Session:
@@ -38,6 +42,41 @@ def drain(sub, limit: int) -> list[bytes]:
             break
         out.append(sample.payload.to_bytes())
     return out
+
+
+def neighbours(session: zenoh.Session) -> int:
+    """zenoh peers plus routers ``session`` is connected to now (0 when it cannot tell)."""
+    try:
+        info = session.info
+        return len(list(info.peers_zid())) + len(list(info.routers_zid()))
+    except Exception:  # closed meanwhile
+        return 0
+
+
+def warn_if_alone(session: zenoh.Session, what: str, after: float = ALONE_AFTER) -> threading.Timer:
+    """Log one warning when ``session`` is connected to no zenoh peer or router ``after`` seconds
+    from now: nothing it publishes reaches anyone and nothing arrives (a wrong or missing
+    ``--zenoh-connect``, a firewall, scouting off). Runs on a timer thread; cancel it on close.
+
+    Args:
+        session: an open session.
+        what: what goes unheard, for the message (e.g. ``thinkfast/status``).
+        after: grace period for discovery and connection [s].
+    """
+
+    def check() -> None:
+        if neighbours(session) == 0:
+            log.warning(
+                "no zenoh peer or router connected %.0f s after start: %s reach no one "
+                "(check --zenoh-connect / --zenoh-listen / --zenoh-config)",
+                after,
+                what,
+            )
+
+    timer = threading.Timer(after, check)
+    timer.daemon = True
+    timer.start()
+    return timer
 
 
 def close_session(session: zenoh.Session) -> None:
@@ -106,6 +145,10 @@ class ZenohIO:
             "listen": _conf_json(conf, "listen/endpoints"),
         }
 
+        self.alone = warn_if_alone(
+            self.session, f"{prefix}/status and {prefix}/setpoints (and no detections arrive)"
+        )
+
     def describe(self) -> dict:
         """Mode, endpoints, key prefix and session id (for the start-up log line)."""
         try:
@@ -131,4 +174,5 @@ class ZenohIO:
         self.pub_status.put(json.dumps(status).encode())
 
     def close(self) -> None:
+        self.alone.cancel()
         close_session(self.session)

@@ -242,8 +242,29 @@ def _format_kinds(summary: dict, w: int) -> list[str]:
 
 
 def plot_summary(summary: dict, path: str) -> None:
-    """Success rate per flight-time bin and overall (left) and per kind of throw with 95 %
-    intervals (right; feints: what the arm did, in the panel's caption)."""
+    """Write :func:`summary_figure` to the PNG file ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig = summary_figure(summary)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def bin_errors(bins: list[dict]) -> np.ndarray:
+    """Error bar lengths (2, n_bins) below and above each flight-time bin's rate: its 95 %
+    Wilson interval (0 for an empty bin)."""
+    err = np.zeros((2, len(bins)))
+    for i, x in enumerate(bins):
+        if x["throws"]:
+            lo, hi = wilson(x["blocked"], x["throws"])
+            err[:, i] = (x["rate"] - lo, hi - x["rate"])
+    return err
+
+
+def summary_figure(summary: dict):
+    """Success rate per flight-time bin with 95 % Wilson intervals and the throws per bin, and
+    overall in the legend (left, legend below the panel); per kind of throw with 95 % intervals
+    (middle; feints: what the arm did, in the panel's caption); paired differences (right)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -251,27 +272,31 @@ def plot_summary(summary: dict, path: str) -> None:
 
     pairs = summary.get("paired", {}).get("planners")
     fig, (ax, axk, *axp) = plt.subplots(
-        1, 3 if pairs else 2, figsize=(15 if pairs else 10, 4.2),
+        1, 3 if pairs else 2, figsize=(15 if pairs else 10, 5.0),
         gridspec_kw={"width_ratios": [2, 1, 1.2] if pairs else [2, 1]},
     )  # fmt: skip
     planners = summary["planners"]
     width = 0.8 / max(len(planners), 1)
     for k, (p, e) in enumerate(planners.items()):
-        rates = [x["rate"] for x in e["by_flight_time"]]
+        bins = e["by_flight_time"]
+        rates = [x["rate"] if x["throws"] else 0.0 for x in bins]
         xs = np.arange(len(rates)) + k * width
-        ax.bar(xs, rates, width, label=f"{p} ({100 * e['rate']:.0f} %)")
+        ax.bar(xs, rates, width, yerr=bin_errors(bins), capsize=2, label=f"{p} ({_pct(e)})")
     labels = [
-        f"{x['flight_s'][0]:.1f}-{x['flight_s'][1]:.1f}"
+        f"{x['flight_s'][0]:.1f}-{x['flight_s'][1]:.1f}\nn={x['throws']}"
         for x in next(iter(planners.values()))["by_flight_time"]
     ]
     ax.set_xticks(np.arange(len(labels)) + 0.4 - width / 2, labels)
     ax.set(
-        xlabel="flight time [s]",
-        ylabel="blocked",
+        xlabel="flight time [s] (n: throws per bin, the same for every planner)",
+        ylabel="blocked (95 % Wilson)",
         ylim=(0, 1),
         title=f"{summary['throws']} throws per planner (lockstep)",
     )
-    ax.legend()
+    ax.legend(
+        loc="upper center", bbox_to_anchor=(0.5, -0.24), ncol=min(len(planners), 4),
+        frameon=False, fontsize=8,
+    )  # fmt: skip
     kinds = [k for k in summary.get("kinds", {}) if k != "feint"]
     for j, (p, e) in enumerate(planners.items()):
         rates = np.array([e["by_kind"][k]["rate"] for k in kinds])
@@ -293,5 +318,10 @@ def plot_summary(summary: dict, path: str) -> None:
     if pairs:
         plot_paired(axp[0], summary["paired"])
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    return fig
+
+
+def _pct(entry: dict) -> str:
+    """Overall rate and its 95 % interval, e.g. ``61 % [57, 65]``."""
+    lo, hi = entry["ci95"]
+    return f"{100 * entry['rate']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}]"

@@ -17,7 +17,7 @@ Measurement of a true ball centre ``p = d u`` (depth ``d`` along x, ray ``u = p 
   ``min_range``, beyond ``max_range``, or a dropout (two-state Markov chain: bursts).
 
 Frames are captured every ``1 / rate`` from a random phase; the stamp is the capture time
-(INTERFACES.md) plus ``stamp_bias`` (0: exact); each detection is delivered ``latency`` later,
+(docs/INTERFACES.md) plus ``stamp_bias`` (0: exact); each detection is delivered ``latency`` later,
 in capture order unless ``reorder``.
 """
 
@@ -37,7 +37,7 @@ from thinkfast.sim.throws import Throw, ball_states, observed_until
 
 @dataclasses.dataclass(frozen=True)
 class CameraModelConfig:
-    """ZED 2i at HD720 (FACTS.md). Every noise figure is an ASSUMPTION until measured."""
+    """ZED 2i at HD720 (docs/FACTS.md). Every noise figure is an ASSUMPTION until measured."""
 
     rate: float = spec(50.0, doc="frame rate (the paper's system)", unit="Hz", lo=0.0, lo_open=True)
     focal_px: float = spec(532.0, doc="focal length, HD720 rectified", unit="px", lo=0.0)
@@ -261,7 +261,7 @@ def observe(
 
 
 def detection_payload(sd: SimDetection, with_covariance: bool = False) -> bytes:
-    """The zenoh payload of INTERFACES.md ("Detections in") for ``sd``, UTF-8 JSON.
+    """The zenoh payload of docs/INTERFACES.md ("Detections") for ``sd``, UTF-8 JSON.
 
     ``with_covariance`` adds the noise model's covariance (9 numbers, row major, camera frame).
     """

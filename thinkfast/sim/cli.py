@@ -273,12 +273,21 @@ def replay(
     session = open_session(connect=list(zenoh_connect or ()))
     pub = session.declare_publisher(f"{key_prefix}/detections")
     time.sleep(0.5)
+    heard = pub.matching_status.matching
     start = time.time()
     for ti, p in zip(t - (t[0] if len(t) else 0.0), payloads, strict=True):
         time.sleep(max(0.0, start + ti / speed - time.time()))
         pub.put(p)
+        heard = heard or pub.matching_status.matching
     session.close()
     print(f"replayed {len(payloads)} detections from {record}")
+    if not heard:
+        print(
+            f"thinkfast-sim: warning: no subscriber of {key_prefix}/detections was reachable: "
+            "the detections reached no one (start thinkfast-run listening and pass "
+            "--zenoh-connect to its endpoint)",
+            file=sys.stderr,
+        )
 
 
 def main(argv: list[str] | None = None) -> None:

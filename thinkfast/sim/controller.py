@@ -6,7 +6,7 @@ with :meth:`SimController.step`. :class:`ControllerRunner` puts it on a UDP sock
 one message pair every 4 ms (or flat out), as a real controller does.
 
 Servo model (every number an ASSUMPTION in :class:`ServoConfig`, to calibrate from logged EGM
-feedback; FACTS.md: ABB quotes 10-20 ms lag, field reports 40-80 ms with default gains):
+feedback; docs/FACTS.md: ABB quotes 10-20 ms lag, field reports 40-80 ms with default gains):
 
 1. transport: a command received at ``t`` takes effect at ``t + delay``;
 2. reference filter: position and speed references through one first-order low pass at

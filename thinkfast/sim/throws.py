@@ -40,7 +40,7 @@ def _rng(doc: str, default: tuple[float, float], unit: str = "m", lo: float | No
 class ThrowConfig:
     """How throws are drawn. Ranges are (low, high) of a uniform draw; ASSUMPTIONS noted inline.
 
-    Defaults follow FACTS.md (the paper's experiment: 6-8 m, 0.4-0.8 s to the plane) and a
+    Defaults follow docs/FACTS.md (the paper's experiment: 6-8 m, 0.4-0.8 s to the plane) and a
     tennis ball (57 g, 67 mm, Cd 0.55) in air of 1.2 kg/m^3.
     """
 

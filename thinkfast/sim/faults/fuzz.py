@@ -1,6 +1,6 @@
 """Hostile detection payloads: kinds the contract refuses, published over zenoh in bursts.
 
-Every kind of :data:`KINDS` breaks the detection contract (INTERFACES.md "Detections in", and the
+Every kind of :data:`KINDS` breaks the detection contract (docs/INTERFACES.md "Detections", and the
 README's choices: ``null`` is absent, unknown keys ignored, ``seq`` in [0, 2^63), positions
 within 100 m, covariance entries within 1e4 m^2, stamps within 1 s past / 0.5 s future), so a
 daemon must count each as rejected or dropped and accept none. A payload is built around a
