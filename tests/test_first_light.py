@@ -7,6 +7,7 @@ loopback (tests/daemon_harness.py); the way-home check runs the real executor an
 from __future__ import annotations
 
 import dataclasses
+import json
 import shutil
 import time
 
@@ -116,6 +117,9 @@ def test_motors_off_holds_the_measured_position_and_motion_resumes_when_on(
     assert on["controller"]["ready"] and not on["controller"]["standby"]
     assert np.max(np.abs(rows[n_off:, 8:14] - robot.home)) > 0.05  # the second throw moved it
     assert "controller_state" in err and "controller_ready" in err
+    ends = [json.loads(line.split(" throw_end ", 1)[1]) for line in err.splitlines()
+            if " throw_end " in line]  # fmt: skip
+    assert len(ends) == 2 and ends[-1]["executed"] and 0.2 < ends[-1]["cross_after_start"] < 0.8
 
 
 def test_away_from_home_holds_without_go_home(tree_file, tmp_path, robot):
@@ -199,8 +203,6 @@ def test_way_home_is_checked_against_the_cell(robot, kin, tmp_path, small_tree_0
 
 
 def test_log_format_json_gives_one_object_per_line(tree_file, tmp_path, robot):
-    import json
-
     run = DaemonRun(
         tree_file, tmp_path / "rec.h5", "naive", q0=robot.home, extra=("--log-format", "json")
     )

@@ -218,7 +218,7 @@ class Daemon:
                 "ticks": sup.ticks - ticks0,
                 "intervened": sup.intervened - intervened0,
             }
-            self._event(t, "throw_end", {"throws": self.executor.episodes, **self.last_throw})
+            self._event(t, "throw_end", {**_episode_text(self.executor), **self.last_throw})
 
     # -------------------------------------------------------------- main loop
     def run(self) -> int:
@@ -505,6 +505,23 @@ class Daemon:
             "speed_scale": self.modes.speed_scale,
             "record": str(self.recorder.path) if self.recorder.enabled else None,
         }
+
+
+def _episode_text(ex) -> dict:
+    """What the daemon knows of the throw that just ended (whether it was blocked, it cannot)."""
+    ep = ex.last_episode
+    out: dict = {"throws": ex.episodes, "executed": False}
+    if ep is None or math.isnan(ep.t_start):
+        return out
+    value = None if math.isnan(ep.chosen_value) else round(ep.chosen_value, 3)
+    return {
+        **out,
+        "executed": True,
+        "start_after_confirm": round(ep.t_start - ep.t_confirmed, 4),
+        "cross_after_start": None if math.isnan(ep.t_cross) else round(ep.t_cross - ep.t_start, 3),
+        "value": value,
+        "decisions": ep.decisions,
+    }
 
 
 def _way_text(result) -> str:

@@ -116,6 +116,7 @@ class Executor:
         self.settled = 0
         self.t_last_det = -np.inf
         self.episode = EpisodeLog()
+        self.last_episode: EpisodeLog | None = None  # the last confirmed throw, once it ended
         self.episodes = 0
         self.wrist.reset(robot.home[3:], -np.inf)
         self.home_on_start = True  # away from home at start: go home at once (module doc)
@@ -392,6 +393,7 @@ class Executor:
     def _reset_episode(self, mode: str) -> None:
         if not math.isnan(self.episode.t_confirmed):
             self.episodes += 1
+            self.last_episode = self.episode
         self.mode = mode
         self.belief = kf.empty(self.cfg.filter)
         self.decision = None
