@@ -54,9 +54,9 @@ def through_process(scenes, n: int, rate: float, seed: int) -> dict:
 
     import zenoh
 
+    from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
     from thinkfast.sim.detect_check import sample_balls
     from thinkfast.sim.frame_stream import start_detector, stop_detector, wait_detector
-    from thinkfast.sim.publisher import free_tcp_port, open_session
 
     rng = np.random.default_rng(seed)
     p, vel = sample_balls(n, (1.0, 9.0), scenes[0].camera, rng)
@@ -66,7 +66,7 @@ def through_process(scenes, n: int, rate: float, seed: int) -> dict:
     port = free_tcp_port()
     proc = start_detector("bench", port, f"tcp/127.0.0.1:{free_tcp_port()}")
     time.sleep(1.0)
-    session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
+    session = open_peer(connect=[f"tcp/127.0.0.1:{port}"])
     arrived: dict[int, float] = {}
     lock = threading.Lock()
 

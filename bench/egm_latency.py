@@ -204,8 +204,8 @@ def measure(
 
 def run_daemon(args) -> dict:
     """``--daemon``: the real ``thinkfast-run`` with a stream of throws (see the module doc)."""
+    from thinkfast.contract.zenoh_session import loopback_endpoint
     from thinkfast.robot.model import default_robot_path, load_robot
-    from thinkfast.sim.publisher import loopback_endpoint
 
     tree = Path(args.tree)
     home = load_robot(default_robot_path()).home  # the simulated arm starts there

@@ -20,13 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
+from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.machine import machine_info
 from thinkfast.robot.model import default_robot_path, load_robot
 from thinkfast.runtime.config import RunConfig
 from thinkfast.sim import realtime as rt
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.controller import ControllerRunner, ServoConfig
-from thinkfast.sim.publisher import free_tcp_port, open_session, publish_detections
+from thinkfast.sim.publisher import publish_detections
 from thinkfast.sim.throws import ThrowConfig, sample_throws
 
 DT = 0.004
@@ -66,7 +67,7 @@ def main() -> None:
         rt.wait_port(proc, zport)
         sim = rt.WallClockSim(ServoConfig(), q0=robot.home)
         runner = ControllerRunner(sim, ("127.0.0.1", egm_port)).start()
-        session = open_session(connect=[f"tcp/127.0.0.1:{zport}"])
+        session = open_peer(connect=[f"tcp/127.0.0.1:{zport}"])
         session.declare_subscriber(
             "smooth/status", lambda s: status.append(json.loads(s.payload.to_bytes()))
         )

@@ -22,9 +22,11 @@ import time
 
 import numpy as np
 
+from thinkfast.contract import keys
+from thinkfast.contract.zenoh_session import open_peer
 from thinkfast.runtime.config import load_run_config
 from thinkfast.sim.camera import CameraModelConfig, observe
-from thinkfast.sim.publisher import detections_key, open_session, publish_detections
+from thinkfast.sim.publisher import publish_detections
 from thinkfast.sim.throws import ThrowConfig, sample_throws
 
 LEAD = 1.0  # s from a throw's scheduled release back to the first possible detection (hold)
@@ -56,7 +58,7 @@ def stream(args, stop: threading.Event, go: threading.Event | None) -> dict:
     throws = sample_throws(ThrowConfig(), args.throws, args.seed)
     session = _open(args.connect, args.timeout)
     status = StatusLog()
-    session.declare_subscriber(f"{args.prefix}/status", status)
+    session.declare_subscriber(keys.status(args.prefix), status)
     deadline = time.time() + args.timeout
     while status.last is None and time.time() < deadline:
         time.sleep(0.05)
@@ -65,7 +67,7 @@ def stream(args, stop: threading.Event, go: threading.Event | None) -> dict:
     print("READY", flush=True)
     if go is not None:
         go.wait()
-    key = detections_key(args.prefix)
+    key = keys.detections(args.prefix)
     sent, throws_done, late, seq = 0, 0, [], 0
     start = time.time() + LEAD
     for i, throw in enumerate(throws):
@@ -95,7 +97,7 @@ def _open(endpoint: str, timeout: float):
     deadline = time.time() + timeout
     while True:
         try:
-            return open_session(connect=[endpoint])
+            return open_peer(connect=[endpoint])
         except Exception:  # the daemon is still starting: zenoh refuses to connect
             if time.time() > deadline:
                 raise

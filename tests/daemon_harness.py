@@ -17,6 +17,7 @@ import h5py
 import numpy as np
 import zenoh
 
+from thinkfast.contract import keys
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
 from thinkfast.sim.realtime import daemon_log, start_daemon
 
@@ -61,7 +62,7 @@ class DaemonRun:
         self.sim = SimController(ServoConfig(), q0=q0)
         self.runner = ControllerRunner(self.sim, ("127.0.0.1", self.egm_port)).start()
         self.pub = self.session.declare_publisher(  # block, never drop: counts must be exact
-            f"{prefix}/detections", congestion_control=zenoh.CongestionControl.BLOCK
+            keys.detections(prefix), congestion_control=zenoh.CongestionControl.BLOCK
         )
 
     def _wait_ready(self, timeout: float = 30.0) -> None:
@@ -75,10 +76,10 @@ class DaemonRun:
             except Exception:
                 time.sleep(0.2)
         self.session.declare_subscriber(
-            f"{self.prefix}/status", lambda s: self.status.append(json.loads(s.payload.to_bytes()))
+            keys.status(self.prefix), lambda s: self.status.append(json.loads(s.payload.to_bytes()))
         )
         self.session.declare_subscriber(
-            f"{self.prefix}/setpoints",
+            keys.setpoints(self.prefix),
             lambda s: self.setpoints.append(json.loads(s.payload.to_bytes())),
         )
         while time.time() < deadline and not self.status:

@@ -15,11 +15,11 @@ from thinkfast.calib.cli import main
 from thinkfast.calib.dynamics import estimate_from_record
 from thinkfast.calib.dynamics_sim import servo_lag, simulate_dynamics_record
 from thinkfast.config import from_dict
+from thinkfast.contract.frames import CameraExtrinsic, rotation_from_rpy
 from thinkfast.errors import CalibRecordError, ConfigError, RecordFileError
 from thinkfast.perception.config import load_detect_config
 from thinkfast.robot.model import load_robot
 from thinkfast.runtime.config import ExecutionConfig, load_run_config
-from thinkfast.runtime.detections import CameraExtrinsic, rotation_from_rpy
 from thinkfast.runtime.recorder import Recorder
 from thinkfast.sim.controller import ServoConfig
 

@@ -174,7 +174,7 @@ def test_sigint_during_motion_brakes_within_limits_then_exits_0(tree_file, tmp_p
 
 def test_a_failing_planner_still_answers_every_packet_and_brakes(tree_file, robot, monkeypatch):
     """Executor.setpoint raising: one EgmSensor per EgmRobot all the same, braking, no crash."""
-    from thinkfast.runtime.egm_proto import decode_sensor, encode_robot
+    from thinkfast.contract.egm import decode_sensor, encode_robot
 
     d = _in_process_daemon(tree_file, robot)
     try:
@@ -202,9 +202,9 @@ def socket_port() -> int:
 
 def _in_process_daemon(tree_file, robot):
     from thinkfast.compile.treefile import load_tree
+    from thinkfast.contract.zenoh_session import session_config
     from thinkfast.runtime.config import RunConfig
     from thinkfast.runtime.daemon import Daemon, Endpoints
-    from thinkfast.runtime.zenoh_io import session_config
 
     return Daemon(
         load_tree(tree_file),
@@ -222,7 +222,7 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
     """_prepare() computes the setpoint for the next controller cycle and the supervisor's filter
     of it; the reply to that cycle's EgmRobot sends exactly that, without asking the executor
     again. A detection voids it."""
-    from thinkfast.runtime.egm_proto import decode_sensor, encode_robot
+    from thinkfast.contract.egm import decode_sensor, encode_robot
     from thinkfast.runtime.safety import filter_step
 
     d = _in_process_daemon(tree_file, robot)

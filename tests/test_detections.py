@@ -7,19 +7,16 @@ import numpy as np
 import pytest
 
 from thinkfast.config import from_dict
-from thinkfast.runtime.detections import (
-    ORDER_CLASSES,
+from thinkfast.contract.detection import (
     REJECT_REASONS,
-    CameraExtrinsic,
     Detection,
     DetectionCounters,
     DetectionLimits,
     Rejection,
-    classify_order,
     parse_detection,
-    rotation_from_rpy,
-    to_base,
 )
+from thinkfast.contract.frames import CameraExtrinsic, rotation_from_rpy, to_base
+from thinkfast.runtime.intake import ORDER_CLASSES, classify_order
 
 COV = [0.01, 0.001, 0.0, 0.001, 0.02, 0.0, 0.0, 0.0, 0.03]
 

@@ -6,8 +6,8 @@ import struct
 import numpy as np
 import pytest
 
+from thinkfast.contract import egm
 from thinkfast.errors import ThinkfastError
-from thinkfast.runtime import egm_proto as egm
 
 
 def _varint(n: int) -> bytes:

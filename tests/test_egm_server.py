@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from thinkfast.runtime import egm_proto as egm
+from thinkfast.contract import egm
 from thinkfast.runtime.egm_server import (
     EgmAddressError,
     EgmServer,

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from thinkfast.runtime import egm_proto
+from thinkfast.contract import egm
 from thinkfast.sim.faults import rows as R
 from thinkfast.sim.faults.checker import ReplyChecker
 from thinkfast.sim.faults.controller import FaultController
@@ -35,11 +35,11 @@ def test_campaign_schema_and_daemon_codec_agree_on_the_wire():
                       "mciConvergenceMet": 6, "testSignals": 7, "rapidExecState": 8,
                       "measuredForce": 9, "utilizationRate": 10}  # fmt: skip
     q = np.array([0.1, -0.2, 0.3, -0.4, 0.5, -0.6])
-    fb = egm_proto.decode_robot(robot_message(7, 1234, q, unix_time=time.time()))
+    fb = egm.decode_robot(robot_message(7, 1234, q, unix_time=time.time()))
     assert (fb.seqno, fb.tm_ms, fb.motors_on, fb.mci_running) == (7, 1234, True, True)
     np.testing.assert_allclose(fb.q_rad, q, rtol=1e-15)
-    rep = decode_reply(egm_proto.encode_sensor(3, 99, q, -q))
-    assert (rep.seqno, rep.tm, rep.mtype) == (3, 99, egm_proto.MSGTYPE_CORRECTION)
+    rep = decode_reply(egm.encode_sensor(3, 99, q, -q))
+    assert (rep.seqno, rep.tm, rep.mtype) == (3, 99, egm.MSGTYPE_CORRECTION)
     np.testing.assert_allclose(rep.q, q, rtol=1e-15)
     np.testing.assert_allclose(rep.qd, -q, rtol=1e-15)
     assert decode_reply(b"\xff\x00garbage") is None
@@ -48,8 +48,8 @@ def test_campaign_schema_and_daemon_codec_agree_on_the_wire():
 @pytest.mark.parametrize("kind", sorted(MALFORMED_KINDS))
 def test_every_malformed_datagram_is_refused_by_the_daemon_decoder(kind):
     rng = np.random.default_rng(0)
-    with pytest.raises(egm_proto.EgmDecodeError):
-        egm_proto.decode_robot(MALFORMED_KINDS[kind](rng, robot_message(1, 4, np.zeros(6))))
+    with pytest.raises(egm.EgmDecodeError):
+        egm.decode_robot(MALFORMED_KINDS[kind](rng, robot_message(1, 4, np.zeros(6))))
 
 
 def test_there_are_at_least_40_fuzz_kinds_with_1_mb_payloads():
@@ -60,7 +60,8 @@ def test_there_are_at_least_40_fuzz_kinds_with_1_mb_payloads():
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_every_fuzz_kind_breaks_the_detection_contract(kind):
     """The contract's intake refuses or drops the payload (never accepts it)."""
-    from thinkfast.runtime.detections import CameraExtrinsic, DetectionLimits
+    from thinkfast.contract.detection import DetectionLimits
+    from thinkfast.contract.frames import CameraExtrinsic
     from thinkfast.runtime.intake import Intake
 
     intake = Intake(CameraExtrinsic(), DetectionLimits())
@@ -85,9 +86,9 @@ class _EchoSensor:
                 data, addr = self.sock.recvfrom(65535)
             except TimeoutError:
                 continue
-            fb = egm_proto.decode_robot(data)
+            fb = egm.decode_robot(data)
             self.packets.append(fb)
-            self.sock.sendto(egm_proto.encode_sensor(1, 0, fb.q_rad + self.offset, np.zeros(6)),
+            self.sock.sendto(egm.encode_sensor(1, 0, fb.q_rad + self.offset, np.zeros(6)),
                              addr)  # fmt: skip
 
     def close(self):

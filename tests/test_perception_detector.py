@@ -7,6 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
+from thinkfast.contract.detection import Detection, parse_detection
+from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.perception.boxes import Box
 from thinkfast.perception.cloud import (
     Centre,
@@ -20,7 +22,6 @@ from thinkfast.perception.colour import find_blobs
 from thinkfast.perception.config import CloudConfig, ColourConfig, DetectConfig, ShrinkConfig
 from thinkfast.perception.detect import Found, Miss, detect, detection_payload
 from thinkfast.perception.frame import encode_frame, parse_frame
-from thinkfast.runtime.detections import CameraExtrinsic, Detection, parse_detection
 
 SHRINK = ShrinkConfig()
 CLOUD = CloudConfig()

@@ -15,11 +15,13 @@ import pytest
 import zenoh
 from conftest import assert_one_line_error, run_cli
 
+from thinkfast.contract import keys
+from thinkfast.contract.detection import Detection, parse_detection
+from thinkfast.contract.frames import CameraExtrinsic
+from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.perception.frame import encode_frame, parse_frame
-from thinkfast.runtime.detections import CameraExtrinsic, Detection, parse_detection
 from thinkfast.sim.camera import CameraModelConfig
 from thinkfast.sim.frames import FrameRenderConfig, FrameRenderer
-from thinkfast.sim.publisher import free_tcp_port, open_session
 
 # a narrow 320 x 180 camera with the HD720 focal length keeps frames small (0.9 MB) in tests
 CAM = CameraModelConfig(image_size=(320, 180))
@@ -43,18 +45,18 @@ class Detector:
         self.status: list[dict] = []
         self.session = self._connect()
         self.session.declare_subscriber(
-            f"{prefix}/detections", lambda s: self.detections.append(s.payload.to_bytes())
+            keys.detections(prefix), lambda s: self.detections.append(s.payload.to_bytes())
         )
         self.session.declare_subscriber(
-            f"{prefix}/detector/status",
+            keys.detector_status(prefix),
             lambda s: self.status.append(json.loads(s.payload.to_bytes())),
         )
         block = zenoh.CongestionControl.BLOCK  # never drop: the counts must be exact
         self.frames = self.session.declare_publisher(
-            f"{prefix}/camera/frame", congestion_control=block
+            keys.camera_frame(prefix), congestion_control=block
         )
         self.boxes = self.session.declare_publisher(
-            f"{prefix}/camera/boxes", congestion_control=block
+            keys.camera_boxes(prefix), congestion_control=block
         )
         deadline = time.time() + 30
         while not self.status and time.time() < deadline:
@@ -67,7 +69,7 @@ class Detector:
         deadline = time.time() + 30
         while True:
             try:
-                return open_session(connect=[f"tcp/127.0.0.1:{self.port}"])
+                return open_peer(connect=[f"tcp/127.0.0.1:{self.port}"])
             except Exception:
                 assert self.proc.poll() is None, self.proc.stderr.read()
                 if time.time() > deadline:

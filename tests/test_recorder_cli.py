@@ -10,7 +10,7 @@ import pytest
 
 from tests.conftest import compile_small_tree
 from tests.daemon_harness import free_port
-from thinkfast.runtime.egm_proto import encode_robot
+from thinkfast.contract.egm import encode_robot
 from thinkfast.sim.realtime import daemon_log, start_daemon
 
 

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from thinkfast.runtime.egm_proto import encode_robot
+from thinkfast.contract.egm import encode_robot
 from thinkfast.runtime.egm_server import EgmServer
 from thinkfast.runtime.reply_times import ReplyTimes
 

@@ -15,10 +15,11 @@ import zenoh
 from tests.daemon_harness import DaemonRun, ballistic_throw, publish_throw
 from tests.test_perception_detector import F as FOCAL
 from tests.test_perception_detector import _ball_depth, _disc_image, _frame
+from thinkfast.contract.detection import Detection, parse_detection
+from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.perception.config import DetectConfig
 from thinkfast.perception.detect import detect
 from thinkfast.perception.detect import detection_payload as detector_payload
-from thinkfast.runtime.detections import CameraExtrinsic, Detection, parse_detection
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.camera import detection_payload as sim_payload
 from thinkfast.sim.throws import ThrowConfig, sample_throws
@@ -109,14 +110,17 @@ def test_what_the_schema_accepts_the_daemon_accepts(sim_detections):
 
 
 def test_the_detector_status_validates(tmp_path):
-    from thinkfast.perception.node import DetectorNode, status_key
-    from thinkfast.sim.publisher import free_tcp_port, session_config
+    from thinkfast.contract import keys
+    from thinkfast.contract.zenoh_session import free_tcp_port, session_config
+    from thinkfast.perception.node import DetectorNode
 
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
-    node = DetectorNode(DetectConfig(), session_config(listen=[ep]), "tfs")
-    listener = zenoh.open(session_config(connect=[ep]))
+    node = DetectorNode(DetectConfig(), session_config(listen=[ep], multicast=False), "tfs")
+    listener = zenoh.open(session_config(connect=[ep], multicast=False))
     got: list[dict] = []
-    sub = listener.declare_subscriber(status_key("tfs"), lambda s: got.append(s.payload.to_bytes()))
+    sub = listener.declare_subscriber(
+        keys.detector_status("tfs"), lambda s: got.append(s.payload.to_bytes())
+    )
     try:
         deadline = time.monotonic() + 10
         while not got and time.monotonic() < deadline:

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from thinkfast.runtime.detections import CameraExtrinsic, Detection, parse_detection, to_base
+from thinkfast.contract.detection import Detection, parse_detection
+from thinkfast.contract.frames import CameraExtrinsic, to_base
 from thinkfast.sim.camera import (
     CameraModelConfig,
     blur_pixels,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from thinkfast.config import from_dict
-from thinkfast.runtime import egm_proto as egm
+from thinkfast.contract import egm
 from thinkfast.runtime.egm_server import EgmServer
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
 

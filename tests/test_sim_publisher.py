@@ -7,17 +7,15 @@ import time
 import numpy as np
 import pytest
 
-from thinkfast.runtime.detections import CameraExtrinsic, Detection, parse_detection
+from thinkfast.contract import keys
+from thinkfast.contract.detection import Detection, parse_detection
+from thinkfast.contract.frames import CameraExtrinsic
+from thinkfast.contract.zenoh_session import loopback_endpoint, open_peer
 from thinkfast.sim.camera import CameraModelConfig, observe
-from thinkfast.sim.publisher import (
-    detections_key,
-    loopback_endpoint,
-    open_session,
-    publish_detections,
-)
+from thinkfast.sim.publisher import publish_detections
 from thinkfast.sim.throws import ThrowConfig, sample_throws
 
-KEY = detections_key("simtest")
+KEY = keys.detections("simtest")
 
 
 @pytest.fixture(scope="module")
@@ -29,8 +27,8 @@ def detections():
 @pytest.fixture()
 def sessions():
     ep = loopback_endpoint()
-    pub = open_session(listen=[ep])
-    sub = open_session(connect=[ep])
+    pub = open_peer(listen=[ep])
+    sub = open_peer(connect=[ep])
     yield pub, sub
     sub.close()
     pub.close()

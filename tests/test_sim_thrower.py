@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import assert_one_line_error, run_cli
+from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.errors import ConfigError, NoSolutionError, ThinkfastError
-from thinkfast.runtime.detections import CameraExtrinsic
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.thrower import MINJERK_PEAK, STILL_MIX, ThrowerConfig, parse_mix
 from thinkfast.sim.throws import ThrowConfig, ball_states, plane_crossing, sample_throws

@@ -9,8 +9,12 @@ from pathlib import Path
 import zenoh
 
 from tests.conftest import run_cli
-from thinkfast.runtime.zenoh_io import neighbours, warn_if_alone
-from thinkfast.sim.publisher import free_tcp_port, session_config
+from thinkfast.contract.zenoh_session import (
+    free_tcp_port,
+    neighbours,
+    session_config,
+    warn_if_alone,
+)
 
 GOLDEN_RECORD = Path(__file__).parent / "data" / "record_v1_golden.h5"
 
@@ -30,7 +34,7 @@ def _warnings(caplog) -> list[str]:
 
 def test_a_session_without_peers_is_warned_once(caplog):
     caplog.set_level(logging.WARNING, logger="thinkfast.zenoh")
-    session = zenoh.open(session_config())  # no endpoints, no scouting: alone
+    session = zenoh.open(session_config(multicast=False))  # no endpoints, no scouting: alone
     try:
         timer = warn_if_alone(session, "x/status", after=0.2)
         timer.join(2.0)
@@ -44,8 +48,8 @@ def test_a_session_without_peers_is_warned_once(caplog):
 def test_a_connected_session_is_not_warned(caplog):
     caplog.set_level(logging.WARNING, logger="thinkfast.zenoh")
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
-    a = zenoh.open(session_config(listen=[ep]))
-    b = zenoh.open(session_config(connect=[ep]))
+    a = zenoh.open(session_config(listen=[ep], multicast=False))
+    b = zenoh.open(session_config(connect=[ep], multicast=False))
     try:
         assert _wait_for(lambda: neighbours(a) == 1 and neighbours(b) == 1)
         warn_if_alone(a, "x/status", after=0.1).join(2.0)
@@ -62,7 +66,7 @@ def test_replay_to_no_one_warns_and_to_a_subscriber_does_not():
     assert "warning: no subscriber of thinkfast/detections" in proc.stderr
 
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
-    listener = zenoh.open(session_config(listen=[ep]))
+    listener = zenoh.open(session_config(listen=[ep], multicast=False))
     got = []
     sub = listener.declare_subscriber("thinkfast/detections", lambda s: got.append(s))
     try:

@@ -17,12 +17,12 @@ import numpy as np
 
 from thinkfast.calib.camera_fit import default_ball_offset
 from thinkfast.calib.camera_record import CalibPose
+from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.errors import ThinkfastError
 from thinkfast.robot.batch_fk import BatchFK
 from thinkfast.robot.collision import CollisionChecker
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
-from thinkfast.runtime.detections import CameraExtrinsic
 from thinkfast.sim.camera import (
     CameraModelConfig,
     dropout_mask,

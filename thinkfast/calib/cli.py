@@ -27,7 +27,7 @@ def _group() -> None:
 def _assumed_camera(path: Path | None):
     """The ``[camera]`` of a run config (or a detect config / camera file), else the default."""
     from thinkfast.config import from_dict, include_table, load_toml
-    from thinkfast.runtime.detections import CameraExtrinsic
+    from thinkfast.contract.frames import CameraExtrinsic
 
     if path is None:
         return CameraExtrinsic()
@@ -101,8 +101,8 @@ def simulate_camera(
     from thinkfast.calib.camera_record import write_camera_record
     from thinkfast.calib.camera_sim import simulate_camera_record
     from thinkfast.config import from_dict
+    from thinkfast.contract.frames import CameraExtrinsic
     from thinkfast.robot.model import load_robot
-    from thinkfast.runtime.detections import CameraExtrinsic
 
     truth = from_dict(CameraExtrinsic, {"xyz": list(xyz), "rpy": list(rpy)}, "--xyz/--rpy")
     rob = load_robot(robot)
@@ -141,7 +141,7 @@ def camera(
 
 def _truth_line(fit, truth: dict) -> str:
     """Position and angle error against a simulated record's true pose."""
-    from thinkfast.runtime.detections import rotation_from_rpy
+    from thinkfast.contract.frames import rotation_from_rpy
 
     dp = np.linalg.norm(fit.xyz - np.array(truth["xyz"], dtype=float))
     Rt = rotation_from_rpy(truth["rpy"])

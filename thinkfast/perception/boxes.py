@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 from typing import Any, NamedTuple
 
-from thinkfast.runtime.detections import finite_number
+from thinkfast.contract.detection import finite_number
 
 BOX_REJECT_REASONS = (
     "too_large", "not_utf8", "not_json", "not_object", "bad_stamp", "bad_seq", "bad_boxes",

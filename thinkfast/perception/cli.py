@@ -48,10 +48,10 @@ def run(
 
     import cv2
 
+    from thinkfast.contract.zenoh_session import session_config
     from thinkfast.errors import ConfigError
     from thinkfast.perception.config import SOURCES, load_detect_config
     from thinkfast.perception.node import DetectorNode
-    from thinkfast.runtime.zenoh_io import session_config
 
     if print_config:
         from thinkfast.perception.config import detect_config_toml
@@ -70,7 +70,9 @@ def run(
     if threads < 1:
         raise ConfigError("--threads", None, f"must be >= 1, got {threads}")
     cv2.setNumThreads(threads)
-    conf = session_config(zenoh_connect or (), zenoh_listen or (), zenoh_config)
+    conf = session_config(
+        connect=zenoh_connect or (), listen=zenoh_listen or (), config_file=zenoh_config
+    )
     node = DetectorNode(cfg, conf, key_prefix)
     stop = []
     for sig in (signal.SIGINT, signal.SIGTERM):

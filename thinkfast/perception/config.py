@@ -10,8 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from thinkfast.config import from_dict, include_table, load_toml, spec, to_toml
+from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.errors import ConfigError
-from thinkfast.runtime.detections import CameraExtrinsic
 
 SOURCES = ("colour", "boxes", "auto")
 

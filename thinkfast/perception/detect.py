@@ -8,12 +8,12 @@ object far away, or a speck near the camera, is not the ball. External boxes are
 
 from __future__ import annotations
 
-import json
 import math
 from typing import NamedTuple
 
 import numpy as np
 
+from thinkfast.contract.detection import encode_detection
 from thinkfast.perception.boxes import Box
 from thinkfast.perception.cloud import Centre, box_points, centre, centre_ray, shrink_box
 from thinkfast.perception.colour import find_blobs
@@ -129,12 +129,4 @@ def detection_payload(
     pos = found.position
     if frame == "base":
         pos = R_base_camera @ pos + p_base_camera
-    obj = {
-        "stamp": stamp,
-        "position": [float(v) for v in pos],
-        "frame": frame,
-        "confidence": round(float(found.confidence), 4),
-    }
-    if seq is not None:
-        obj["seq"] = int(seq)
-    return json.dumps(obj).encode("utf-8")
+    return encode_detection(stamp, pos, frame, round(float(found.confidence), 4), seq)

@@ -25,7 +25,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from thinkfast.runtime.detections import finite_number
+from thinkfast.contract.detection import finite_number
 
 MAGIC = b"TFCF"
 FORMAT = "thinkfast-camera-frame"

@@ -21,6 +21,14 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from thinkfast.contract import keys
+from thinkfast.contract.zenoh_session import (
+    ALONE_AFTER,
+    close_session,
+    drain,
+    open_session,
+    warn_if_alone,
+)
 from thinkfast.perception.boxes import (
     BOX_REJECT_REASONS,
     BoxRejection,
@@ -31,32 +39,10 @@ from thinkfast.perception.boxes import (
 from thinkfast.perception.config import DetectConfig
 from thinkfast.perception.detect import MISS_REASONS, Found, detect, detection_payload
 from thinkfast.perception.frame import FRAME_REJECT_REASONS, FrameRejection, parse_frame
-from thinkfast.runtime.zenoh_io import (
-    ALONE_AFTER,
-    close_session,
-    drain,
-    open_session,
-    warn_if_alone,
-)
 
 FRAME_RING = 4  # frames buffered between two drains
 BOX_QUEUE = 256
 PENDING = 16  # frames held at most while waiting for their boxes
-
-
-def frame_key(prefix: str) -> str:
-    """``<prefix>/camera/frame``."""
-    return f"{prefix}/camera/frame"
-
-
-def boxes_key(prefix: str) -> str:
-    """``<prefix>/camera/boxes``."""
-    return f"{prefix}/camera/boxes"
-
-
-def status_key(prefix: str) -> str:
-    """``<prefix>/detector/status``."""
-    return f"{prefix}/detector/status"
 
 
 class Counters:
@@ -110,13 +96,13 @@ class DetectorNode:
         self.last_seq: int | None = None
         self.session = open_session(conf)
         ring = zenoh.handlers.RingChannel(FRAME_RING)
-        self.sub_frames = self.session.declare_subscriber(frame_key(prefix), ring)
+        self.sub_frames = self.session.declare_subscriber(keys.camera_frame(prefix), ring)
         self.sub_boxes = None
         if cfg.source != "colour":
             fifo = zenoh.handlers.FifoChannel(BOX_QUEUE)
-            self.sub_boxes = self.session.declare_subscriber(boxes_key(prefix), fifo)
-        self.pub = self.session.declare_publisher(f"{prefix}/detections")
-        self.pub_status = self.session.declare_publisher(status_key(prefix))
+            self.sub_boxes = self.session.declare_subscriber(keys.camera_boxes(prefix), fifo)
+        self.pub = self.session.declare_publisher(keys.detections(prefix))
+        self.pub_status = self.session.declare_publisher(keys.detector_status(prefix))
         self.alone = warn_if_alone(
             self.session, f"{prefix}/detections (and no frames arrive)", ALONE_AFTER
         )

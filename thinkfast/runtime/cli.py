@@ -102,13 +102,13 @@ def run(
 ) -> None:
     """Run until SIGINT/SIGTERM, then brake smoothly and exit 0."""
     from thinkfast.compile.treefile import load_tree
+    from thinkfast.contract.zenoh_session import session_config
     from thinkfast.errors import ConfigError, RobotModelError
     from thinkfast.robot.model import default_robot_path, load_robot
     from thinkfast.runtime.config import load_run_config
     from thinkfast.runtime.daemon import Daemon, Endpoints, Modes
     from thinkfast.runtime.egm_server import parse_controller, parse_hostport
     from thinkfast.runtime.executor import PLANNERS
-    from thinkfast.runtime.zenoh_io import session_config
 
     if print_config or check_config is not None:
         _config_tool(print_config, check_config)
@@ -151,7 +151,9 @@ def run(
             f"{tree}: compiled for another robot description than {robot.toml_path}; recompile it"
         )
     robot = scale_limits(robot, speed_scale)
-    conf = session_config(zenoh_connect or (), zenoh_listen or (), zenoh_config)
+    conf = session_config(
+        connect=zenoh_connect or (), listen=zenoh_listen or (), config_file=zenoh_config
+    )
     ends = Endpoints(egm_bind, egm_controller, egm_handover, key_prefix, record)
     modes = Modes(shadow=shadow, go_home=go_home, speed_scale=speed_scale)
     spin = math.inf if busy_poll else spin_ahead / 1e3

@@ -9,8 +9,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from thinkfast.config import from_dict, include_table, load_toml, spec, to_toml
+from thinkfast.contract.detection import DetectionLimits
+from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.runtime.choice import ChoiceConfig
-from thinkfast.runtime.detections import CameraExtrinsic, DetectionLimits
 from thinkfast.runtime.filter import FilterConfig
 from thinkfast.runtime.launch import LaunchConfig
 from thinkfast.runtime.path_value import PathValueConfig

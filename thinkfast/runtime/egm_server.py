@@ -38,8 +38,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from thinkfast.errors import ThinkfastError
-from thinkfast.runtime.egm_proto import (
+from thinkfast.contract.egm import (
     MSGTYPE_CORRECTION,
     UINT32,
     EgmDecodeError,
@@ -47,6 +46,7 @@ from thinkfast.runtime.egm_proto import (
     decode_robot,
     encode_sensor,
 )
+from thinkfast.errors import ThinkfastError
 from thinkfast.runtime.reply_times import ReplyTimes
 
 ReplyFn = Callable[..., "tuple[np.ndarray, np.ndarray] | None"]

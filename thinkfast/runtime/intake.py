@@ -10,15 +10,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from thinkfast.runtime.detections import (
-    CameraExtrinsic,
+from thinkfast.contract.detection import (
     DetectionCounters,
     DetectionLimits,
     Rejection,
-    classify_order,
     parse_detection,
-    to_base,
 )
+from thinkfast.contract.frames import CameraExtrinsic, to_base
+
+ORDER_CLASSES = ("new", "duplicate", "out_of_order", "stale", "future")
 
 
 class Accepted(NamedTuple):
@@ -74,3 +74,48 @@ class Intake:
     def as_dict(self) -> dict:
         """Counts for status messages."""
         return {**self.counters.as_dict(), "dropped": dict(self.order)}
+
+
+def classify_order(
+    stamp: float,
+    seq: int | None,
+    last_stamp: float | None,
+    last_seq: int | None,
+    now: float | None = None,
+    limits: DetectionLimits = DetectionLimits(),
+) -> str:
+    """Place a detection in time: against the receiver's clock, then against the last one used.
+
+    The capture stamp decides (a sender restart may reset ``seq``); ``seq`` only breaks ties.
+    Checking against ``now`` keeps a stamp from the future (say now + 0.2 s, or 1e300) from
+    becoming the "last" stamp and making every later detection look out of order: an accepted
+    stamp is at most ``now + max_future``.
+
+    Args:
+        stamp: capture time of the new detection [s].
+        seq: its sequence number, or None.
+        last_stamp: capture time of the last detection used, or None if there is none.
+        last_seq: its sequence number, or None.
+        now: receiver's clock [s, same clock as the stamps], or None to skip the age checks
+            (lockstep simulation).
+        limits: ``max_age`` and ``max_future``.
+
+    Returns:
+        One of :data:`ORDER_CLASSES`: ``"stale"`` (older than ``now - max_age``), ``"future"``
+        (later than ``now + max_future``), ``"new"`` (later than the last one, or same stamp
+        with a larger ``seq``), ``"duplicate"`` (same stamp, and same ``seq`` or a ``seq``
+        missing) or ``"out_of_order"`` (older, or same stamp with a smaller ``seq``). Only
+        ``"new"`` detections should reach the filter.
+    """
+    if now is not None:
+        if stamp < now - limits.max_age:
+            return "stale"
+        if stamp > now + limits.max_future:
+            return "future"
+    if last_stamp is None or stamp > last_stamp:
+        return "new"
+    if stamp < last_stamp:
+        return "out_of_order"
+    if seq is None or last_seq is None or seq == last_seq:
+        return "duplicate"
+    return "new" if seq > last_seq else "out_of_order"

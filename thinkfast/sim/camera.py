@@ -2,7 +2,7 @@
 
 Pure: randomness comes from the ``rng`` argument, time from the arguments (no clocks, no I/O).
 The camera frame is REP-103 (x forward along the optical axis, y left, z up); its pose in
-``base`` is a :class:`~thinkfast.runtime.detections.CameraExtrinsic`.
+``base`` is a :class:`~thinkfast.contract.detection.CameraExtrinsic`.
 
 Measurement of a true ball centre ``p = d u`` (depth ``d`` along x, ray ``u = p / d``):
 
@@ -24,14 +24,14 @@ in capture order unless ``reorder``.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from typing import NamedTuple
 
 import numpy as np
 
 from thinkfast.config import spec
-from thinkfast.runtime.detections import CameraExtrinsic
+from thinkfast.contract.detection import encode_detection
+from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.sim.throws import Throw, ball_states, observed_until
 
 
@@ -265,13 +265,7 @@ def detection_payload(sd: SimDetection, with_covariance: bool = False) -> bytes:
 
     ``with_covariance`` adds the noise model's covariance (9 numbers, row major, camera frame).
     """
-    obj = {
-        "stamp": sd.capture_stamp,
-        "position": [float(x) for x in sd.position_camera],
-        "frame": "camera",
-        "confidence": sd.confidence,
-        "seq": sd.seq,
-    }
-    if with_covariance:
-        obj["covariance"] = [float(x) for x in np.asarray(sd.covariance).ravel()]
-    return json.dumps(obj).encode("utf-8")
+    cov = sd.covariance if with_covariance else None
+    return encode_detection(
+        sd.capture_stamp, sd.position_camera, "camera", sd.confidence, sd.seq, cov
+    )

@@ -10,6 +10,7 @@ from pathlib import Path
 import typer
 
 from thinkfast.cli_util import make_app, run_app
+from thinkfast.contract import keys
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
 PLANNERS = ("tree", "tree-rest", "naive", "naive-paper", "oracle", "oracle_seen")
@@ -263,15 +264,15 @@ def replay(
 ) -> None:
     """Re-publish a flight record's detections (raw payloads) with their original timing
     (schema 1 and 2 records, also a partial one)."""
+    from thinkfast.contract.zenoh_session import open_peer
     from thinkfast.errors import ConfigError
     from thinkfast.runtime.record_format import read_detections
-    from thinkfast.sim.publisher import open_session
 
     t, payloads = read_detections(record)  # RecordFileError: one line naming the file
     if speed <= 0:
         raise ConfigError("--speed", None, "must be > 0")
-    session = open_session(connect=list(zenoh_connect or ()))
-    pub = session.declare_publisher(f"{key_prefix}/detections")
+    session = open_peer(connect=list(zenoh_connect or ()))
+    pub = session.declare_publisher(keys.detections(key_prefix))
     time.sleep(0.5)
     heard = pub.matching_status.matching
     start = time.time()

@@ -35,7 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from thinkfast.config import spec
-from thinkfast.runtime.egm_proto import EgmDecodeError, decode_sensor, encode_robot
+from thinkfast.contract.egm import EgmDecodeError, decode_sensor, encode_robot
 from thinkfast.runtime.egm_server import SO_TIMESTAMPNS, arrival_age
 
 log = logging.getLogger(__name__)

@@ -23,8 +23,8 @@ from typing import NamedTuple
 import numpy as np
 import zenoh
 
-from thinkfast.perception.node import frame_key
-from thinkfast.runtime.detections import CameraExtrinsic
+from thinkfast.contract import keys
+from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.sim.camera import CameraModelConfig
 from thinkfast.sim.frames import FrameRenderConfig, FrameRenderer
 from thinkfast.sim.throws import Throw, ball_states, observed_until
@@ -69,7 +69,7 @@ class FrameStream:
                 xyz_dtype="float16", xyz_step=2 if resolution == "hd720" else 1
             )
         self.renderer = FrameRenderer(render, self.camera, seed)
-        self.pub = session.declare_publisher(frame_key(prefix))
+        self.pub = session.declare_publisher(keys.camera_frame(prefix))
         self.seq = 0
 
     def publish_throw(
@@ -140,7 +140,7 @@ def start_detector(
 def wait_detector(session: zenoh.Session, prefix: str, proc: subprocess.Popen, timeout=30.0):
     """Wait for the detector's status on ``session``; raises RuntimeError if it never comes."""
     heard = threading.Event()
-    sub = session.declare_subscriber(f"{prefix}/detector/status", lambda s: heard.set())
+    sub = session.declare_subscriber(keys.detector_status(prefix), lambda s: heard.set())
     try:
         deadline = time.time() + timeout
         while not heard.wait(0.1):
@@ -184,7 +184,7 @@ class FramePipeline:
         seed: int = 0,
         config: Path | None = None,
     ):
-        from thinkfast.sim.publisher import free_tcp_port, open_session
+        from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 
         port = free_tcp_port()
         self._tmp = None
@@ -199,7 +199,7 @@ class FramePipeline:
             deadline = time.time() + 30.0
             while self.session is None:
                 try:
-                    self.session = open_session(connect=[f"tcp/127.0.0.1:{port}"])
+                    self.session = open_peer(connect=[f"tcp/127.0.0.1:{port}"])
                 except Exception:  # not listening yet
                     if self.proc.poll() is not None or time.time() > deadline:
                         raise

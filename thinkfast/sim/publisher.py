@@ -1,4 +1,4 @@
-"""Publish simulated detections over zenoh in real time, and open sessions for loopback tests.
+"""Publish simulated detections over zenoh in real time.
 
 The thin edge between :mod:`thinkfast.sim.camera` and the daemon: each detection's payload
 (:func:`~thinkfast.sim.camera.detection_payload`) goes out on ``<prefix>/detections`` at its
@@ -8,18 +8,14 @@ wake-up delays one sample and never the ones after it.
 
 from __future__ import annotations
 
-import json
-import socket
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable
 from typing import NamedTuple
 
 import zenoh
 
 from thinkfast.sim.camera import SimDetection, detection_payload
-
-DEFAULT_PREFIX = "thinkfast"
 
 
 class PublishReport(NamedTuple):
@@ -28,11 +24,6 @@ class PublishReport(NamedTuple):
     sent: int
     max_late: float
     mean_late: float
-
-
-def detections_key(prefix: str = DEFAULT_PREFIX) -> str:
-    """The contract's key expression ``<prefix>/detections``."""
-    return f"{prefix}/detections"
 
 
 def publish_detections(
@@ -54,7 +45,7 @@ def publish_detections(
 
     Args:
         session: an open zenoh session.
-        key: key expression, normally :func:`detections_key`.
+        key: key expression, normally :func:`thinkfast.contract.keys.detections`.
         detections: what to send.
         t0_wall: offset added to delivery times and stamps [s].
         clock: wall clock [s] (same clock as the stamps).
@@ -81,38 +72,3 @@ def publish_detections(
     if not late:
         return PublishReport(0, 0.0, 0.0)
     return PublishReport(len(late), max(late), sum(late) / len(late))
-
-
-def free_tcp_port(host: str = "127.0.0.1") -> int:
-    """A TCP port that was free a moment ago on ``host`` (the OS picks it)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
-
-
-def loopback_endpoint() -> str:
-    """A zenoh endpoint ``tcp/127.0.0.1:<free port>`` to listen on."""
-    return f"tcp/127.0.0.1:{free_tcp_port()}"
-
-
-def session_config(
-    listen: Sequence[str] = (), connect: Sequence[str] = (), mode: str = "peer"
-) -> zenoh.Config:
-    """A zenoh config with explicit endpoints and multicast scouting off (no stray peers).
-
-    Args:
-        listen: endpoints to listen on, e.g. ``["tcp/127.0.0.1:7447"]``.
-        connect: endpoints to connect to.
-        mode: ``"peer"`` or ``"client"``.
-    """
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    return conf
-
-
-def open_session(listen: Sequence[str] = (), connect: Sequence[str] = ()) -> zenoh.Session:
-    """Open a peer session on explicit endpoints (see :func:`session_config`); close it after."""
-    return zenoh.open(session_config(listen, connect))

@@ -19,14 +19,16 @@ from typing import NamedTuple
 
 import numpy as np
 
+from thinkfast.contract import keys
+from thinkfast.contract.frames import CameraExtrinsic
+from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
-from thinkfast.runtime.detections import CameraExtrinsic
 from thinkfast.runtime.planner import BALL_RADIUS
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
-from thinkfast.sim.publisher import free_tcp_port, open_session, publish_detections
+from thinkfast.sim.publisher import publish_detections
 from thinkfast.sim.throws import Throw, plane_crossing
 
 GAP = 3.5  # s between throws: crossing + return home + the contract's 3 s
@@ -126,7 +128,7 @@ def run_throws(
     kin = Kinematics(robot)
     sim = WallClockSim(ServoConfig(), q0=robot.home)
     runner = ControllerRunner(sim, egm).start()
-    session = open_session(connect=[zenoh_endpoint])
+    session = open_peer(connect=[zenoh_endpoint])
     results = []
     try:
         time.sleep(1.0)  # EGM exchange running, zenoh routes up
@@ -139,7 +141,7 @@ def run_throws(
                 # a swing is seen in real time from the ball's appearance; still throws keep
                 # their timing (hold frames older than 0.3 s before the release go out at once)
                 t0 = time.time() + 0.3 + (th.t_release if th.kind != "still" else 0.0)
-                publish_detections(session, f"{prefix}/detections", dets, t0_wall=t0)
+                publish_detections(session, keys.detections(prefix), dets, t0_wall=t0)
             if th.kind == "feint":
                 time.sleep(max(0.0, t0 + FEINT_WINDOW + 0.3 - time.time()))
                 t_hist, q_hist = sim.joint_history(t0 - th.t_release - 0.5)
@@ -185,7 +187,7 @@ def publish_throw(
     """Publish what the camera sees of ``th`` in real time, released at wall time ``t0`` [s]
     (detections already due go out at once); blocks until the last one is out."""
     dets = observe(th, camera, extrinsic, rng, 0.0)
-    return publish_detections(session, f"{prefix}/detections", dets, t0_wall=t0, stop=stop)
+    return publish_detections(session, keys.detections(prefix), dets, t0_wall=t0, stop=stop)
 
 
 def judge_throw(th: Throw, t_hist, q_hist, kin: Kinematics, t0: float) -> RealtimeResult:

@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.sim.controller import ServoConfig
 from thinkfast.sim.faults import rows as R
 from thinkfast.sim.faults.checker import ReplyChecker
@@ -30,7 +31,6 @@ from thinkfast.sim.faults.monitor import Monitor
 from thinkfast.sim.faults.probe import StallProbe, attribute, rss_mb
 from thinkfast.sim.faults.remote import RemoteController
 from thinkfast.sim.faults.senders import free_udp_port
-from thinkfast.sim.publisher import free_tcp_port, open_session
 from thinkfast.sim.realtime import (
     RealtimeResult,
     daemon_log,
@@ -130,7 +130,7 @@ class Cell:
                                  self.record, None, ctx.daemon_opts + self.extra,
                                  preexec_fn=self.preexec_fn)  # fmt: skip
         wait_port(self.proc, self.zport, timeout)
-        self.mon_session = open_session(connect=[self.endpoint])
+        self.mon_session = open_peer(connect=[self.endpoint])
         self.monitor = Monitor(self.mon_session, self.prefix)
         if not self.monitor.wait_status(timeout):
             raise RuntimeError(f"no status from the daemon: {daemon_log(self.proc)[-500:]}")
@@ -149,7 +149,7 @@ class Cell:
         return self
 
     def open_publisher(self) -> None:
-        self.pub_session = open_session(connect=[self.endpoint])
+        self.pub_session = open_peer(connect=[self.endpoint])
         time.sleep(0.2)
 
     def close_publisher(self) -> None:

@@ -1,6 +1,6 @@
 """The fault campaign's own EGM message classes: ABB's published ``egm.proto`` (V1.1), built here.
 
-Independent of the daemon's :mod:`thinkfast.runtime.egm_proto` on purpose: the checker decodes
+Independent of the daemon's :mod:`thinkfast.contract.egm` on purpose: the checker decodes
 every ``EgmSensor`` with a schema the daemon did not write, so a wrong field number or wire type
 on the daemon's side cannot cancel out. The schema declares every message of ABB's file (field
 numbers, types and labels as published, ``required`` included) in a private descriptor pool; the

@@ -20,6 +20,8 @@ import time
 
 import numpy as np
 
+from thinkfast.contract import keys
+
 BIG = 1 << 20  # 1 MB
 
 
@@ -141,12 +143,12 @@ def fuzz_stream(connect: str, prefix: str, n: int, seconds: float, seed: int,
     burst); returns what was sent (per kind, bursts, the fastest burst's rate)."""
     import zenoh
 
-    from thinkfast.sim.publisher import open_session
+    from thinkfast.contract.zenoh_session import open_peer
 
     rng = np.random.default_rng(seed)
-    session = open_session(connect=[connect])
+    session = open_peer(connect=[connect])
     pub = session.declare_publisher(
-        f"{prefix}/detections", congestion_control=zenoh.CongestionControl.BLOCK
+        keys.detections(prefix), congestion_control=zenoh.CongestionControl.BLOCK
     )
     kinds = payloads(rng, n)
     counts: dict[str, int] = {}

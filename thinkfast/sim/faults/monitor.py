@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from thinkfast.contract import keys
 from thinkfast.sim.faults import rows as R
 
 
@@ -39,8 +40,8 @@ class Monitor:
         self.modes: list[tuple[float, str]] = []  # setpoint mode change points (stamp, mode)
         self.setpoints = 0
         self.lock = threading.Lock()
-        session.declare_subscriber(f"{prefix}/status", self._on_status)
-        session.declare_subscriber(f"{prefix}/setpoints", self._on_setpoint)
+        session.declare_subscriber(keys.status(prefix), self._on_status)
+        session.declare_subscriber(keys.setpoints(prefix), self._on_setpoint)
 
     def _on_status(self, sample) -> None:
         try:

@@ -20,6 +20,7 @@ import threading
 import time
 from pathlib import Path
 
+from thinkfast.contract.zenoh_session import free_tcp_port
 from thinkfast.sim.faults.cell import Cell
 from thinkfast.sim.faults.egm_pb import robot_message
 from thinkfast.sim.faults.scenario import (
@@ -32,7 +33,6 @@ from thinkfast.sim.faults.scenario import (
     scenario,
 )
 from thinkfast.sim.faults.senders import free_udp_port, recv_stamped
-from thinkfast.sim.publisher import free_tcp_port
 from thinkfast.sim.realtime import daemon_log, start_daemon
 
 FSIZE_LIMIT = 64 * 1024  # bytes a "full disk" lets the daemon write

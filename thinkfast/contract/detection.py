@@ -1,6 +1,8 @@
-"""Ball detections from zenoh: validate one JSON payload, count outcomes, order, camera -> base.
+"""The detection message (``<prefix>/detections``): encode one, and validate one JSON payload.
 
-The payload contract is the project's detection message (README, "Interfaces").
+The contract is docs/INTERFACES.md ("Detections") and docs/schemas/detection.schema.json; the
+simulated camera and ``thinkfast-detect`` write it with :func:`encode_detection`, the daemon
+reads it with :func:`parse_detection`.
 :func:`parse_detection` never raises on any input: it returns a :class:`Detection` or a
 :class:`Rejection` whose ``reason`` is one of :data:`REJECT_REASONS`. Choices where the
 contract is silent:
@@ -10,7 +12,7 @@ contract is silent:
 * JSON ``true``/``false`` are never numbers; ``NaN``/``Infinity`` literals parse but are rejected
   by the field check, so they count against that field;
 * ``seq`` is an integer in [0, 2**63) (it must fit an int64 column); ``stamp`` a finite number
-  >= 0 (plausibility against the receiver's clock is :func:`classify_order`'s job);
+  >= 0 (plausibility against the receiver's clock is the intake's job);
 * ``position`` components beyond ``DetectionLimits.max_abs_position`` are rejected: no camera
   sees a ball that far, and such values would only poison the filter.
 """
@@ -30,7 +32,6 @@ REJECT_REASONS = (
     "not_bytes", "too_large", "not_utf8", "not_json", "not_object", "missing_stamp", "bad_stamp",
     "missing_position", "bad_position", "bad_frame", "bad_confidence", "bad_seq", "bad_covariance",
 )  # fmt: skip
-ORDER_CLASSES = ("new", "duplicate", "out_of_order", "stale", "future")
 FRAMES = ("camera", "base")
 
 
@@ -62,43 +63,6 @@ class DetectionLimits:
         "watermark, so this also bounds how far ahead of the clock the watermark can run "
         "(half a frame period at 50 Hz: at most one extra frame lost)",
     )
-
-
-@dataclasses.dataclass(frozen=True)
-class CameraExtrinsic:
-    """Pose of the ``camera`` frame in ``base`` (``T_base_camera``).
-
-    Default cell (ASSUMPTION until the cell is measured): the ZED 2i sits at the robot base on
-    the camera pedestal of robots/irb1600/robot.toml (box x 0.40..0.52 m, top at z 0.25 m), lens
-    at (0.46, 0, 0.30) m, level and looking +x (the same way as the base, towards the thrower).
-    ``rpy`` is fixed-axis roll-pitch-yaw as in URDF: ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
-    """
-
-    xyz: tuple[float, float, float] = spec(
-        (0.46, 0.0, 0.30),
-        doc="camera origin in base (ASSUMED default cell: lens on the pedestal at the robot base)",
-        unit="m",
-        length=3,
-    )
-    rpy: tuple[float, float, float] = spec(
-        (0.0, 0.0, 0.0),
-        doc="camera orientation in base (roll, pitch, yaw), radians: within one turn, so that "
-        "degrees are refused",
-        unit="rad",
-        length=3,
-        lo=-math.tau,
-        hi=math.tau,
-    )
-
-    def rotation(self) -> np.ndarray:
-        """``R_base_camera``, shape (3, 3), read-only."""
-        return rotation_from_rpy(self.rpy)
-
-    def translation(self) -> np.ndarray:
-        """``p_base_camera`` [m], shape (3,), read-only."""
-        p = np.array(self.xyz, dtype=float)
-        p.setflags(write=False)
-        return p
 
 
 class Detection(NamedTuple):
@@ -250,87 +214,26 @@ class DetectionCounters:
         return {"accepted": self.accepted, "rejected": dict(self.rejected)}
 
 
-def classify_order(
+def encode_detection(
     stamp: float,
-    seq: int | None,
-    last_stamp: float | None,
-    last_seq: int | None,
-    now: float | None = None,
-    limits: DetectionLimits = DetectionLimits(),
-) -> str:
-    """Place a detection in time: against the receiver's clock, then against the last one used.
-
-    The capture stamp decides (a sender restart may reset ``seq``); ``seq`` only breaks ties.
-    Checking against ``now`` keeps a stamp from the future (say now + 0.2 s, or 1e300) from
-    becoming the "last" stamp and making every later detection look out of order: an accepted
-    stamp is at most ``now + max_future``.
-
-    Args:
-        stamp: capture time of the new detection [s].
-        seq: its sequence number, or None.
-        last_stamp: capture time of the last detection used, or None if there is none.
-        last_seq: its sequence number, or None.
-        now: receiver's clock [s, same clock as the stamps], or None to skip the age checks
-            (lockstep simulation).
-        limits: ``max_age`` and ``max_future``.
-
-    Returns:
-        One of :data:`ORDER_CLASSES`: ``"stale"`` (older than ``now - max_age``), ``"future"``
-        (later than ``now + max_future``), ``"new"`` (later than the last one, or same stamp
-        with a larger ``seq``), ``"duplicate"`` (same stamp, and same ``seq`` or a ``seq``
-        missing) or ``"out_of_order"`` (older, or same stamp with a smaller ``seq``). Only
-        ``"new"`` detections should reach the filter.
-    """
-    if now is not None:
-        if stamp < now - limits.max_age:
-            return "stale"
-        if stamp > now + limits.max_future:
-            return "future"
-    if last_stamp is None or stamp > last_stamp:
-        return "new"
-    if stamp < last_stamp:
-        return "out_of_order"
-    if seq is None or last_seq is None or seq == last_seq:
-        return "duplicate"
-    return "new" if seq > last_seq else "out_of_order"
-
-
-def rotation_from_rpy(rpy) -> np.ndarray:
-    """Fixed-axis roll, pitch, yaw [rad] -> rotation matrix ``Rz @ Ry @ Rx``, shape (3, 3)."""
-    r, p, y = (float(a) for a in rpy)
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(r),
-        math.sin(r),
-        math.cos(p),
-        math.sin(p),
-        math.cos(y),
-        math.sin(y),
-    )
-    R = np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-    return _frozen(R)
-
-
-def to_base(det: Detection, R_base_camera: np.ndarray, p_base_camera: np.ndarray) -> Detection:
-    """Express a detection in ``base``: ``p_base = R p_cam + t``, ``C_base = R C_cam R^T``.
-
-    Args:
-        det: an accepted detection; returned unchanged if already in ``base``.
-        R_base_camera: rotation, shape (3, 3) (e.g. :meth:`CameraExtrinsic.rotation`).
-        p_base_camera: camera origin in base [m], shape (3,).
-
-    Returns:
-        The same detection with ``frame="base"``.
-    """
-    if det.frame == "base":
-        return det
-    pos = _frozen(R_base_camera @ det.position + p_base_camera)
-    cov = None
-    if det.covariance is not None:
-        cov = _frozen(R_base_camera @ det.covariance @ R_base_camera.T)
-    return det._replace(position=pos, frame="base", covariance=cov)
+    position,
+    frame: str = "camera",
+    confidence: float | None = None,
+    seq: int | None = None,
+    covariance=None,
+) -> bytes:
+    """One detection message as UTF-8 JSON: ``stamp`` [s since the Unix epoch], ball centre
+    ``position`` [m] (3,) in ``frame`` (``camera`` or ``base``); the optional keys are left out
+    when None (``covariance``: (3, 3) [m^2] in ``frame``, sent row major)."""
+    obj: dict[str, Any] = {
+        "stamp": float(stamp),
+        "position": [float(x) for x in position],
+        "frame": frame,
+    }
+    if confidence is not None:
+        obj["confidence"] = float(confidence)
+    if seq is not None:
+        obj["seq"] = int(seq)
+    if covariance is not None:
+        obj["covariance"] = [float(x) for x in np.asarray(covariance).ravel()]
+    return json.dumps(obj).encode("utf-8")

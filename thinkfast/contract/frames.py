@@ -1,0 +1,92 @@
+"""The frames of the contract: ``camera`` posed in ``base`` by the camera extrinsic.
+
+Both frames follow REP-103 (x forward, y left, z up; metres); see docs/INTERFACES.md, "Frames".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from thinkfast.config import spec
+from thinkfast.contract.detection import Detection, _frozen
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraExtrinsic:
+    """Pose of the ``camera`` frame in ``base`` (``T_base_camera``).
+
+    Default cell (ASSUMPTION until the cell is measured): the ZED 2i sits at the robot base on
+    the camera pedestal of robots/irb1600/robot.toml (box x 0.40..0.52 m, top at z 0.25 m), lens
+    at (0.46, 0, 0.30) m, level and looking +x (the same way as the base, towards the thrower).
+    ``rpy`` is fixed-axis roll-pitch-yaw as in URDF: ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
+    """
+
+    xyz: tuple[float, float, float] = spec(
+        (0.46, 0.0, 0.30),
+        doc="camera origin in base (ASSUMED default cell: lens on the pedestal at the robot base)",
+        unit="m",
+        length=3,
+    )
+    rpy: tuple[float, float, float] = spec(
+        (0.0, 0.0, 0.0),
+        doc="camera orientation in base (roll, pitch, yaw), radians: within one turn, so that "
+        "degrees are refused",
+        unit="rad",
+        length=3,
+        lo=-math.tau,
+        hi=math.tau,
+    )
+
+    def rotation(self) -> np.ndarray:
+        """``R_base_camera``, shape (3, 3), read-only."""
+        return rotation_from_rpy(self.rpy)
+
+    def translation(self) -> np.ndarray:
+        """``p_base_camera`` [m], shape (3,), read-only."""
+        p = np.array(self.xyz, dtype=float)
+        p.setflags(write=False)
+        return p
+
+
+def rotation_from_rpy(rpy) -> np.ndarray:
+    """Fixed-axis roll, pitch, yaw [rad] -> rotation matrix ``Rz @ Ry @ Rx``, shape (3, 3)."""
+    r, p, y = (float(a) for a in rpy)
+    cr, sr, cp, sp, cy, sy = (
+        math.cos(r),
+        math.sin(r),
+        math.cos(p),
+        math.sin(p),
+        math.cos(y),
+        math.sin(y),
+    )
+    R = np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+    return _frozen(R)
+
+
+def to_base(det: Detection, R_base_camera: np.ndarray, p_base_camera: np.ndarray) -> Detection:
+    """Express a detection in ``base``: ``p_base = R p_cam + t``, ``C_base = R C_cam R^T``.
+
+    Args:
+        det: an accepted detection; returned unchanged if already in ``base``.
+        R_base_camera: rotation, shape (3, 3) (e.g. :meth:`CameraExtrinsic.rotation`).
+        p_base_camera: camera origin in base [m], shape (3,).
+
+    Returns:
+        The same detection with ``frame="base"``.
+    """
+    if det.frame == "base":
+        return det
+    pos = _frozen(R_base_camera @ det.position + p_base_camera)
+    cov = None
+    if det.covariance is not None:
+        cov = _frozen(R_base_camera @ det.covariance @ R_base_camera.T)
+    return det._replace(position=pos, frame="base", covariance=cov)
