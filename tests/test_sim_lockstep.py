@@ -229,3 +229,21 @@ def test_wind_ups_and_a_feint_run_end_to_end_and_are_reported_per_kind(tree_path
         "windup",
         "still",
     )
+
+
+def test_lockstep_checks_the_arm_it_measures_like_the_daemon(tree_path):
+    """The core is checked against the simulated controller's joints: an arm that cannot
+    follow (a quarter of the planned acceleration) trips the supervisor's deviation brake in
+    lockstep as on the wire; the arm the planner assumed never does."""
+    import dataclasses
+
+    from thinkfast.sim.controller import ServoConfig
+
+    world = _Factory(tree_path)()
+    throw = _central_slow_throw()
+    normal = simulate(world, throw, "naive", seed=3)
+    assert normal.blocked and normal.intervened == 0 and normal.faults == 0
+    weak = ServoConfig(a_max=tuple(0.25 * a for a in ServoConfig().a_max))
+    world.servo = dataclasses.replace(weak)
+    lame = simulate(world, throw, "naive", seed=3)
+    assert lame.moved and lame.intervened > 0, lame  # braked: the arm left its commands

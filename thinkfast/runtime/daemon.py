@@ -125,15 +125,15 @@ class Daemon:
         self._away_logged: tuple | None = None
         self.limits = robot_limits(robot, cfg.safety.position_margin)
         self.supervisor = SafetySupervisor(self.limits, cfg.safety, robot.home)
+        self.intake = Intake(cfg.camera, cfg.detections)
         self.control = EgmControl(
-            self.executor, self.supervisor, cfg.safety, self._event, shadow=modes.shadow
+            self.executor, self.supervisor, cfg.safety, self._event, modes.shadow, self.intake
         )
         self.controller_state: dict | None = None  # motors, MCI, RAPID as last reported
         self.planned: tuple[np.ndarray, np.ndarray, str] | None = None  # shadow: virtual arm
         self._drops: dict[str, int] = {}  # rejected detections by reason (log throttling)
         self._was_connected = False
         self._last_mode = IDLE
-        self.intake = Intake(cfg.camera, cfg.detections)
         self.egm = EgmServer(
             endpoints.egm_bind,
             self._reply,
@@ -401,21 +401,18 @@ class Daemon:
     def _take(self, payload: bytes, now: float) -> None:
         """One detection payload received at ``now``: intake, recorder, filter and planner."""
         self.recorder.raw(now, payload)
-        det = self.intake.take(payload, now)
+        ctl, errors = self.control, self.control.planner_errors
+        t0 = time.perf_counter()
+        det = ctl.on_detection(payload, now, self._plan_time(now))
         if det is None:
             self._log_drop()
             return
-        self.control.invalidate()  # plan changes: prepare again
         self.prepared_for = -math.inf
         self.recorder.detection(now, det.stamp, det.position, det.seq)
-        t0 = time.perf_counter()
-        ex = self.executor
-        try:
-            ex.on_detection(self._plan_time(now), det.stamp, det.position)
-        except Exception as exc:  # a planner bug must not stop the EGM loop: stop the arm
-            self._planner_error("planner", exc)
-            self.control.brake("nonfinite")
+        if ctl.planner_errors != errors:
+            self._planner_error("planner", ctl.last_error)
             return
+        ex = self.executor
         self.decision_ms = 1e3 * (time.perf_counter() - t0)
         if self.recorder.enabled and ex.belief.n_meas >= 2:  # the crossing only for the record
             c = ex.tree.crossing(ex.belief.mean, ex.belief.cov, self.cfg.filter.gravity)

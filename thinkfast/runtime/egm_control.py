@@ -1,4 +1,9 @@
-"""Setpoints on the controller's clock: executor and supervisor stepped per controller cycle.
+"""The control core: detections and EGM feedback in, setpoints out, on the controller's clock.
+
+The daemon and the lockstep simulator drive the same core: :meth:`EgmControl.on_detection` takes
+a detection payload (intake, then the executor's filter and planner) and
+:meth:`EgmControl.on_feedback` answers one ``EgmRobot`` with the executor's setpoint for that
+packet's controller time, filtered by the safety supervisor against the measured joints.
 
 Clock-free (time is passed in). For each ``EgmRobot`` the controller's clock
 (:mod:`thinkfast.runtime.egm_clock`) says which cycle it belongs to, and the reply is the plan
@@ -47,6 +52,7 @@ import numpy as np
 
 from thinkfast.runtime.egm_clock import ClockTick, ControllerClock
 from thinkfast.runtime.executor import FAULT, IDLE, Executor
+from thinkfast.runtime.intake import Accepted, Intake
 from thinkfast.runtime.safety import SafetyConfig, SafetySupervisor
 
 FAULT_REASONS = ("deviation", "nonfinite")
@@ -73,6 +79,7 @@ class EgmControl:
         cfg: supervisor and recovery parameters.
         on_event: ``on_event(t, kind, detail)`` for things worth logging and recording.
         shadow: plan a virtual arm, command the position measured at the start (module doc).
+        intake: detection intake for :meth:`on_detection` (None: detections are not taken).
     """
 
     def __init__(
@@ -82,8 +89,11 @@ class EgmControl:
         cfg: SafetyConfig,
         on_event=lambda t, kind, detail: None,
         shadow: bool = False,
+        intake: Intake | None = None,
     ):
         self.ex, self.sup, self.cfg, self.on_event = executor, supervisor, cfg, on_event
+        self.intake = intake
+        self.planner_errors = 0  # executor.on_detection failures (each brakes)
         self.shadow = shadow
         self.standby = False  # the controller does not follow references (module doc)
         self.standby_replies = 0
@@ -137,6 +147,24 @@ class EgmControl:
     def invalidate(self) -> None:
         """The plan changed: a prepared setpoint is void."""
         self._prepared = None
+
+    def on_detection(self, payload: bytes, now: float | None, t_plan: float) -> Accepted | None:
+        """One detection ``payload`` received at ``now`` [s] (None: no clock checks, lockstep):
+        validated by the intake and, when accepted, fused and planned on by the executor, the
+        plan taking effect at ``t_plan`` (the controller time of the next cycle). Returns the
+        accepted detection, or None (dropped: counted by the intake). Never raises: a planner
+        failure is counted in ``planner_errors`` (``last_error``) and brakes."""
+        det = self.intake.take(payload, now)
+        if det is None:
+            return None
+        self._prepared = None  # the plan changes: prepare again
+        try:
+            self.ex.on_detection(t_plan, det.stamp, det.position)
+        except Exception as exc:  # a planner bug must not stop the EGM loop: stop the arm
+            self.planner_errors += 1
+            self.last_error = exc
+            self.brake("nonfinite")
+        return det
 
     def on_feedback(
         self, tm_ms: int | None, q_meas: np.ndarray, now: float, before=None, ready: bool = True

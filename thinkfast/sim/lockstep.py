@@ -1,9 +1,11 @@
 """Lockstep simulation: the daemon's own kernels stepped in simulated time, one process, no sockets.
 
 Per throw: the camera model makes the detections (delivered at their delivery times); every 4 ms
-the executor gives a setpoint, the safety supervisor filters it, the simulated controller (servo
-model with transport delay) follows it; detections reach the intake and the executor between
-ticks, exactly as in the daemon's loop. The judge decides from the controller's joint history.
+the simulated controller (servo model with transport delay) reports its joints and the daemon's
+control core (:class:`~thinkfast.runtime.egm_control.EgmControl`: executor and safety supervisor
+on the controller's clock, checked against the measured joints) answers with the setpoint it
+follows; detections reach the core between ticks, exactly as in the daemon's loop. The judge
+decides from the controller's joint history.
 
 Planners: ``tree`` and ``naive`` (the daemon's executor) and ``oracle``: it knows the true crossing
 point at release and goes there as fast as the arm allows, so the throws it blocks are the ones
@@ -27,6 +29,7 @@ from thinkfast.compile.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.runtime.config import RunConfig
+from thinkfast.runtime.egm_control import EgmControl
 from thinkfast.runtime.executor import Executor
 from thinkfast.runtime.intake import Intake
 from thinkfast.runtime.planner import BALL_RADIUS, runtime_tree
@@ -59,6 +62,8 @@ class Outcome(NamedTuple):
     displacement: float = math.nan  # feint: largest shield-centre distance from home [m]
     home_after: float = math.nan  # feint: home (1 cm, at rest) from this long after the stop [s]
     home_again: bool = False  # feint: home again within FEINT_WINDOW of the ball stopping
+    intervened: int = 0  # ticks on which the safety supervisor changed the plan's setpoint
+    faults: int = 0  # deviation (or planner) faults: the supervisor braked and the arm recovered
 
 
 class World:
@@ -100,33 +105,32 @@ def simulate(
         ex = None
     else:
         ex = Executor(world.tree, robot, cfg, planner)
-        ex.start_from(robot.home, 0.0)
-        intake = Intake(cfg.camera, cfg.detections)
-        step_fn = ex.setpoint
+        core = EgmControl(ex, sup, cfg.safety, intake=Intake(cfg.camera, cfg.detections))
     k_det, t = 0, 0.0
     moved, t_move = False, math.nan
     while t <= t_end:
-        if ex is not None:
+        if ex is None:
+            q_cmd, qd_cmd = sup.step(*step_fn(t))[:2]
+        else:
             while k_det < len(dets) and dets[k_det].delivery_time <= t:
-                acc = intake.take(detection_payload(dets[k_det]), None)
-                if acc is not None:
-                    ex.on_detection(t, acc.stamp, acc.position)
+                core.on_detection(detection_payload(dets[k_det]), None, t)
                 k_det += 1
-        q_req, qd_req = step_fn(t)
-        cmd = sup.step(q_req, qd_req)
-        if not moved and np.any(np.abs(cmd.qd) > 1e-6):
+            reply = core.on_feedback(round(t * 1000.0), sim.q, t)
+            q_cmd, qd_cmd = reply.q, reply.qd
+        if not moved and np.any(np.abs(qd_cmd) > 1e-6):
             moved, t_move = True, t - t_rel
-        sim.command(cmd.q, cmd.qd, t)
+        sim.command(q_cmd, qd_cmd, t)
         sim.step(DT)
         t += DT
     hist = sim.history()
     decisions = 0 if ex is None else ex.episode.decisions + ex.episodes
+    guard = (sup.intervened, 0 if ex is None else core.fault_count)
     if feint:
         f = judge_feint(hist.t, hist.q, world.kin, robot.home, t_rel, FEINT_WINDOW)
         return Outcome(
             throw.id, planner, False, "feint", math.nan, float(throw.flight_time), math.nan,
             math.nan, decisions, moved, t_move, "feint", f.displacement, f.home_after,
-            f.home_again,
+            f.home_again, *guard,
         )  # fmt: skip
     v = judge(throw, hist.t, hist.q, world.kin, throw.plane_x, BALL_RADIUS, t_release_wall=t_rel)
     return Outcome(
@@ -142,6 +146,8 @@ def simulate(
         moved,
         t_move,
         throw.kind,
+        intervened=guard[0],
+        faults=guard[1],
     )
 
 
