@@ -233,7 +233,7 @@ def _tree_robot(tree) -> Path | None:
         cfg = tomllib.loads(tree.meta["config_text"])
         rel = cfg.get("robot", "../robots/irb1600/robot.toml")
         path = (Path(tree.meta["config_path"]).parent / rel).resolve()
-    except (KeyError, ValueError, json.JSONDecodeError):
+    except (KeyError, ValueError):  # tomllib.TOMLDecodeError is a ValueError
         return None
     return path if path.is_file() else None
 

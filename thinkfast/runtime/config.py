@@ -20,7 +20,7 @@ from thinkfast.runtime.values import ValueConfig
 
 
 @dataclass(frozen=True)
-class ThrowConfig:
+class EpisodeConfig:
     """When a throw starts and ends."""
 
     min_approach_speed: float = spec(
@@ -116,7 +116,7 @@ class RunConfig:
     )
     launch: LaunchConfig = spec(LaunchConfig())
     value: ValueConfig = spec(ValueConfig())
-    throw: ThrowConfig = spec(ThrowConfig())
+    throw: EpisodeConfig = spec(EpisodeConfig())
     execution: ExecutionConfig = spec(ExecutionConfig())
     choice: ChoiceConfig = spec(ChoiceConfig())
     path_value: PathValueConfig = spec(PathValueConfig())

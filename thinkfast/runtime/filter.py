@@ -171,6 +171,8 @@ class Belief(NamedTuple):
         n_late: measurements rejected as late, duplicated or out of order.
         n_outliers: axis-measurements revised by the robust gate.
         n_resets: axis re-initialisations by the recovery step.
+        window_model: the measurement-noise model at each innovation of ``window`` [m^2],
+            shape (window, 3).
     """
 
     t: float
@@ -186,7 +188,7 @@ class Belief(NamedTuple):
     n_late: int
     n_outliers: int
     n_resets: int
-    window_model: np.ndarray | None = None
+    window_model: np.ndarray
 
 
 class UpdateInfo(NamedTuple):
@@ -309,7 +311,7 @@ def update(
         )
     z = np.array(z, dtype=float)
     r_model = stereo_r(z, sensor, cfg)
-    wm = belief.window_model if belief.window_model is not None else np.zeros((cfg.window, 3))
+    wm = belief.window_model
     if belief.n_meas == 0:
         first = belief._replace(
             t=float(t), mean=np.concatenate([z, _ZERO3]), t_meas=float(t), z_meas=z, n_meas=1
@@ -390,7 +392,7 @@ def restart(belief: Belief, t: float, mean: np.ndarray, cov: np.ndarray, z: np.n
     belong to the motion before the restart) and the outlier counters start afresh.
     """
     window = np.zeros_like(belief.window)
-    wm = None if belief.window_model is None else np.zeros_like(belief.window_model)
+    wm = np.zeros_like(belief.window_model)
     return belief._replace(
         t=float(t),
         mean=np.array(mean, dtype=float),

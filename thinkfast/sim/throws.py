@@ -128,7 +128,7 @@ class Throw(NamedTuple):
     rest_time: float = 0.0
 
 
-class Crossing(NamedTuple):
+class TrueCrossing(NamedTuple):
     """Ball centre at the plane: time after release [s], y, z [m], velocity [m/s] (3,)."""
 
     t: float
@@ -321,7 +321,7 @@ def ball_positions(throw: Throw, times: np.ndarray) -> np.ndarray:
     return ball_states(throw, times)[0]
 
 
-def plane_crossing(throw: Throw, plane_x: float | None = None, t_max: float = 5.0) -> Crossing:
+def plane_crossing(throw: Throw, plane_x: float | None = None, t_max: float = 5.0) -> TrueCrossing:
     """When and where the ball centre crosses ``x = plane_x`` [m] (default: the throw's plane).
 
     Raises:
@@ -333,7 +333,7 @@ def plane_crossing(throw: Throw, plane_x: float | None = None, t_max: float = 5.
     plane_x = throw.plane_x if plane_x is None else float(plane_x)
     y0 = np.concatenate([throw.p_release, throw.v_release])[None]
     if y0[0, 0] <= plane_x:
-        return Crossing(0.0, float(y0[0, 1]), float(y0[0, 2]), throw.v_release.copy())
+        return TrueCrossing(0.0, float(y0[0, 1]), float(y0[0, 2]), throw.v_release.copy())
     y, i = y0, 0
     while y[0, 0] > plane_x:
         if i * STEP > t_max:
@@ -346,7 +346,7 @@ def plane_crossing(throw: Throw, plane_x: float | None = None, t_max: float = 5.
         y = _rk4(prev, s, throw.drag, throw.gravity)[0]
         s -= (y[0] - plane_x) / y[3]
     y = _rk4(prev, s, throw.drag, throw.gravity)[0]
-    return Crossing((i - 1) * STEP + s, float(y[1]), float(y[2]), y[3:].copy())
+    return TrueCrossing((i - 1) * STEP + s, float(y[1]), float(y[2]), y[3:].copy())
 
 
 def observed_until(throw: Throw, after_crossing: float) -> float:
