@@ -69,6 +69,13 @@ class TreeConfig:
     sample_dt: float = spec(
         0.002, lo=0.0, lo_open=True, hi=0.01, unit="s", doc="sampling step along a primitive"
     )
+    shield_dt: float = spec(
+        0.02,
+        lo=0.001,
+        hi=0.1,
+        unit="s",
+        doc="sample spacing of the shield paths stored per edge (must divide eps)",
+    )
 
 
 @dataclass(frozen=True)
@@ -106,6 +113,10 @@ def load_compile_config(path: str | Path) -> LoadedConfig:
         raise ConfigError(str(path), "goals.y_max", f"must be >= goals.y_min ({g.y_min:g})")
     if g.z_max < g.z_min:
         raise ConfigError(str(path), "goals.z_max", f"must be >= goals.z_min ({g.z_min:g})")
+    t = cfg.tree
+    k = round(t.eps / t.shield_dt)
+    if k < 1 or abs(k * t.shield_dt - t.eps) > 1e-9:
+        raise ConfigError(str(path), "tree.shield_dt", f"must divide tree.eps ({t.eps:g} s)")
     text = path.read_text(encoding="utf-8")
     return LoadedConfig(
         config=cfg,
