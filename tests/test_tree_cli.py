@@ -152,7 +152,7 @@ def test_verify_catches_tampered_shield_paths_and_info_shows_them(trees):
     from thinkfast.compile.treefile import load_tree, save_tree
 
     t = load_tree(trees["a"])
-    assert t.edge_shield.shape[1] == 6 and t.meta["shield_dt"] == 0.02
+    assert t.edge_shield.shape[1] == 6 and t.meta["shield_dt"] == pytest.approx(0.02, abs=1e-15)
     edge, term = np.array(t.edge_shield), np.array(t.term_shield)
     edge[4, 3, 1] += 1e-3
     term[7, -1, 2] -= 1e-3
@@ -169,8 +169,11 @@ def test_verify_catches_tampered_shield_paths_and_info_shows_them(trees):
     assert "tree edge paths: 1 of" in diff.stdout and "terminal paths: 1 of" in diff.stdout
 
 
-def test_shield_dt_that_does_not_divide_eps_is_refused(tmp_path):
-    cfg = _config(tmp_path, "odd")
-    cfg.write_text(cfg.read_text() + "shield_dt = 0.03\n")
-    proc = run_cli("thinkfast-compile", "tree", str(cfg), "-o", str(tmp_path / "odd.h5"))
-    assert_one_line_error(proc, "tree.shield_dt", "must divide tree.eps")
+def test_shield_spacing_is_the_largest_that_divides_eps():
+    from thinkfast.compile.shield import sample_spacing, steps_per_edge
+
+    assert sample_spacing(0.1, 0.02) == pytest.approx(0.02, abs=1e-15)
+    assert sample_spacing(0.12, 0.05) == pytest.approx(0.04, abs=1e-15)
+    assert steps_per_edge(0.12, sample_spacing(0.12, 0.05)) == 3
+    with pytest.raises(ValueError, match="does not divide"):
+        steps_per_edge(0.1, 0.03)

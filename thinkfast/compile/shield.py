@@ -22,6 +22,12 @@ from thinkfast.errors import NoSolutionError
 from thinkfast.robot.shield_path import ShieldSampler
 
 
+def sample_spacing(eps: float, largest: float) -> float:
+    """The spacing [s] used for shield paths: ``eps`` over the fewest whole steps that are no
+    longer than ``largest`` (so tree edges start and end on samples)."""
+    return eps / math.ceil(eps / largest - 1e-9)
+
+
 def steps_per_edge(eps: float, dt: float) -> int:
     """Samples steps along one tree edge: ``eps / dt``, which must be a whole number.
 
@@ -90,4 +96,4 @@ def edge_shield_paths(
     return sampler.centres(q), sampler.centres(qt)
 
 
-__all__ = ["NoSolutionError", "edge_shield_paths", "steps_per_edge"]
+__all__ = ["NoSolutionError", "edge_shield_paths", "sample_spacing", "steps_per_edge"]
