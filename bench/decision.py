@@ -9,7 +9,8 @@ With ``--tree``, the daemon's planners are also timed side by side in one run: t
 whole handling of a detection that ends in a decision (filter, launch fit, crossing belief and
 the planner's choice), on the same simulated detections (default throw mix, camera model, as
 ``thinkfast-sim`` draws them) for ``tree-rest`` (the paper's at-rest tree values and backup),
-``tree`` (the re-rooted choice by the moving shield's block probability) and ``naive``.
+``tree`` (the re-rooted choice by the moving shield's block probability), ``tree+branches``
+(the same with ``[choice] branches = true``: the compiled child edges scored too) and ``naive``.
 
 The beliefs come from simulated throws (6-8 m, 0.4-0.8 s flight, 50 Hz, a few cm of noise, with
 drag), so the belief width sweeps from wide (first frames) to tight (just before the crossing).
@@ -198,7 +199,7 @@ def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) 
         t_rel = LEAD + ball.t_release
         dets = observe(ball, world.camera, cfg.camera, np.random.default_rng(seed + i), t_rel)
         for planner in planners:
-            ex = Executor(world.tree, world.robot, cfg, planner)
+            ex = Executor(world.tree, world.robot, *_planner_config(cfg, planner))
             ex.start_from(world.robot.home, 0.0)
             intake = Intake(cfg.camera, cfg.detections)
             t_end = t_rel + ball.flight_time + 0.3
@@ -218,6 +219,17 @@ def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) 
                 ex.setpoint(t)
                 t += DT
     return {p: np.array(v) for p, v in out.items()}
+
+
+def _planner_config(cfg, name: str):
+    """(config, executor planner) for a timed name: ``tree+branches`` is ``tree`` with the
+    compiled branches among its options."""
+    import dataclasses
+
+    if name == "tree+branches":
+        choice = dataclasses.replace(cfg.choice, branches=True)
+        return dataclasses.replace(cfg, choice=choice), "tree"
+    return cfg, name
 
 
 def planner_rows(times: dict) -> list[dict]:
@@ -248,7 +260,7 @@ def main(argv=None) -> int:
     parser.add_argument("--no-scaling", action="store_true", help="skip the 10^3..10^6 table")
     parser.add_argument(
         "--planners",
-        default="tree-rest,tree,naive",
+        default="tree-rest,tree,tree+branches,naive",
         help="with --tree: daemon planners timed side by side (comma separated; '' skips)",
     )
     parser.add_argument("--planner-throws", type=int, default=60, help="throws for --planners")
@@ -281,6 +293,10 @@ def main(argv=None) -> int:
         if by.get("tree-rest", {}).get("p99_ms") and by.get("tree", {}).get("p99_ms"):
             result["tree_over_tree_rest_p99"] = round(
                 by["tree"]["p99_ms"] / by["tree-rest"]["p99_ms"], 3
+            )
+        if by.get("tree-rest", {}).get("p99_ms") and by.get("tree+branches", {}).get("p99_ms"):
+            result["branches_over_tree_rest_p99"] = round(
+                by["tree+branches"]["p99_ms"] / by["tree-rest"]["p99_ms"], 3
             )
     result["load_average"] = [round(x, 2) for x in os.getloadavg()]
     if not args.no_scaling:
@@ -332,6 +348,9 @@ def main(argv=None) -> int:
             )
         if "tree_over_tree_rest_p99" in result:
             print(f"  p99 tree / tree-rest: {result['tree_over_tree_rest_p99']:.2f}")
+        if "branches_over_tree_rest_p99" in result:
+            ratio = result["branches_over_tree_rest_p99"]
+            print(f"  p99 tree+branches / tree-rest: {ratio:.2f}")
     print(f"  load average at the end: {result['load_average']}")
     return 0
 

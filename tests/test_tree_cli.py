@@ -141,3 +141,39 @@ def test_verify_catches_edges_that_do_not_recompute(trees):
     assert proc.returncode == 1, proc.stdout
     assert "node 3: state differs" in proc.stdout
     assert "terminal 5: duration" in proc.stdout
+
+
+def test_verify_catches_tampered_shield_paths_and_info_shows_them(trees):
+    """Shield samples moved by 1 mm (checksums valid) fail verify, named by edge."""
+    import dataclasses
+
+    import numpy as np
+
+    from thinkfast.compile.treefile import load_tree, save_tree
+
+    t = load_tree(trees["a"])
+    assert t.edge_shield.shape[1] == 6 and t.meta["shield_dt"] == pytest.approx(0.02, abs=1e-15)
+    edge, term = np.array(t.edge_shield), np.array(t.term_shield)
+    edge[4, 3, 1] += 1e-3
+    term[7, -1, 2] -= 1e-3
+    path = trees["tmp"] / "shield_tampered.h5"
+    save_tree(dataclasses.replace(t, edge_shield=edge, term_shield=term), path)
+    proc = run_cli("thinkfast-compile", "verify", str(path), "--jobs", "1")
+    assert proc.returncode == 1, proc.stdout
+    assert "edge 4: shield path differs by 0.001 m" in proc.stdout
+    assert "terminal 7: shield path differs by 0.001 m" in proc.stdout
+    info = run_cli("thinkfast-compile", "info", str(trees["a"]))
+    assert "shield paths (every 0.02 s, coplanar normal +x): 6 samples per tree edge" in info.stdout
+    diff = run_cli("thinkfast-compile", "diff", str(trees["a"]), str(path))
+    assert diff.returncode == 1
+    assert "tree edge paths: 1 of" in diff.stdout and "terminal paths: 1 of" in diff.stdout
+
+
+def test_shield_spacing_is_the_largest_that_divides_eps():
+    from thinkfast.compile.shield import sample_spacing, steps_per_edge
+
+    assert sample_spacing(0.1, 0.02) == pytest.approx(0.02, abs=1e-15)
+    assert sample_spacing(0.12, 0.05) == pytest.approx(0.04, abs=1e-15)
+    assert steps_per_edge(0.12, sample_spacing(0.12, 0.05)) == 3
+    with pytest.raises(ValueError, match="does not divide"):
+        steps_per_edge(0.1, 0.03)

@@ -1,4 +1,4 @@
-"""Tree files v1: exact round trip, atomic writes, and a clear refusal for every kind of damage."""
+"""Tree files v2: exact round trip, atomic writes, and a clear refusal for every kind of damage."""
 
 from __future__ import annotations
 
@@ -26,7 +26,8 @@ from thinkfast.compile.treefile import (
 from thinkfast.errors import TreeFileError
 
 ROOT = Path(__file__).resolve().parents[1]
-GOLDEN = ROOT / "tests" / "data" / "tree_v1_golden.h5"
+GOLDEN = ROOT / "tests" / "data" / "tree_v2_golden.h5"
+GOLDEN_V1 = ROOT / "tests" / "data" / "tree_v1_golden.h5"
 
 
 @pytest.fixture
@@ -82,6 +83,7 @@ def test_meta_scalars_stay_native_and_the_rest_is_json_under_a_dotjson_name(tmp_
     meta = {"n": 3, "x": 0.5, "ok": False, "s": "é", "d": {"a": [1, 2.5, None]}, "l": [1, "b"]}
     meta["none"] = None
     meta["np"] = np.int64(7)
+    meta["shield_dt"] = 0.02  # the one key v2 requires
     tree = dataclasses.replace(random_tree(0), meta=meta)
     save_tree(tree, tmp_path / "t.h5")
     with h5py.File(tmp_path / "t.h5") as f:
@@ -148,8 +150,18 @@ def test_writing_into_a_missing_directory_names_it(tmp_path):
         save_tree(random_tree(0), tmp_path / "nope" / "t.h5")
 
 
-def test_golden_v1_file_still_reads_with_its_known_values():
-    """Breaks when a change makes this thinkfast unable to read files written as v1."""
+def test_golden_v1_file_is_refused_naming_its_version_and_the_fix():
+    """v1 files have no shield paths: refused in one line that says what to do."""
+    message = assert_refused(
+        GOLDEN_V1, "schema_version 1 is not supported (this thinkfast reads 2)", "no shield paths"
+    )
+    assert "recompile it with `thinkfast-compile tree CONFIG.toml -o tree_v1_golden.h5`" in message
+    with pytest.raises(TreeFileError, match="schema_version 1 is not supported"):
+        load_meta(GOLDEN_V1)
+
+
+def test_golden_v2_file_still_reads_with_its_known_values():
+    """Breaks when a change makes this thinkfast unable to read files written as v2."""
     tree = load_tree(GOLDEN)
     assert GOLDEN.stat().st_size < 50_000
     assert tree.node_parent.tolist() == [-1, 0, 0, 1, 2]
@@ -169,8 +181,13 @@ def test_golden_v1_file_still_reads_with_its_known_values():
     assert tree.meta["created"] == "2025-01-01T00:00:00Z"
     assert "max_depth = 2" in tree.meta["config_text"]
     assert tree.meta["config_sha256"].startswith("0bc819342769")
+    assert tree.meta["shield_dt"] == 0.05
+    assert tree.edge_shield.shape == (5, 3, 3) and tree.term_shield.shape == (4, 8, 3)
+    assert np.allclose(tree.edge_shield[3, 2], [0.7, 0.3, 1.0], rtol=0, atol=1e-15)
+    assert np.allclose(tree.term_shield[1, 2], [0.74, 0.0, 1.0], rtol=0, atol=1e-15)
+    assert np.allclose(tree.term_shield[2, 7], [0.8, 0.0, 1.0], rtol=0, atol=1e-15)  # held
     assert tree_fingerprint(tree) == (
-        "76822d676d13f86e8341a5bdee3d29cf18114d6540880e88c2918fe9ac95cb7c"
+        "6779ca84c5fb0a2d5c94bebde4c7a2e8ecaa5851f7a738c24d6c79286b470594"
     )
 
 
@@ -184,7 +201,7 @@ def test_every_tree_array_has_a_dataset_and_every_dataset_is_documented():
 
 def test_every_dataset_carries_units_doc_and_checksum(tree_file):
     with h5py.File(tree_file) as f:
-        assert f.attrs["format"] == "thinkfast-tree" and f.attrs["schema_version"] == 1
+        assert f.attrs["format"] == "thinkfast-tree" and f.attrs["schema_version"] == 2
         for path in [*PATHS.values(), *(p for p, _, _ in DERIVED)]:
             ds = f[path]
             assert ds.attrs["units"] and ds.attrs["doc"]
@@ -256,11 +273,11 @@ def test_one_flipped_byte_inside_a_dataset_fails_its_checksum(tree_file, path):
     assert_refused(tree_file, f"dataset {path}: checksum mismatch (file is corrupt)")
 
 
-@pytest.mark.parametrize("version", [7, 2, 0])
+@pytest.mark.parametrize("version", [7, 3, 1, 0])
 def test_unknown_schema_version_is_refused(tree_file, version):
     with h5py.File(tree_file, "r+") as f:
         f.attrs["schema_version"] = version
-    assert_refused(tree_file, f"schema_version {version} is not supported (this thinkfast reads 1)")
+    assert_refused(tree_file, f"schema_version {version} is not supported (this thinkfast reads 2)")
     with pytest.raises(TreeFileError, match="is not supported"):
         load_meta(tree_file)
 
@@ -284,7 +301,9 @@ def test_hdf5_file_of_another_kind(tmp_path):
     assert_refused(path, "missing root attribute format")
 
 
-@pytest.mark.parametrize("path", ["/terminals/goal", "/nodes/parent", "/edges/child", "/grid/yz"])
+@pytest.mark.parametrize(
+    "path", ["/terminals/goal", "/nodes/parent", "/edges/child", "/grid/yz", "/terminals/shield"]
+)
 def test_missing_dataset(tree_file, path):
     with h5py.File(tree_file, "r+") as f:
         del f[path]
@@ -311,7 +330,7 @@ def test_rows_that_disagree_within_a_group(tree_file):
 
 def test_wrong_trailing_shape(tree_file):
     rewrite(tree_file, "/nodes/state", load_tree(tree_file).node_state[:, :8].copy())
-    assert_refused(tree_file, "/nodes/state has shape", "expected ('N', 9)")
+    assert_refused(tree_file, "/nodes/state has shape", "expected (N, 9)")
 
 
 @pytest.mark.parametrize(
@@ -324,6 +343,8 @@ def test_wrong_trailing_shape(tree_file):
         ("/terminals/node", lambda t: t.term_node[::-1].copy(), "/terminals/node is not sorted"),
         ("/terminals/goal", lambda t: _set(t.term_goal, 0, 999), "/terminals/goal holds an index"),
         ("/edges/kind", lambda t: _set(t.edge_kind, 1, 7), "/edges/kind holds a value other"),
+        ("/edges/shield", lambda t: _set(t.edge_shield, 1, np.nan), "/edges/shield holds a value"),
+        ("/terminals/shield", lambda t: t.term_shield[:, :, :2].copy(), "expected (T, S, 3)"),
     ],
 )
 def test_layout_violations_with_valid_checksums_are_refused(tree_file, dataset, change, needle):
@@ -358,3 +379,26 @@ def test_missing_checksum_attribute(tree_file):
     with h5py.File(tree_file, "r+") as f:
         del f["/goals/q"].attrs["sha256"]
     assert_refused(tree_file, "dataset /goals/q: missing sha256 attribute")
+
+
+def test_shield_paths_round_trip_with_their_spacing(tmp_path):
+    tree = random_tree(4)
+    assert tree.term_shield.shape[1] > 1 and tree.edge_shield.shape[1] == 6
+    save_tree(tree, tmp_path / "t.h5")
+    back = load_tree(tmp_path / "t.h5")
+    assert np.array_equal(back.edge_shield, tree.edge_shield)
+    assert np.array_equal(back.term_shield, tree.term_shield)
+    assert back.meta["shield_dt"] == 0.02
+
+
+@pytest.mark.parametrize("value", [None, 0.0, -0.02, "0.02"])
+def test_a_missing_or_bad_shield_spacing_is_refused(tmp_path, tree_file, value):
+    with h5py.File(tree_file, "r+") as f:
+        if value is None:
+            del f.attrs["shield_dt"]
+        else:
+            f.attrs["shield_dt"] = value
+    assert_refused(tree_file, "meta shield_dt (sample spacing of the shield paths, s)")
+    meta = {k: v for k, v in random_tree(0).meta.items() if k != "shield_dt"}
+    with pytest.raises(TreeFileError, match="shield_dt"):
+        save_tree(dataclasses.replace(random_tree(0), meta=meta), tmp_path / "x.h5")

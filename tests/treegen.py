@@ -3,7 +3,8 @@
 The trees honour every layout invariant of :mod:`thinkfast.compile.tree`: breadth-first nodes,
 contiguous children, terminal edges sorted by node (leaving from the deepest level only, like the
 compiler), ``child ttc = parent ttc + edge duration`` and ``arrival = ttc(node) + duration``.
-Their numbers are random, not physical.
+Their numbers are random, not physical; shield paths are sampled every ``SHIELD_DT`` (tree edges:
+random points near the plane; terminal edges: straight to their goal's point, then held).
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import hashlib
 import numpy as np
 
 from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED, ActionTree
+
+SHIELD_DT = 0.02  # s
 
 CONFIG_TEMPLATE = """\
 robot = "../robots/irb1600/robot.toml"
@@ -116,6 +119,8 @@ def random_tree(
         subgoal_goal=subgoal_goal,
         grid_yz=grid_yz,
         grid_reachable=grid_reachable,
+        edge_shield=0.8 + 0.3 * rng.normal(size=(n, round(eps / SHIELD_DT) + 1, 3)),
+        term_shield=np.zeros((0, 1, 3)),
         meta=sample_meta(max_depth=max_depth, eps=eps, spacing=spacing),
     )
     return with_terminals(tree, np.array(term_node), np.array(term_goal), term_duration)
@@ -136,6 +141,7 @@ def sample_meta(**params: float) -> dict:
         "jobs": 2,
         "seconds": 1.5,
         "discards": {"position_limit": 3, "collision": 5},
+        "shield_dt": SHIELD_DT,
     }
 
 
@@ -147,10 +153,12 @@ def with_terminals(
     node = np.asarray(term_node, dtype=np.int32)[order]
     duration = np.asarray(term_duration, dtype=np.float64)[order]
     count = np.bincount(node, minlength=tree.n_nodes).astype(np.int64)
+    goal = np.asarray(term_goal, dtype=np.int32)[order]
     return dataclasses.replace(
         tree,
         term_node=node,
-        term_goal=np.asarray(term_goal, dtype=np.int32)[order],
+        term_goal=goal,
+        term_shield=terminal_shield(tree.goal_yz[goal], duration),
         term_duration=duration,
         term_arrival=tree.node_ttc[node] + duration,
         term_start=(np.cumsum(count) - count).astype(np.int64),
@@ -166,3 +174,12 @@ def with_config(tree: ActionTree, old: str, new: str) -> ActionTree:
         tree.meta, config_text=text, config_sha256=hashlib.sha256(text.encode()).hexdigest()
     )
     return dataclasses.replace(tree, meta=meta)
+
+
+def terminal_shield(goal_yz: np.ndarray, duration: np.ndarray) -> np.ndarray:
+    """Synthetic terminal shield paths (T, S, 3): from (0.7, 0, 1) straight to (0.8, goal y, z)
+    over the edge's duration, held there, sampled every ``SHIELD_DT`` [s]."""
+    s = int(np.ceil(duration.max() / SHIELD_DT - 1e-9)) + 1 if len(duration) else 1
+    u = np.clip(np.arange(s)[None, :] * SHIELD_DT / np.maximum(duration[:, None], 1e-9), 0, 1)
+    start, end = np.array([0.7, 0.0, 1.0]), np.c_[np.full(len(goal_yz), 0.8), goal_yz]
+    return start + u[:, :, None] * (end[:, None, :] - start)

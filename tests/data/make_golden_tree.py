@@ -1,7 +1,9 @@
-"""Write the golden tree file of schema version 1 (``tests/data/tree_v1_golden.h5``).
+"""Write the golden tree file of schema version 2 (``tests/data/tree_v2_golden.h5``).
 
 Run once per schema version and commit the output; never regenerate a released version's golden
-file (it is what old files look like). ``tests/test_treefile.py`` checks its known values.
+file (it is what old files look like). ``tests/test_treefile.py`` checks its known values (and
+that ``tree_v1_golden.h5``, written by this script before v2 added the shield paths, is refused
+with the fix named).
 
     python tests/data/make_golden_tree.py [OUT] [--force]
 """
@@ -36,6 +38,13 @@ def golden_tree() -> ActionTree:
     term_node = np.array([3, 3, 4, 4], dtype=np.int32)
     term_duration = np.array([0.3, 0.25, 0.2, 0.35])
     grid_yz = np.array([[-0.15, 0.85], [0.0, 1.0], [0.15, 1.0], [0.15, 0.85]])
+    # shield centres every 0.05 s: edges of 0.1 s (3 samples), terminals up to 0.35 s (8)
+    edge_shield = np.array([[[0.6, 0.0, 1.0]] * 3] + [
+        [[0.6, 0.0, 1.0], [0.65, 0.05 * i, 1.0], [0.7, 0.1 * i, 1.0]] for i in range(1, 5)
+    ])  # fmt: skip
+    u = np.clip(np.arange(8)[None, :] * 0.05 / term_duration[:, None], 0.0, 1.0)
+    end = np.c_[np.full(4, 0.8), grid_yz[[0, 1, 1, 3]]]
+    term_shield = np.array([0.7, 0.0, 1.0]) + u[:, :, None] * (end[:, None] - [0.7, 0.0, 1.0])
     return ActionTree(
         node_parent=np.array([-1, 0, 0, 1, 2], dtype=np.int32),
         node_depth=np.array([0, 1, 1, 2, 2], dtype=np.int32),
@@ -65,6 +74,8 @@ def golden_tree() -> ActionTree:
         subgoal_goal=np.array([0, 2], dtype=np.int32),
         grid_yz=grid_yz,
         grid_reachable=np.array([True, True, False, True]),
+        edge_shield=edge_shield,
+        term_shield=term_shield,
         meta={
             "created": "2025-01-01T00:00:00Z",
             "thinkfast_version": "0.1.0",
@@ -78,6 +89,7 @@ def golden_tree() -> ActionTree:
             "seconds": 0.25,
             "deterministic": True,
             "discards": {"position_limit": 2, "collision": 1},
+            "shield_dt": 0.05,
         },
     )
 
@@ -85,7 +97,7 @@ def golden_tree() -> ActionTree:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "out", nargs="?", default=str(Path(__file__).with_name("tree_v1_golden.h5"))
+        "out", nargs="?", default=str(Path(__file__).with_name("tree_v2_golden.h5"))
     )
     parser.add_argument("--force", action="store_true", help="overwrite an existing file")
     args = parser.parse_args(argv)

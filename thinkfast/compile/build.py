@@ -13,6 +13,7 @@ from thinkfast import __version__
 from thinkfast.compile.config import LoadedConfig
 from thinkfast.compile.goals import require_reachable, solve_goal_grid
 from thinkfast.compile.grow import GrowInputs, Progress, grow, subgoals
+from thinkfast.compile.shield import edge_shield_paths, sample_spacing
 from thinkfast.compile.tree import ActionTree
 from thinkfast.config import to_dict
 from thinkfast.robot.batch_fk import BatchFK
@@ -78,6 +79,15 @@ def compile_tree(
     term_count = np.bincount(term_node, minlength=n).astype(np.int64)
     term_start = np.r_[0, np.cumsum(term_count)[:-1]].astype(np.int64)
     node_q = np.column_stack([g["state"][:, :3], g["wrist"]])
+    shield_dt = sample_spacing(cfg.tree.eps, cfg.tree.shield_dt)
+    if progress:
+        progress("shield paths", 0, 1)
+    edge_shield, term_shield = edge_shield_paths(
+        robot, g["parent"], g["state"], g["target"], term_node, term_goal, term_duration,
+        goal_q, sub, cfg.tree.eps, shield_dt,
+    )  # fmt: skip
+    if progress:
+        progress("shield paths", 1, 1)
     meta = {
         "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         **versions(),
@@ -90,6 +100,7 @@ def compile_tree(
         "parameters": json.dumps(to_dict(cfg)),
         "plane_distance": cfg.plane.distance,
         "shield_radius": robot.shield_radius,
+        "shield_dt": shield_dt,
         "tree_discards": json.dumps(g["tree_discards"], sort_keys=True),
         "terminal_discards": json.dumps(g["terminal_discards"], sort_keys=True),
         "jobs": jobs,
@@ -118,5 +129,7 @@ def compile_tree(
         subgoal_goal=sub,
         grid_yz=np.array(grid.yz),
         grid_reachable=np.array(grid.reachable),
+        edge_shield=edge_shield,
+        term_shield=term_shield,
         meta=meta,
     ).freeze()

@@ -182,7 +182,7 @@ def verify(
     report = verify_tree(tree_, robot, config, factor, jobs or default_jobs(), ProgressBar())
     print(
         f"{path}: {report.edges} tree edges and {report.terminals} terminal edges recomputed, "
-        f"{report.checks} collision checks at {factor:g}x resolution"
+        f"{report.checks} collision checks at {factor:g}x resolution, shield paths sampled again"
     )
     for p in report.problems[:20]:
         print(f"  problem: {p}")

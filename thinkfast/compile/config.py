@@ -69,6 +69,13 @@ class TreeConfig:
     sample_dt: float = spec(
         0.002, lo=0.0, lo_open=True, hi=0.01, unit="s", doc="sampling step along a primitive"
     )
+    shield_dt: float = spec(
+        0.02,
+        lo=0.001,
+        hi=0.1,
+        unit="s",
+        doc="largest sample spacing of the stored shield paths (eps / a whole number is used)",
+    )
 
 
 @dataclass(frozen=True)

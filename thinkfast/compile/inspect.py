@@ -119,8 +119,32 @@ def tree_info(tree: ActionTree) -> str:
     if missing:
         shown = ", ".join(missing[:LARGEST]) + (", ..." if len(missing) > LARGEST else "")
         lines.append(f"uncovered goals ({len(missing)}): {shown}")
+    lines += ["", *shield_lines(tree)]
     lines += ["", *_meta_lines(tree.meta)]
     return "\n".join(lines)
+
+
+def shield_lines(tree: ActionTree) -> list[str]:
+    """What the stored shield paths hold: spacing, samples per edge, the region they sweep."""
+    dt = tree.meta.get("shield_dt")
+    e, t = tree.edge_shield, tree.term_shield
+    spacing = f"every {dt:g} s" if isinstance(dt, int | float) else "spacing not recorded"
+    lines = [
+        f"shield paths ({spacing}, coplanar normal +x): {e.shape[1]} samples per tree edge,"
+        f" {t.shape[1]} per terminal edge"
+    ]
+    pts = np.concatenate([e.reshape(-1, 3), t.reshape(-1, 3)])
+    if len(pts):
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        lines.append(
+            "  centre range [m]: "
+            + ", ".join(f"{c} {a:+.3f}..{b:+.3f}" for c, a, b in zip("xyz", lo, hi, strict=True))
+        )
+    if len(t) and t.shape[1] > 1:
+        step = np.linalg.norm(np.diff(t[:, :, 1:], axis=1), axis=2)
+        fast = float(step.max()) / dt if isinstance(dt, int | float) else float("nan")
+        lines.append(f"  fastest lateral shield speed on a terminal edge: {fast:.2f} m/s")
+    return lines
 
 
 def _stats_row(label: str, x: np.ndarray) -> str:
@@ -201,6 +225,7 @@ def tree_diff(a: ActionTree, b: ActionTree) -> TreeDiff:
     if len(prov) > len(robot):
         lines += ["versions:", *(line for line in prov if line not in robot)]
     lines += _count_lines(a, b)
+    lines += _shield_diff(a, b)
     lines += _goal_lines(a, b)
     same = fa == fb and pa == pb
     if same:
@@ -244,6 +269,25 @@ def _count_lines(a: ActionTree, b: ActionTree) -> list[str]:
         parts = [f"{k} {x} -> {y}" for k, x, y in zip(names, ca[d], cb[d], strict=True) if x != y]
         out.append(f"  depth {d}: " + ", ".join(parts))
     return ["counts per depth: " + ("changed" if out else "equal"), *out]
+
+
+def _shield_diff(a: ActionTree, b: ActionTree) -> list[str]:
+    """Shield paths: equal, or what changed (spacing, samples, largest move of a sample)."""
+    out = []
+    da, db = a.meta.get("shield_dt"), b.meta.get("shield_dt")
+    if da != db:
+        out.append(f"  spacing [s]: {da} -> {db}")
+    for label, x, y in (("tree edge", a.edge_shield, b.edge_shield),
+                        ("terminal", a.term_shield, b.term_shield)):  # fmt: skip
+        if x.shape != y.shape:
+            out.append(f"  {label} samples: {x.shape} -> {y.shape}")
+        elif not np.array_equal(x, y):
+            d = np.max(np.linalg.norm(x - y, axis=2), axis=1)
+            out.append(
+                f"  {label} paths: {int(np.count_nonzero(d))} of {len(d)} differ,"
+                f" largest {float(d.max()):.3g} m (row {int(np.argmax(d))})"
+            )
+    return ["shield paths: " + ("changed" if out else "equal"), *out]
 
 
 def _goal_keys(t: ActionTree) -> dict[tuple[int, int], int]:

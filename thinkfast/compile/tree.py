@@ -42,6 +42,11 @@ class ActionTree:
         goal_grid_index (G,) int32: index of the goal in the full IK grid,
         subgoal_goal (K,) int32: goal index of every steering sub-goal.
     grid_yz (M, 2) float64 and grid_reachable (M,) bool: the full IK grid, for reports.
+    Shield paths (schema v2; sample spacing ``meta["shield_dt"]`` [s], coplanar normal +x):
+        edge_shield (N, E, 3) float64 [m]: shield centre in ``base`` along the edge into node i
+            at times 0, dt, ..., eps (E = eps / dt + 1); row 0 (the root's stub) at home.
+        term_shield (T, S, 3) float64 [m]: along terminal edge k at times 0, dt, ..., held at
+            its goal after the edge's duration (S: the longest terminal edge, rounded up).
     meta: provenance and statistics (plain JSON-able values), written as file attributes.
     """
 
@@ -67,6 +72,8 @@ class ActionTree:
     subgoal_goal: np.ndarray
     grid_yz: np.ndarray
     grid_reachable: np.ndarray
+    edge_shield: np.ndarray
+    term_shield: np.ndarray
     meta: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -116,15 +123,19 @@ DTYPES: dict[str, np.dtype] = {
     "subgoal_goal": np.dtype(np.int32),
     "grid_yz": np.dtype(np.float64),
     "grid_reachable": np.dtype(np.bool_),
+    "edge_shield": np.dtype(np.float64),
+    "term_shield": np.dtype(np.float64),
 }
 
-# trailing shape of every array (first axis is the count)
-SHAPES: dict[str, tuple[int, ...]] = {
+# trailing shape of every array (first axis is the count; None: any length, one per file)
+SHAPES: dict[str, tuple[int | None, ...]] = {
     "node_state": (9,),
     "node_q": (6,),
     "goal_q": (6,),
     "goal_yz": (2,),
     "grid_yz": (2,),
+    "edge_shield": (None, 3),
+    "term_shield": (None, 3),
 }
 
 UNITS: dict[str, str] = {
@@ -150,4 +161,6 @@ UNITS: dict[str, str] = {
     "subgoal_goal": "index into goals",
     "grid_yz": "m",
     "grid_reachable": "bool",
+    "edge_shield": "m",
+    "term_shield": "m",
 }

@@ -1,4 +1,4 @@
-"""Action tree files (HDF5, format ``thinkfast-tree`` v1): write, read and verify.
+"""Action tree files (HDF5, format ``thinkfast-tree`` v2): write, read and verify.
 
 The file describes itself: format name and schema version, the compiler's provenance and full
 config as root attributes, one dataset per :class:`~thinkfast.compile.tree.ActionTree` array with
@@ -25,7 +25,10 @@ from thinkfast.compile.tree import DTYPES, EDGE_CUT, EDGE_REACHED, SHAPES, UNITS
 from thinkfast.errors import TreeFileError
 
 FORMAT = "thinkfast-tree"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+SHIELD_DT = "shield_dt"  # meta key (v2, required): sample spacing of the shield paths [s]
+# why an older version is refused, and the fix
+OLDER = {1: "v1 has no shield paths"}
 JSON_SUFFIX = ".json"  # a meta value stored as a JSON string lives in attribute "<key>.json"
 RESERVED_ATTRS = ("format", "schema_version", "fingerprint")
 
@@ -63,6 +66,8 @@ LAYOUT: tuple[tuple[str, str, str], ...] = (
     ("subgoal_goal", "/subgoals/goal", "goal (row of /goals) of every steering sub-goal"),
     ("grid_yz", "/grid/yz", "grid point on the intercept plane (base y, base z)"),
     ("grid_reachable", "/grid/reachable", "the IK solved the point (it is then one of /goals)"),
+    ("edge_shield", "/edges/shield", "shield centre (base x, y, z) along the edge every shield_dt"),
+    ("term_shield", "/terminals/shield", "shield centre along the edge every shield_dt, then held"),
 )
 PATHS = {name: path for name, path, _ in LAYOUT}
 
@@ -120,16 +125,31 @@ def layout_problem(arrays: Mapping[str, np.ndarray]) -> str | None:
         if a.dtype.newbyteorder("<") != DTYPES[name].newbyteorder("<"):
             return f"{path} has dtype {a.dtype}, expected {DTYPES[name]}"
         want = SHAPES.get(name, ())
-        if a.ndim != 1 + len(want) or a.shape[1:] != want:
+        fits = all(w is None or w == d for w, d in zip(want, a.shape[1:], strict=False))
+        if a.ndim != 1 + len(want) or not fits:
             sym = GROUPS[path.split("/")[1]][0]
-            return f"{path} has shape {a.shape}, expected {(sym, *want)}"
+            shown = ", ".join([sym, *("S" if w is None else str(w) for w in want)])
+            return f"{path} has shape {a.shape}, expected ({shown})"
     counts: dict[str, tuple[int, str]] = {}
     for name, path, _ in LAYOUT:
         group = path.split("/")[1]
         n, first = counts.setdefault(group, (len(arrays[name]), path))
         if len(arrays[name]) != n:
             return f"{path} has {len(arrays[name])} rows but {first} has {n}"
+    for name in ("edge_shield", "term_shield"):
+        if not np.all(np.isfinite(arrays[name])):
+            return f"{PATHS[name]} holds a value that is not finite"
+    if arrays["edge_shield"].shape[1] < 1:
+        return f"{PATHS['edge_shield']} has no samples"
     return _index_problem(arrays)
+
+
+def _shield_dt_problem(meta: Mapping[str, Any]) -> str | None:
+    """The v2 meta key ``shield_dt`` must be a positive finite float."""
+    dt = meta.get(SHIELD_DT)
+    if isinstance(dt, bool) or not isinstance(dt, int | float) or not 0.0 < dt < np.inf:
+        return f"meta {SHIELD_DT} (sample spacing of the shield paths, s) is {dt!r}: need > 0"
+    return None
 
 
 def _index_problem(a: Mapping[str, np.ndarray]) -> str | None:
@@ -205,11 +225,14 @@ def save_tree(tree: ActionTree, path: str | os.PathLike) -> None:
     arrays = tree.arrays()
     extra = sorted(set(arrays) - set(PATHS))
     if extra:
-        raise TreeFileError(f"{path}: array {extra[0]} has no place in tree format v1")
+        raise TreeFileError(
+            f"{path}: array {extra[0]} has no place in tree format v{SCHEMA_VERSION}"
+        )
     problem = layout_problem(arrays)
+    attrs = _encode_meta(tree.meta, path) if not problem else {}
+    problem = problem or _shield_dt_problem(tree.meta)
     if problem:
         raise TreeFileError(f"{path}: refusing to write an invalid tree: {problem}")
-    attrs = _encode_meta(tree.meta, path)
     checksums = {name: array_sha256(a) for name, a in arrays.items()}
     attrs["fingerprint"] = _fingerprint(checksums)
     if not path.parent.is_dir():
@@ -309,7 +332,7 @@ def load_tree(path: str | os.PathLike) -> ActionTree:
         derived = {p: _read_dataset(f, p, np.dtype(np.int32), path)[0] for p, _, _ in DERIVED}
         fingerprint = _attr(f, "fingerprint", path)
     arrays = {name: a for name, (a, _) in read.items()}
-    problem = layout_problem(arrays)
+    problem = layout_problem(arrays) or _shield_dt_problem(meta)
     if problem:
         raise TreeFileError(f"{path}: invalid tree layout: {problem}")
     for p, want in _derived(arrays).items():
@@ -394,6 +417,11 @@ def _read_meta(f: h5py.File, path: str | os.PathLike) -> dict[str, Any]:
         raise TreeFileError(f"{path}: schema_version {version!r} is not an integer")
     if version != SCHEMA_VERSION:
         newer = " (written by a newer thinkfast?)" if version > SCHEMA_VERSION else ""
+        if version in OLDER:
+            newer = (
+                f" ({OLDER[version]}): recompile it with"
+                f" `thinkfast-compile tree CONFIG.toml -o {Path(path).name}`"
+            )
         raise TreeFileError(
             f"{path}: schema_version {version} is not supported "
             f"(this thinkfast reads {SCHEMA_VERSION}){newer}"

@@ -5,6 +5,8 @@ duration and end state must match the stored ones (1e-9), time-to-come must be t
 the edge's, and terminal edges must end at their goal at rest to Ruckig's precision (1e-7: its
 solver lands within about 1e-8 rad of a target). Limits and collisions are re-checked along every
 primitive at a finer collision resolution (default 4x) and sampling step than the compiler used.
+The stored shield paths (``/edges/shield``, ``/terminals/shield``) are sampled again from the
+recomputed primitives and must agree to ``SHIELD_TOL``.
 """
 
 from __future__ import annotations
@@ -20,12 +22,14 @@ from thinkfast.compile.config import CompileConfig
 from thinkfast.compile.grow import Progress, _run
 from thinkfast.compile.pathcheck import PathChecker
 from thinkfast.compile.primitive import Limits, Steering, state_at
+from thinkfast.compile.shield import edge_shield_paths
 from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED, ActionTree
 from thinkfast.errors import NoSolutionError
 from thinkfast.robot.model import Robot
 
 TOL = 1e-9  # recomputed vs stored: the same computation, so equal to rounding
 GOAL_TOL = 1e-7  # rad, rad/s, rad/s^2: Ruckig reaches its target state to about 1e-8
+SHIELD_TOL = 1e-9  # m: the stored shield samples are the same computation
 
 
 class VerifyReport(NamedTuple):
@@ -174,6 +178,41 @@ def verify_tree(
             pool.close()
             pool.join()
     problems += p1 + p2
+    if progress:
+        progress("shield paths", 0, 1)
+    problems += shield_problems(tree, robot, config)
+    if progress:
+        progress("shield paths", 1, 1)
     return VerifyReport(
         not problems, problems, len(edge_items), len(term_items), c1["checks"] + c2["checks"]
     )
+
+
+def shield_problems(tree: ActionTree, robot: Robot, config: CompileConfig) -> list[str]:
+    """Disagreements between the stored shield paths and ones sampled again (first few)."""
+    dt = float(tree.meta.get("shield_dt", config.tree.shield_dt))
+    try:
+        edge, term = edge_shield_paths(
+            robot, tree.node_parent, tree.node_state, tree.edge_target, tree.term_node,
+            tree.term_goal, tree.term_duration, tree.goal_q, tree.subgoal_goal,
+            config.tree.eps, dt,
+        )  # fmt: skip
+    except (NoSolutionError, ValueError) as exc:
+        return [f"shield paths: cannot sample again ({exc})"]
+    out = []
+    for label, stored, again in (
+        ("edge", tree.edge_shield, edge),
+        ("terminal", tree.term_shield, term),
+    ):
+        if stored.shape != again.shape:
+            out.append(f"{label} shield paths: shape {stored.shape}, expected {again.shape}")
+            continue
+        err = np.max(np.abs(stored - again), axis=(1, 2)) if len(again) else np.zeros(0)
+        bad = np.flatnonzero(err > SHIELD_TOL)
+        out += [
+            f"{label} {i}: shield path differs by {err[i]:.3g} m from the recomputed primitive"
+            for i in bad[:10]
+        ]
+        if len(bad) > 10:
+            out.append(f"{label} shield paths: {len(bad) - 10} more differ")
+    return out

@@ -8,8 +8,13 @@ its commanded state now, and takes the best:
   the ``candidates`` goals nearest the crossing mean (Mahalanobis distance under the crossing's
   lateral covariance widened by the block radius), always including the goal nearest the mean
   (naive's choice, so the planner never scores less than naive by its own measure);
-- **tree branches** (:meth:`Chooser.score_paths`): a compiled edge and its continuations, packed
-  by the caller from the tree file's sampled shield paths.
+- **tree branches** (``[choice] branches``): when the arm is at a tree node's state (home at
+  rest, or at the end of the compiled edge it follows), each child edge of that node, worth its
+  best continuation in the subtree (:class:`thinkfast.runtime.branches.BranchTable`, from the
+  tree file's shield paths) among those ending at the ``branch_goals`` goals nearest the
+  crossing, time-shifted to when the edge would start. A chosen child edge starts there (now at
+  home; at the end of the edge in progress otherwise, as a pending switch that later beliefs
+  may revise). A pending branch is what "continue" means while it stands.
 
 The value of a motion is the probability that the shield covers the ball where and when it
 crosses the plane: the motion's joint path is sampled every ``path_dt``, the shield centre
@@ -37,7 +42,7 @@ from thinkfast.runtime.path_value import PathValueConfig, block_probability
 from thinkfast.runtime.segments import Steering
 from thinkfast.runtime.shield_paths import block_geometry, shield_paths
 
-CONTINUE, DIRECT = "continue", "direct"
+CONTINUE, DIRECT, BRANCH = "continue", "direct", "branch"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,23 +64,43 @@ class ChoiceConfig:
         lo=3.0,
         doc="paths are sampled over the mean crossing time +- this many of its std",
     )
+    branches: bool = spec(
+        False, doc="also score the compiled child edges of the tree node the arm is at"
+    )
+    branch_goals: int = spec(
+        4, lo=1, hi=64, doc="continuations scored per child edge end at these nearest goals"
+    )
+    branch_per_goal: int = spec(
+        1, lo=0, hi=1000, doc="earliest continuations kept per child edge and goal (0: all)"
+    )
 
 
 class Option(NamedTuple):
     """One scored motion.
 
     Attributes:
-        kind: CONTINUE or DIRECT.
-        goal: goal index of a direct move (-1 for continue).
+        kind: CONTINUE, DIRECT or BRANCH.
+        goal: goal index of a direct move, or of a branch's best continuation (-1 for continue).
         traj: the Ruckig trajectory of a direct move, from the commanded state at ``t_plan``
-            (None for continue).
+            (None otherwise).
         value: probability of blocking.
+        node: the child node a branch's edge leads to (-1 otherwise).
     """
 
     kind: str
     goal: int
     traj: object
     value: float
+    node: int = -1
+
+
+class BranchPoint(NamedTuple):
+    """Where compiled edges may start: ``node``'s state is (or will be) commanded at wall time
+    ``t_switch`` [s]; ``pending``: the child already chosen to start there (-1: none)."""
+
+    node: int
+    t_switch: float
+    pending: int = -1
 
 
 class Chooser:
@@ -130,6 +155,8 @@ class Chooser:
         lag: float,
         state: np.ndarray,
         current,
+        branch_at: BranchPoint | None = None,
+        table=None,
     ) -> tuple[Option, list[Option]]:
         """The best motion from the commanded ``state`` (9,) at ``t_plan`` [s], and all scored.
 
@@ -139,6 +166,8 @@ class Chooser:
             t_belief: time of the belief [s]. t_plan: when the chosen motion is commanded [s].
             lag: controller lag [s]. state: commanded joints 1-3 (p, v, a) at ``t_plan``.
             current: the Segment in progress (its trajectory is "continue").
+            branch_at: the tree node whose child edges may start, or None (no branches).
+            table: the :class:`~thinkfast.runtime.branches.BranchTable` (with ``branch_at``).
         """
         mean = np.asarray(crossing_mean, dtype=float)
         goals = self.candidate_goals(mean[:2], np.asarray(crossing_cov)[:2, :2])
@@ -157,10 +186,37 @@ class Chooser:
         options = [Option(CONTINUE, -1, None, float(values[0]))] + [
             o._replace(value=float(v)) for o, v in zip(options, values[1:], strict=True)
         ]
+        if branch_at is not None and table is not None:
+            options += self._branches(
+                branch_at, table, mean, crossing_cov, approach, t_plan + lag - t_belief
+                + (branch_at.t_switch - t_plan) - float(table.tree.node_ttc[branch_at.node]),
+            )  # fmt: skip
+            held = [o for o in options if o.kind == BRANCH and o.node == branch_at.pending]
+            if held:  # the pending switch is the plan in progress
+                options[0] = options[0]._replace(value=held[0].value)
         best = max(options[1:], key=lambda o: o.value, default=options[0])
-        if not best.value > options[0].value + self.cfg.switch_margin:
+        if not best.value > options[0].value + self.cfg.switch_margin or (
+            best.kind == BRANCH and branch_at is not None and best.node == branch_at.pending
+        ):
             best = options[0]
         return best, options
+
+    def _branches(self, at: BranchPoint, table, mean, cov, approach, t_start) -> list[Option]:
+        """BRANCH options: every child edge of ``at.node`` with a continuation to a nearby goal."""
+        k = min(self.cfg.branch_goals, len(self.goal_yz))
+        near = self.candidate_goals_k(mean[:2], np.asarray(cov)[:2, :2], k)
+        bv = table.values(at.node, near, mean, cov, approach, t_start, self.quadrature)
+        return [
+            Option(BRANCH, int(g), None, float(v), int(c))
+            for c, v, g in zip(bv.child.tolist(), bv.value.tolist(), bv.goal.tolist(), strict=True)
+        ]
+
+    def candidate_goals_k(self, mean_yz, cov_yz, k: int) -> np.ndarray:
+        """The ``k`` goals nearest the crossing mean under the widened lateral covariance."""
+        d = self.goal_yz - np.asarray(mean_yz, dtype=float)
+        s = np.asarray(cov_yz, dtype=float) + self.rho**2 * np.eye(2)
+        m = np.einsum("gi,ij,gj->g", d, np.linalg.inv(s), d)
+        return np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
 
     def _window(self, tau: float, var_tau: float, t_start: float) -> np.ndarray:
         """Sample times [s, path clock, 0 at t_plan] covering tau +- ``horizon_sigmas`` std: the

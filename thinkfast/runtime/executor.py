@@ -39,7 +39,8 @@ import numpy as np
 
 from thinkfast.robot.model import Robot
 from thinkfast.runtime import filter as kf
-from thinkfast.runtime.choice import DIRECT, Chooser
+from thinkfast.runtime.branches import BranchTable
+from thinkfast.runtime.choice import BRANCH, DIRECT, BranchPoint, Chooser
 from thinkfast.runtime.config import RunConfig
 from thinkfast.runtime.launch import LaunchDetector
 from thinkfast.runtime.planner import Decision, RuntimeTree
@@ -104,6 +105,10 @@ class Executor:
                 tree.goal_q, tree.goal_yz, robot, tree.plane_x, tree.ball_radius, self.steer,
                 cfg.choice, cfg.path_value,
             )  # fmt: skip
+        self.branches = None
+        if self.chooser is not None and cfg.choice.branches:
+            self.branches = branch_table(tree, self.chooser.geom, cfg.choice.branch_per_goal)
+        self.pending: tuple[int, float] | None = None  # (child node, wall time it starts)
         self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
         self.launch = LaunchDetector(cfg.launch, cfg.filter, self.sensor)
         self.mode = IDLE
@@ -285,13 +290,18 @@ class Executor:
             return
         v = np.array(self.belief.mean[3:6], dtype=float)
         v[2] -= self.cfg.filter.gravity * float(c.mean[2])  # the ball's velocity at the plane
+        at = self._branch_point(t_now)
         best, _ = self.chooser.choose(
-            c.mean, c.cov, v, stamp, t_now, self.lag, self.segment.state(t_now), self.segment
-        )
-        goal = best.goal if best.kind == DIRECT else -1
+            c.mean, c.cov, v, stamp, t_now, self.lag, self.segment.state(t_now), self.segment,
+            at, self.branches,
+        )  # fmt: skip
+        goal = best.goal if best.kind in (DIRECT, BRANCH) else -1
         if best.kind != DIRECT and self.segment.kind == STEER:
             goal = int(self.segment.ref)  # continuing the move to this goal
         self.chosen = (float(best.value), int(goal))
+        if best.kind == BRANCH:
+            self._take_branch(best, at, t_now)
+            return
         if best.kind != DIRECT and best.value < self.cfg.execution.min_move_value:
             # nothing reachable has value (the ball comes too fast): the paper's fallback, rush
             # to the most probable goal; a shield on its way may still catch the ball
@@ -305,6 +315,58 @@ class Executor:
         self.episode.chosen_value = best.value
         end = np.r_[self.tree.goal_q[best.goal, :3], np.zeros(6)]
         self.segment = Segment(STEER, t_now, best.traj, end, best.traj.duration, best.goal)
+        self.pending = None
+
+    def _branch_point(self, t_now: float) -> BranchPoint | None:
+        """The tree node whose child edges can start, and when: home at rest now, or the end of
+        the compiled edge in progress (still ahead); None anywhere else (off the tree)."""
+        if self.branches is None:
+            return None
+        t = self.tree.tree
+        seg = self.segment
+        if seg.kind == EDGE and t_now < seg.t0 + self.tree.eps:
+            if t.child_count[seg.ref] == 0:
+                return None
+            pending = self.pending[0] if self.pending is not None else -1
+            return BranchPoint(int(seg.ref), seg.t0 + self.tree.eps, pending)
+        if np.array_equal(seg.state(t_now), t.node_state[0]):  # e.g. after a "stay" edge
+            return BranchPoint(0, t_now)
+        return None
+
+    def _take_branch(self, best, at: BranchPoint, t_now: float) -> None:
+        """Start the chosen child edge now (at home) or at the end of the edge in progress."""
+        if self.mode == TRACKING:
+            self.mode = EXECUTING
+            self.episode.t_start = t_now
+        self.episode.chosen_value = best.value
+        if at.t_switch <= t_now:
+            self._start_edge(best.node, t_now)
+        else:
+            self.pending = (best.node, at.t_switch)
+
+    def _start_edge(self, child: int, t0: float) -> None:
+        """Follow the compiled edge into ``child`` from the commanded state at ``t0`` (the state
+        of its parent node), steering on to its sub-goal after ``eps`` unless a child of it
+        is taken then."""
+        t = self.tree.tree
+        target = self.tree.subgoal_q[t.edge_target[child], :3]
+        traj = self.steer.to_rest(self.segment.state(t0), target)
+        self.pending = None
+        if traj is None:
+            return
+        end = np.r_[target, np.zeros(6)]
+        self.segment = Segment(EDGE, t0, traj, end, traj.duration, int(child))
+        self.node = int(t.node_parent[child])
+        self.episode.path.append(int(child))
+
+    def _switch_edges(self, t: float) -> None:
+        """At the end of the edge in progress, start the pending child edge."""
+        child, t_switch = self.pending
+        seg = self.segment
+        if seg.kind != EDGE or self.tree.tree.node_parent[child] != seg.ref:
+            self.pending = None  # the edge it was to follow was replaced
+        elif t >= t_switch:
+            self._start_edge(child, t_switch)
 
     def _naive(self, t_now: float, c) -> None:
         if not c.ok:
@@ -323,6 +385,7 @@ class Executor:
         )
         if seg is not None:
             self.segment = seg
+            self.pending = None
 
     # ---------------------------------------------------------------- ticks
     def setpoint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -330,6 +393,8 @@ class Executor:
         self._end_of_throw(t)
         if self.planner == "tree-rest" and self.mode == EXECUTING:
             self._advance_tree(t)
+        elif self.pending is not None and self.mode == EXECUTING:
+            self._switch_edges(t)
         s = self.segment.state(t)
         ball_v = None  # the shield turns towards the ball only in a confirmed throw
         if (
@@ -398,6 +463,7 @@ class Executor:
         self.belief = kf.empty(self.cfg.filter)
         self.decision = None
         self.chosen = None
+        self.pending = None
         self.confirm = 0
         self.node = 0
         self.episode = EpisodeLog()
@@ -439,7 +505,10 @@ class Executor:
         self.wrist.reset(q[3:], t, qd[3:], qdd[3:])
         seg = self.segment
         kind, target, ref = seg.kind, seg.end[:3], seg.ref
-        if kind == EDGE:
+        self.pending = None
+        if kind == EDGE and self.chooser is not None:
+            kind, ref = STEER, -1  # the tree planner's edge steers on to its sub-goal: resume that
+        elif kind == EDGE:
             d = self.decision
             goal = -1 if d is None or d.backup is None else int(d.backup.best_goal)
             kind, ref = STEER, goal
@@ -454,3 +523,13 @@ class Executor:
         if new is None:  # Ruckig failed: come to rest where the state would stop
             new = self.steer.segment(HOLD, state, q[:3], t) or hold(state, t)
         self.segment = new
+
+
+def branch_table(tree: RuntimeTree, geom, per_goal: int) -> BranchTable:
+    """The tree's :class:`BranchTable`, built once per runtime tree and parameters (packing
+    every continuation of the default tree takes about a second)."""
+    cache = tree.__dict__.setdefault("_branch_tables", {})
+    key = (geom, per_goal)
+    if key not in cache:
+        cache[key] = BranchTable(tree.tree, geom, per_goal)
+    return cache[key]

@@ -1,0 +1,99 @@
+"""Sampled shield-centre paths of every compiled edge (tree file v2, ``/edges/shield`` and
+``/terminals/shield``).
+
+The runtime scores a compiled branch by the probability that its shield meets the ball, moving
+or at rest (:mod:`thinkfast.runtime.path_value`); it needs the shield centre along every edge.
+Each primitive is recomputed with Ruckig from its stored start state (exactly as the compiler and
+``verify`` do) and sampled every ``dt`` from its start: a tree edge at ``0, dt, ..., eps`` (a
+primitive that reached its target holds there), a terminal edge at ``0, dt, ...`` up to the
+longest terminal edge of the tree, held at its goal after its own duration. The shield centre
+follows joints 1-3 with the coplanar wrist rule (normal +x): wrist centre plus the shield offset
+(:class:`thinkfast.robot.shield_path.ShieldSampler`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from thinkfast.compile.primitive import Limits, Steering
+from thinkfast.errors import NoSolutionError
+from thinkfast.robot.shield_path import ShieldSampler
+
+
+def sample_spacing(eps: float, largest: float) -> float:
+    """The spacing [s] used for shield paths: ``eps`` over the fewest whole steps that are no
+    longer than ``largest`` (so tree edges start and end on samples)."""
+    return eps / math.ceil(eps / largest - 1e-9)
+
+
+def steps_per_edge(eps: float, dt: float) -> int:
+    """Samples steps along one tree edge: ``eps / dt``, which must be a whole number.
+
+    Raises:
+        ValueError: ``eps`` is not a multiple of ``dt`` (to 1e-9).
+    """
+    k = round(eps / dt)
+    if k < 1 or abs(k * dt - eps) > 1e-9:
+        raise ValueError(f"tree.shield_dt {dt} s does not divide tree.eps {eps} s")
+    return int(k)
+
+
+def _positions(traj, times: np.ndarray) -> np.ndarray:
+    """Joints 1-3 [rad] (T, 3) of ``traj`` at ``times`` clipped to its duration."""
+    return np.array([traj.at_time(t)[0] for t in np.clip(times, 0.0, traj.duration).tolist()])
+
+
+def edge_shield_paths(
+    robot,
+    node_parent: np.ndarray,
+    node_state: np.ndarray,
+    edge_target: np.ndarray,
+    term_node: np.ndarray,
+    term_goal: np.ndarray,
+    term_duration: np.ndarray,
+    goal_q: np.ndarray,
+    subgoal_goal: np.ndarray,
+    eps: float,
+    dt: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Shield centres [m] in ``base`` along every tree edge and terminal edge.
+
+    Args:
+        robot: the robot the tree was compiled for.
+        node_parent, node_state, edge_target: the tree's node arrays (N rows).
+        term_node, term_goal, term_duration: the terminal arrays (T rows).
+        goal_q, subgoal_goal: goals and steering sub-goals.
+        eps: tree edge duration [s]. dt: sample spacing [s] (divides ``eps``).
+
+    Returns:
+        ``edge`` (N, eps / dt + 1, 3): row i along the primitive into node i (row 0, the root's
+        stub, stays at home); ``term`` (T, S, 3) with S = ceil(longest terminal / dt) + 1.
+
+    Raises:
+        NoSolutionError: Ruckig cannot recompute a stored primitive.
+        ValueError: ``dt`` does not divide ``eps``.
+    """
+    steer = Steering(Limits(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]))
+    sampler = ShieldSampler(robot)
+    k = steps_per_edge(eps, dt)
+    t_edge = np.arange(k + 1) * dt
+    n = len(node_parent)
+    q = np.empty((n, k + 1, 3))
+    q[0] = node_state[0, :3]
+    sub_q = goal_q[subgoal_goal, :3]
+    for i in range(1, n):
+        traj = steer.steer(node_state[node_parent[i]], sub_q[edge_target[i]])
+        q[i] = _positions(traj, np.minimum(t_edge, eps))
+    longest = float(np.max(term_duration)) if len(term_duration) else 0.0
+    s = math.ceil(longest / dt - 1e-9) + 1
+    t_term = np.arange(s) * dt
+    qt = np.empty((len(term_node), s, 3))
+    for j in range(len(term_node)):
+        traj = steer.steer(node_state[term_node[j]], goal_q[term_goal[j], :3])
+        qt[j] = _positions(traj, t_term)
+    return sampler.centres(q), sampler.centres(qt)
+
+
+__all__ = ["NoSolutionError", "edge_shield_paths", "sample_spacing", "steps_per_edge"]
