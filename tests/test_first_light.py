@@ -77,7 +77,7 @@ def test_speed_scale_keeps_every_reply_within_the_scaled_limits(tree_file, tmp_p
     assert status["speed_scale"] == scale and status["interventions"]["intervened"] == 0
 
 
-def test_speed_scale_is_checked(tree_file):
+def test_speed_scale_is_checked(tree_file, tmp_path):
     from thinkfast.runtime.cli import main
 
     for bad in (["--speed-scale", "0"], ["--speed-scale", "1.5"]):
@@ -86,6 +86,11 @@ def test_speed_scale_is_checked(tree_file):
         assert exc.value.code == 1
     with pytest.raises(SystemExit) as exc:
         main(["--tree", str(tree_file), "--planner", "tree-rest", "--speed-scale", "0.5"])
+    assert exc.value.code == 1
+    cfg = tmp_path / "run.toml"
+    cfg.write_text("[choice]\nbranches = true\n")
+    with pytest.raises(SystemExit) as exc:
+        main(["--tree", str(tree_file), "--config", str(cfg), "--speed-scale", "0.5"])
     assert exc.value.code == 1
 
 

@@ -10,9 +10,9 @@ import pytest
 from tests.conftest import ROBOT_TOML, small_tree_config
 from thinkfast.compile.build import compile_tree
 from thinkfast.compile.config import load_compile_config
-from thinkfast.compile.primitive import Limits, Steering, state_at
 from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED
 from thinkfast.compile.treefile import tree_fingerprint
+from thinkfast.robot.steering import Steering, state_at
 
 
 def small_config(tmp_path, robot=ROBOT_TOML):
@@ -27,7 +27,7 @@ def small_trees(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def steer(robot):
-    return Steering(Limits(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]))
+    return Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
 
 
 def test_jobs_1_and_2_give_identical_datasets(small_trees):

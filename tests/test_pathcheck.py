@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from thinkfast.compile.pathcheck import PathChecker, step_motion
-from thinkfast.compile.primitive import Limits, Steering
 from thinkfast.robot.batch_collision import sphere_cover
+from thinkfast.robot.steering import Steering
 
 
 def test_step_motion_bounds_the_motion_of_every_point(robot, checker):
@@ -29,7 +29,7 @@ def test_step_motion_bounds_the_motion_of_every_point(robot, checker):
 
 
 def test_checks_are_spaced_by_at_most_the_resolution(robot):
-    steer = Steering(Limits(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]))
+    steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
     traj = steer.steer(np.r_[robot.home[:3], np.zeros(6)], robot.home[:3] + [0.5, 0.3, -0.2])
     coarse = PathChecker(robot, 0.04, 0.01, 0.002).check(traj, traj.duration, robot.home[3:])
     fine = PathChecker(robot, 0.01, 0.01, 0.002).check(traj, traj.duration, robot.home[3:])
@@ -38,7 +38,7 @@ def test_checks_are_spaced_by_at_most_the_resolution(robot):
 
 
 def test_position_limits_are_enforced_along_the_primitive(robot):
-    steer = Steering(Limits(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]))
+    steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
     start = np.r_[robot.home[:3], np.zeros(6)]
     target = robot.home[:3].copy()
     target[1] = robot.q_upper[1] - 0.005  # inside the URDF limit, outside the 0.01 margin

@@ -33,10 +33,10 @@ import numpy as np
 from thinkfast.compile.config import TreeConfig
 from thinkfast.compile.goals import GoalGrid
 from thinkfast.compile.pathcheck import PathChecker
-from thinkfast.compile.primitive import Limits, Steering, state_at
 from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED
 from thinkfast.errors import NoSolutionError
 from thinkfast.robot.model import Robot
+from thinkfast.robot.steering import Steering, state_at
 
 CHUNK = 8  # parents (or leaves) per work item
 Progress = Callable[[str, int, int], None]
@@ -58,7 +58,7 @@ _W: dict[str, Any] = {}  # per-process worker state
 def _init_worker(inputs: GrowInputs) -> None:
     robot, cfg = inputs.robot, inputs.tree
     _W["inputs"] = inputs
-    _W["steer"] = Steering(Limits(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]))
+    _W["steer"] = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
     _W["check"] = PathChecker(robot, cfg.collision_resolution, cfg.position_margin, cfg.sample_dt)
 
 

@@ -17,10 +17,10 @@ from typing import NamedTuple
 import numpy as np
 from ruckig import Trajectory
 
-from thinkfast.compile.primitive import position_range, positions
 from thinkfast.robot.batch_collision import BatchCollision
 from thinkfast.robot.collision import CollisionChecker
 from thinkfast.robot.model import Robot
+from thinkfast.robot.steering import position_range, positions
 from thinkfast.robot.wrist import CoplanarWrist
 
 MAX_SAMPLES = 200_000

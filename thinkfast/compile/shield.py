@@ -17,9 +17,9 @@ import math
 
 import numpy as np
 
-from thinkfast.compile.primitive import Limits, Steering
 from thinkfast.errors import NoSolutionError
 from thinkfast.robot.shield_path import ShieldSampler
+from thinkfast.robot.steering import Steering
 
 
 def sample_spacing(eps: float, largest: float) -> float:
@@ -75,7 +75,7 @@ def edge_shield_paths(
         NoSolutionError: Ruckig cannot recompute a stored primitive.
         ValueError: ``dt`` does not divide ``eps``.
     """
-    steer = Steering(Limits(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]))
+    steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
     sampler = ShieldSampler(robot)
     k = steps_per_edge(eps, dt)
     t_edge = np.arange(k + 1) * dt

@@ -21,11 +21,11 @@ import numpy as np
 from thinkfast.compile.config import CompileConfig
 from thinkfast.compile.grow import Progress, _run
 from thinkfast.compile.pathcheck import PathChecker
-from thinkfast.compile.primitive import Limits, Steering, state_at
 from thinkfast.compile.shield import edge_shield_paths
 from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED, ActionTree
 from thinkfast.errors import NoSolutionError
 from thinkfast.robot.model import Robot
+from thinkfast.robot.steering import Steering, state_at
 
 TOL = 1e-9  # recomputed vs stored: the same computation, so equal to rounding
 GOAL_TOL = 1e-7  # rad, rad/s, rad/s^2: Ruckig reaches its target state to about 1e-8
@@ -56,7 +56,7 @@ _V: dict = {}
 def _init(inputs: _Inputs) -> None:
     cfg, robot = inputs.config.tree, inputs.robot
     _V["in"] = inputs
-    _V["steer"] = Steering(Limits(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]))
+    _V["steer"] = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
     _V["check"] = PathChecker(
         robot,
         cfg.collision_resolution / inputs.factor,

@@ -37,9 +37,9 @@ import numpy as np
 
 from thinkfast.config import spec
 from thinkfast.robot.shield_path import ShieldSampler
+from thinkfast.robot.steering import Steering
 from thinkfast.runtime import iso_disk
 from thinkfast.runtime.path_value import PathValueConfig, block_probability
-from thinkfast.runtime.segments import Steering
 from thinkfast.runtime.shield_paths import block_geometry, shield_paths
 
 CONTINUE, DIRECT, BRANCH = "continue", "direct", "branch"

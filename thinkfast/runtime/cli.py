@@ -141,6 +141,11 @@ def run(
             "that never sleeps (use --spin-ahead-ms)",
         )  # fmt: skip
     cfg = load_run_config(config)
+    if speed_scale < 1.0 and cfg.choice.branches:
+        raise ConfigError(
+            "--speed-scale", None, "not with [choice] branches = true (compiled edges use the "
+            "full limits)",
+        )  # fmt: skip
     t = load_tree(tree)
     robot_path = Path(cfg.robot) if cfg.robot else _tree_robot(t) or default_robot_path()
     robot = load_robot(robot_path)

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from thinkfast.robot.model import Robot
+from thinkfast.robot.steering import Steering
 from thinkfast.runtime import filter as kf
 from thinkfast.runtime.branches import BranchTable
 from thinkfast.runtime.choice import BRANCH, DIRECT, BranchPoint, Chooser
@@ -51,9 +52,9 @@ from thinkfast.runtime.segments import (
     STEER,
     TERMINAL,
     Segment,
-    Steering,
     WristTracker,
     hold,
+    move,
 )
 
 IDLE, TRACKING, EXECUTING, RETURNING, FAULT = "idle", "tracking", "executing", "returning", "fault"
@@ -253,7 +254,7 @@ class Executor:
                 return Segment(EDGE, t0, traj, t.node_state[child], self.tree.eps, child)
         if term >= 0:
             goal = int(t.term_goal[term])
-            seg = self.steer.segment(TERMINAL, state, self.tree.goal_q[goal, :3], t0, term)
+            seg = move(self.steer, TERMINAL, state, self.tree.goal_q[goal, :3], t0, term)
             if seg is not None:
                 self.episode.terminal = term
                 return seg
@@ -380,8 +381,8 @@ class Executor:
         self._steer_to(goal, t_now)
 
     def _steer_to(self, goal: int, t_now: float) -> None:
-        seg = self.steer.segment(
-            STEER, self.segment.state(t_now), self.tree.goal_q[goal, :3], t_now, goal
+        seg = move(
+            self.steer, STEER, self.segment.state(t_now), self.tree.goal_q[goal, :3], t_now, goal
         )
         if seg is not None:
             self.segment = seg
@@ -445,9 +446,9 @@ class Executor:
 
     def _start_return(self, t: float) -> None:
         state = self.segment.state(t)
-        seg = self.steer_home.segment(RETURN, state, self.robot.home[:3], t)
+        seg = move(self.steer_home, RETURN, state, self.robot.home[:3], t)
         if seg is None:  # moving faster than the return limits: brake with the full ones
-            seg = self.steer.segment(RETURN, state, self.robot.home[:3], t)
+            seg = move(self.steer, RETURN, state, self.robot.home[:3], t)
         self.segment = seg if seg is not None else hold(state, t)
         self.mode = RETURNING
 
@@ -517,11 +518,11 @@ class Executor:
             self.segment = hold(state, t)
             return
         steer = self.steer_home if kind == RETURN else self.steer
-        new = steer.segment(kind, state, target, t, ref)
+        new = move(steer, kind, state, target, t, ref)
         if new is None and steer is not self.steer:
-            new = self.steer.segment(kind, state, target, t, ref)
+            new = move(self.steer, kind, state, target, t, ref)
         if new is None:  # Ruckig failed: come to rest where the state would stop
-            new = self.steer.segment(HOLD, state, q[:3], t) or hold(state, t)
+            new = move(self.steer, HOLD, state, q[:3], t) or hold(state, t)
         self.segment = new
 
 

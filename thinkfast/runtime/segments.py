@@ -4,13 +4,13 @@ wrist tracker for joints 4-6. Time comes in as an argument (wall-clock seconds).
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
-from ruckig import InputParameter, Result, Ruckig, Trajectory
+from ruckig import Trajectory
 
 from thinkfast.robot.model import Robot
+from thinkfast.robot.steering import Steering
 from thinkfast.robot.wrist import CoplanarWrist
 
 EDGE, TERMINAL, STEER, RETURN, HOLD = "edge", "terminal", "steer", "return", "hold"
@@ -48,50 +48,20 @@ class Segment(NamedTuple):
         return np.array([*p, *v, *a])
 
 
+def move(steer: Steering, kind: str, state, target, t0: float, ref: int = -1) -> Segment | None:
+    """A full move to rest at ``target`` (n,) from ``state`` (3n,) as a Segment commanded from
+    ``t0`` (None when Ruckig fails)."""
+    traj = steer.to_rest(state, target)
+    if traj is None:
+        return None
+    end = np.r_[np.asarray(target, dtype=float), np.zeros(2 * steer.n)]
+    return Segment(kind, t0, traj, end, traj.duration, ref)
+
+
 def hold(state: np.ndarray, t0: float) -> Segment:
     """Stay at rest at the position of ``state``."""
     end = np.r_[state[:3], np.zeros(6)]
     return Segment(HOLD, t0, None, end, np.inf)
-
-
-class Steering:
-    """Minimum-time jerk-limited moves to rest (state to state), for n joints."""
-
-    def __init__(self, v_max, a_max, j_max):
-        n = len(v_max)
-        self.n = n
-        self._otg = Ruckig(n)
-        self._inp = InputParameter(n)
-        self._inp.max_velocity = [float(x) for x in v_max]
-        self._inp.max_acceleration = [float(x) for x in a_max]
-        self._inp.max_jerk = [float(x) for x in j_max]
-        self._inp.target_velocity = [0.0] * n  # every move ends at rest
-        self._inp.target_acceleration = [0.0] * n
-
-    def to_rest(self, state: np.ndarray, target: np.ndarray) -> Trajectory | None:
-        """Trajectory from ``state`` (3n,) = p, v, a to rest at ``target`` (n,); None on failure."""
-        n, inp = self.n, self._inp
-        state = _floats(state)
-        inp.current_position = state[:n]
-        inp.current_velocity = state[n : 2 * n]
-        inp.current_acceleration = state[2 * n : 3 * n]
-        inp.target_position = _floats(target)
-        traj = Trajectory(n)
-        try:
-            result = self._otg.calculate(inp, traj)
-        except Exception:  # ruckig.RuckigError: invalid input or a numerically hard case
-            return None
-        if result not in _OK or not math.isfinite(traj.duration):
-            return None
-        return traj
-
-    def segment(self, kind: str, state, target, t0: float, ref: int = -1) -> Segment | None:
-        """A full move to rest at ``target`` as a Segment (None when Ruckig fails)."""
-        traj = self.to_rest(state, target)
-        if traj is None:
-            return None
-        end = np.r_[np.asarray(target, dtype=float), np.zeros(2 * self.n)]
-        return Segment(kind, t0, traj, end, traj.duration, ref)
 
 
 class WristTracker:
@@ -186,14 +156,6 @@ class WristTracker:
 
 _PLUS_X = np.array([1.0, 0.0, 0.0])
 _PLUS_X.setflags(write=False)
-_OK = (Result.Working, Result.Finished)
-
-
-def _floats(a) -> list[float]:
-    """``a`` as a list of Python floats (``tolist`` when it already is a float64 array)."""
-    if isinstance(a, np.ndarray) and a.dtype == np.float64:
-        return a.tolist()
-    return [float(x) for x in a]
 
 
 def _bits(a) -> bytes:

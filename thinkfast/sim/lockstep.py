@@ -28,13 +28,14 @@ import numpy as np
 from thinkfast.compile.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
+from thinkfast.robot.steering import Steering
 from thinkfast.runtime.config import RunConfig
 from thinkfast.runtime.egm_control import EgmControl
 from thinkfast.runtime.executor import Executor
 from thinkfast.runtime.intake import Intake
 from thinkfast.runtime.planner import BALL_RADIUS, runtime_tree
 from thinkfast.runtime.safety import SafetySupervisor, robot_limits
-from thinkfast.runtime.segments import Steering, WristTracker
+from thinkfast.runtime.segments import WristTracker
 from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
 from thinkfast.sim.controller import ServoConfig, SimController
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint

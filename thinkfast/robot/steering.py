@@ -1,0 +1,110 @@
+"""Minimum-time jerk-limited moves to rest (Ruckig), state to state: the one Ruckig wrapper.
+
+The compiler grows tree edges and the runtime plans moves (and re-solves compiled edges) with the
+same solver and the same inputs, so a runtime edge is the compiled edge (tests/test_steering.py).
+Failure contract: :meth:`Steering.to_rest` returns None when Ruckig fails or raises (online, a
+failure must cost a hold, never an exception); :meth:`Steering.steer` raises
+:class:`~thinkfast.errors.NoSolutionError` instead (offline, where a failure is a bug).
+
+Only state-to-state calls (no intermediate waypoints). Community Ruckig ignores position limits:
+callers check them along the sampled motion (:mod:`thinkfast.compile.pathcheck`, the safety
+supervisor online).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from ruckig import InputParameter, Result, Ruckig, Trajectory
+
+from thinkfast.errors import NoSolutionError
+
+_OK = (Result.Working, Result.Finished)
+
+
+class Steering:
+    """Reusable Ruckig solver for ``n`` joints (one per user; not thread-safe).
+
+    Args:
+        v_max, a_max, j_max: velocity [rad/s], acceleration [rad/s^2] and jerk [rad/s^3]
+            limits, shape (n,).
+    """
+
+    def __init__(self, v_max, a_max, j_max):
+        n = len(v_max)
+        self.n = n
+        self.v_max, self.a_max, self.j_max = (
+            np.array(x, dtype=float) for x in (v_max, a_max, j_max)
+        )
+        self._otg = Ruckig(n)
+        self._inp = InputParameter(n)
+        self._inp.max_velocity = _floats(self.v_max)
+        self._inp.max_acceleration = _floats(self.a_max)
+        self._inp.max_jerk = _floats(self.j_max)
+        self._inp.target_velocity = [0.0] * n  # every move ends at rest
+        self._inp.target_acceleration = [0.0] * n
+
+    @classmethod
+    def for_robot(cls, robot, scale: float = 1.0, joints: int = 3) -> Steering:
+        """Joints ``1..joints`` of ``robot`` with its limits scaled by ``scale``."""
+        return cls(
+            *(np.asarray(x[:joints]) * scale for x in (robot.v_max, robot.a_max, robot.j_max))
+        )
+
+    def to_rest(self, state: np.ndarray, target: np.ndarray) -> Trajectory | None:
+        """Trajectory from ``state`` (3n,) = p, v, a to rest at ``target`` (n,); None on failure."""
+        n, inp = self.n, self._inp
+        state = _floats(state)
+        inp.current_position = state[:n]
+        inp.current_velocity = state[n : 2 * n]
+        inp.current_acceleration = state[2 * n : 3 * n]
+        inp.target_position = _floats(target)
+        traj = Trajectory(n)
+        try:
+            result = self._otg.calculate(inp, traj)
+        except Exception:  # ruckig.RuckigError: invalid input or a numerically hard case
+            return None
+        if result not in _OK or not math.isfinite(traj.duration):
+            return None
+        return traj
+
+    def steer(self, state: np.ndarray, target: np.ndarray) -> Trajectory:
+        """:meth:`to_rest`, raising where a failure is a bug.
+
+        Raises:
+            NoSolutionError: Ruckig reports an error or a non-finite duration.
+        """
+        traj = self.to_rest(state, target)
+        if traj is None:
+            raise NoSolutionError(f"Ruckig cannot steer from {list(state)} to {list(target)}")
+        return traj
+
+
+def state_at(traj: Trajectory, t: float) -> np.ndarray:
+    """State (3n,) = p [rad], v [rad/s], a [rad/s^2] at time ``t`` [s]."""
+    p, v, a = traj.at_time(float(t))
+    return np.array([*p, *v, *a])
+
+
+def positions(traj: Trajectory, times: np.ndarray) -> np.ndarray:
+    """Positions [rad] (N, n) at ``times`` [s] (N,)."""
+    return np.array([traj.at_time(float(t))[0] for t in times])
+
+
+def position_range(traj: Trajectory, t_end: float, samples: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Exact min and max positions (n,) over [0, t_end] from samples and Ruckig's extrema."""
+    lo, hi = samples.min(axis=0), samples.max(axis=0)
+    for k, ext in enumerate(traj.position_extrema):
+        if ext.t_min <= t_end:
+            lo[k] = min(lo[k], ext.min)
+        if ext.t_max <= t_end:
+            hi[k] = max(hi[k], ext.max)
+    return lo, hi
+
+
+def _floats(a) -> list[float]:
+    """``a`` as a list of Python floats (``tolist`` when it already is a float64 array)."""
+    if isinstance(a, np.ndarray) and a.dtype == np.float64:
+        return a.tolist()
+    return [float(x) for x in a]
