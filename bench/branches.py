@@ -21,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from thinkfast.runtime.config import load_run_config  # noqa: E402
+from thinkfast.control.config import load_run_config  # noqa: E402
 from thinkfast.sim.bench import run_bench  # noqa: E402
 from thinkfast.sim.cli import _throws, _WorldFactory  # noqa: E402
 from thinkfast.sim.stats import compare  # noqa: E402

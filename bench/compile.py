@@ -19,8 +19,8 @@ sys.path.insert(0, str(ROOT))
 
 from thinkfast.compile.build import compile_tree  # noqa: E402
 from thinkfast.compile.config import load_compile_config  # noqa: E402
-from thinkfast.compile.treefile import tree_fingerprint  # noqa: E402
 from thinkfast.machine import machine_info  # noqa: E402
+from thinkfast.tree.file import tree_fingerprint  # noqa: E402
 
 
 def primitives(tree) -> int:

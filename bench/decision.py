@@ -31,11 +31,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from thinkfast.decide import backup as bk  # noqa: E402
+from thinkfast.decide import values as vl  # noqa: E402
+from thinkfast.estimate import crossing as dm  # noqa: E402
+from thinkfast.estimate import filter as kf  # noqa: E402
 from thinkfast.machine import machine_info  # noqa: E402
-from thinkfast.runtime import backup as bk  # noqa: E402
-from thinkfast.runtime import delta as dm  # noqa: E402
-from thinkfast.runtime import filter as kf  # noqa: E402
-from thinkfast.runtime import values as vl  # noqa: E402
 
 PLANE = 0.8  # m, intercept plane x = PLANE in base
 RADIUS = 0.15  # m, shield radius (assumption for the bench)
@@ -179,15 +179,15 @@ def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) 
     """Per planner, durations [ms] of ``Executor.on_detection`` calls that made a decision, on the
     same detections of ``n_throws`` simulated throws (planners interleaved per throw, so a
     change of machine load hits them alike)."""
-    from thinkfast.compile.treefile import load_tree
+    from thinkfast.control.config import RunConfig
+    from thinkfast.control.executor import Executor
+    from thinkfast.control.intake import Intake
     from thinkfast.robot.model import load_robot
-    from thinkfast.runtime.config import RunConfig
-    from thinkfast.runtime.executor import Executor
-    from thinkfast.runtime.intake import Intake
     from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
     from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.lockstep import DT, LEAD, World
     from thinkfast.sim.throws import ThrowConfig, sample_throws
+    from thinkfast.tree.file import load_tree
 
     cfg = RunConfig()
     world = World(load_tree(tree_path), load_robot(), cfg, ServoConfig(), CameraModelConfig())
@@ -267,7 +267,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     if args.tree is not None:
-        from thinkfast.compile.treefile import load_tree  # lazy: h5py only when asked
+        from thinkfast.tree.file import load_tree  # lazy: h5py only when asked
 
         tree, source = load_tree(args.tree), str(args.tree)
     else:

@@ -60,10 +60,10 @@ from pathlib import Path
 
 import numpy as np
 
+from thinkfast.control.safety import SafetyConfig, SafetySupervisor, make_limits
+from thinkfast.daemon.egm_server import EgmServer, parse_hostport
+from thinkfast.daemon.rt_thread import pin_thread
 from thinkfast.errors import ThinkfastError
-from thinkfast.runtime.egm_server import EgmServer, parse_hostport
-from thinkfast.runtime.rt_thread import pin_thread
-from thinkfast.runtime.safety import SafetyConfig, SafetySupervisor, make_limits
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
 
 DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"

@@ -19,9 +19,9 @@ import json
 
 import numpy as np
 
+from thinkfast.control.config import RunConfig, load_run_config
+from thinkfast.estimate.launch import LaunchDetector
 from thinkfast.machine import machine_info
-from thinkfast.runtime.config import RunConfig, load_run_config
-from thinkfast.runtime.launch import LaunchDetector
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.throws import ThrowConfig, sample_throws
 

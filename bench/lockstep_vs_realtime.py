@@ -34,15 +34,15 @@ def main(argv=None) -> int:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
 
-    from thinkfast.compile.treefile import load_tree
+    from thinkfast.control.config import RunConfig
     from thinkfast.robot.model import load_robot
-    from thinkfast.runtime.config import RunConfig
     from thinkfast.sim.bench import run_bench
     from thinkfast.sim.camera import CameraModelConfig
     from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.lockstep import World
     from thinkfast.sim.realtime import run_with_daemon
     from thinkfast.sim.throws import ThrowConfig, sample_throws
+    from thinkfast.tree.file import load_tree
 
     cfg, robot = RunConfig(), load_robot()
     balls = sample_throws(ThrowConfig(), args.throws, args.seed)

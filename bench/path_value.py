@@ -1,4 +1,4 @@
-"""Time P(block) of M moving-shield paths per belief update (thinkfast.runtime.path_value), and the
+"""Time P(block) of M moving-shield paths per belief update (thinkfast.decide.path_value), and the
 cost of sampling the default tree's edges into shield paths (Ruckig + batched FK).
 
     .venv/bin/python bench/path_value.py                 # table
@@ -28,17 +28,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from decision import throws  # noqa: E402
 
-from thinkfast.compile.treefile import load_tree  # noqa: E402
+from thinkfast.control.segments import Steering  # noqa: E402
+from thinkfast.decide import iso_disk  # noqa: E402
+from thinkfast.decide.path_value import block_probability  # noqa: E402
+from thinkfast.decide.shield_paths import block_geometry, shield_paths  # noqa: E402
+from thinkfast.decide.tree_view import BALL_RADIUS  # noqa: E402
+from thinkfast.estimate import crossing as dm  # noqa: E402
+from thinkfast.estimate import filter as kf  # noqa: E402
 from thinkfast.machine import machine_info  # noqa: E402
 from thinkfast.robot.model import load_robot  # noqa: E402
 from thinkfast.robot.shield_path import ShieldSampler, sample_joint_paths  # noqa: E402
-from thinkfast.runtime import delta as dm  # noqa: E402
-from thinkfast.runtime import filter as kf  # noqa: E402
-from thinkfast.runtime import iso_disk  # noqa: E402
-from thinkfast.runtime.path_value import block_probability  # noqa: E402
-from thinkfast.runtime.planner import BALL_RADIUS  # noqa: E402
-from thinkfast.runtime.segments import Steering  # noqa: E402
-from thinkfast.runtime.shield_paths import block_geometry, shield_paths  # noqa: E402
+from thinkfast.tree.file import load_tree  # noqa: E402
 
 PLANE = 0.8
 

@@ -21,14 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-from thinkfast.compile.treefile import load_tree
+from thinkfast.control.config import RunConfig
 from thinkfast.machine import machine_info
 from thinkfast.robot.model import load_robot
-from thinkfast.runtime.config import RunConfig
 from thinkfast.sim import lockstep as ls
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.controller import ServoConfig
 from thinkfast.sim.throws import ThrowConfig, sample_throws
+from thinkfast.tree.file import load_tree
 
 DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"
 _W: dict = {}

@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
+from thinkfast.control.config import RunConfig
 from thinkfast.machine import machine_info
 from thinkfast.robot.model import default_robot_path, load_robot
-from thinkfast.runtime.config import RunConfig
 from thinkfast.sim import realtime as rt
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.controller import ControllerRunner, ServoConfig

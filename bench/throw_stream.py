@@ -24,7 +24,7 @@ import numpy as np
 
 from thinkfast.contract import keys
 from thinkfast.contract.zenoh_session import open_peer
-from thinkfast.runtime.config import load_run_config
+from thinkfast.control.config import load_run_config
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.publisher import publish_detections
 from thinkfast.sim.throws import ThrowConfig, sample_throws

@@ -98,7 +98,7 @@ def compile_small_tree(directory: Path, **kwargs) -> Path:
     """Compile :func:`small_tree_config` into ``directory/small_tree.h5``; returns its path."""
     from thinkfast.compile.build import compile_tree
     from thinkfast.compile.config import load_compile_config
-    from thinkfast.compile.treefile import save_tree
+    from thinkfast.tree.file import save_tree
 
     path = directory / "small_tree.h5"
     save_tree(

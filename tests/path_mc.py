@@ -1,4 +1,4 @@
-"""Monte Carlo references for thinkfast.runtime.path_value (test helper).
+"""Monte Carlo references for thinkfast.decide.path_value (test helper).
 
 ``model_block``: the kernel's geometric model sampled directly (exact meeting time by fixed-point
 iteration on the interpolated path, no quadrature, no tables). ``judge_block``: the simulator's
@@ -60,7 +60,7 @@ def judge_block(times, centre, mean, cov, geom, approach, t_start, n, rng, step=
 
 
 def belief(mean, sig_a, ratio, angle, sd_t, k) -> tuple[np.ndarray, np.ndarray]:
-    """A crossing Gaussian built from its conditional structure (thinkfast.runtime.path_value):
+    """A crossing Gaussian built from its conditional structure (thinkfast.decide.path_value):
 
     (Y, Z) | tau has standard deviations sig_a and ratio * sig_a (major axis at ``angle``) and
     mean slope ``k`` (2,) [m/s] in tau; tau has ``sd_t``. Returns (mean (3,), cov (3, 3)).

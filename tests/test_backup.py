@@ -1,10 +1,10 @@
-"""Backup over the action tree (thinkfast.runtime.backup) against a brute-force recursion."""
+"""Backup over the action tree (thinkfast.decide.backup) against a brute-force recursion."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from thinkfast.runtime.backup import (
+from thinkfast.decide.backup import (
     backup,
     backup_layout,
     best_child,

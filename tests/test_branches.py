@@ -1,4 +1,4 @@
-"""Compiled branches as options of the tree planner (thinkfast.runtime.branches, choice, executor).
+"""Compiled branches as options of the tree planner (thinkfast.decide.branches, choice, executor).
 
 On the session's small compiled tree (real Ruckig edges, real shield paths from the tree file):
 continuations are the stored edges end to end, a branch's value agrees with a Monte Carlo of the
@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 from path_mc import model_block
 
-from thinkfast.compile.treefile import load_tree
-from thinkfast.runtime.branches import BranchTable, continuation_paths
-from thinkfast.runtime.choice import BRANCH, DIRECT, BranchPoint, Chooser, Option
-from thinkfast.runtime.config import RunConfig
-from thinkfast.runtime.executor import EXECUTING, Executor
-from thinkfast.runtime.path_value import block_probability
-from thinkfast.runtime.planner import runtime_tree
-from thinkfast.runtime.segments import EDGE, STEER, hold
+from thinkfast.control.config import RunConfig
+from thinkfast.control.executor import EXECUTING, Executor
+from thinkfast.control.segments import EDGE, STEER, hold
+from thinkfast.decide.branches import BranchTable, continuation_paths
+from thinkfast.decide.choice import BRANCH, DIRECT, BranchPoint, Chooser, Option
+from thinkfast.decide.path_value import block_probability
+from thinkfast.decide.tree_view import runtime_tree
+from thinkfast.tree.file import load_tree
 
 CFG = RunConfig()
 ON = dataclasses.replace(CFG, choice=dataclasses.replace(CFG.choice, branches=True))

@@ -16,11 +16,11 @@ from thinkfast.calib.dynamics import estimate_from_record
 from thinkfast.calib.dynamics_sim import servo_lag, simulate_dynamics_record
 from thinkfast.config import from_dict
 from thinkfast.contract.frames import CameraExtrinsic, rotation_from_rpy
+from thinkfast.control.config import ExecutionConfig, load_run_config
+from thinkfast.daemon.recorder import Recorder
 from thinkfast.errors import CalibRecordError, ConfigError, RecordFileError
 from thinkfast.perception.config import load_detect_config
 from thinkfast.robot.model import load_robot
-from thinkfast.runtime.config import ExecutionConfig, load_run_config
-from thinkfast.runtime.recorder import Recorder
 from thinkfast.sim.controller import ServoConfig
 
 TRUTH = CameraExtrinsic(xyz=(0.48, 0.03, 0.32), rpy=(0.02, -0.05, 0.04))  # not the default

@@ -1,4 +1,4 @@
-"""The tree planner's motion choice (thinkfast.runtime.choice): candidates, clocks, values.
+"""The tree planner's motion choice (thinkfast.decide.choice): candidates, clocks, values.
 
 Real Ruckig moves on the default robot's limits, real forward kinematics; values checked against
 a Monte Carlo of the judge's geometry on the same joint paths.
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from path_mc import judge_block
 
-from thinkfast.compile.ik import solve_shield_ik
+from thinkfast.control.segments import Steering, hold
+from thinkfast.decide.choice import CONTINUE, DIRECT, ChoiceConfig, Chooser
+from thinkfast.robot.ik import solve_shield_ik
 from thinkfast.robot.shield_path import ShieldSampler
-from thinkfast.runtime.choice import CONTINUE, DIRECT, ChoiceConfig, Chooser
-from thinkfast.runtime.segments import Steering, hold
 
 PLANE_X = 0.8
 BALL_R = 0.0335
@@ -117,7 +117,7 @@ def test_continuing_is_kept_unless_a_new_move_is_worth_the_margin(setup):
     chooser, goal_q, c, home = setup
     state = np.r_[home, np.zeros(6)]
     traj = chooser.steer.to_rest(state, goal_q[12])
-    from thinkfast.runtime.segments import STEER, Segment
+    from thinkfast.control.segments import STEER, Segment
 
     seg = Segment(STEER, 0.0, traj, np.r_[goal_q[12], np.zeros(6)], traj.duration, 12)
     mid = np.array([*traj.at_time(0.1)[0], *traj.at_time(0.1)[1], *traj.at_time(0.1)[2]])
@@ -131,7 +131,7 @@ def test_continuing_is_kept_unless_a_new_move_is_worth_the_margin(setup):
 def test_a_new_chooser_builds_the_disk_table_before_its_first_decision(setup, robot):
     """The table takes ~0.1 s to build: in the first decision of a daemon that is 26 unanswered
     EGM cycles (measured). The chooser builds it when it is made."""
-    from thinkfast.runtime import iso_disk
+    from thinkfast.decide import iso_disk
 
     chooser, goal_q, c, _ = setup
     iso_disk._tables.cache_clear()

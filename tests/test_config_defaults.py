@@ -15,10 +15,10 @@ import pytest
 from tests.conftest import ROBOT_TOML
 from thinkfast.compile.config import CompileConfig, load_compile_config
 from thinkfast.config import from_dict, load_toml, to_dict
+from thinkfast.control.config import RunConfig, load_run_config
 from thinkfast.errors import ConfigError
 from thinkfast.perception.config import DetectConfig, load_detect_config
 from thinkfast.robot.model import RobotToml
-from thinkfast.runtime.config import RunConfig, load_run_config
 from thinkfast.sim.throws import ThrowConfig
 from thinkfast.sim.throwset import FORMAT, VERSION, load_throw_set
 

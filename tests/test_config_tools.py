@@ -14,14 +14,14 @@ from thinkfast import __version__
 from thinkfast.cli_util import asks_version, run_app
 from thinkfast.compile.config import load_compile_config
 from thinkfast.config import from_dict, spec, to_dict, to_toml
+from thinkfast.control.config import RunConfig, load_run_config, run_config_toml
 from thinkfast.errors import ConfigError
 from thinkfast.perception.config import DetectConfig, detect_config_toml, load_detect_config
-from thinkfast.runtime.config import RunConfig, load_run_config, run_config_toml
 
 EXAMPLES = ROOT / "examples"
 COMMANDS = {
     "thinkfast-compile": "thinkfast.compile.cli",
-    "thinkfast-run": "thinkfast.runtime.cli",
+    "thinkfast-run": "thinkfast.daemon.cli",
     "thinkfast-sim": "thinkfast.sim.cli",
     "thinkfast-detect": "thinkfast.perception.cli",
     "thinkfast-calib": "thinkfast.calib.cli",  # skipped until that command exists
@@ -60,7 +60,7 @@ def _keys(table: dict, prefix: str = "") -> set[str]:
 
 
 def test_print_config_is_read_back_by_config_as_the_defaults(tmp_path, capsys):
-    assert _run("thinkfast.runtime.cli", "thinkfast-run", "--print-config") == 0
+    assert _run("thinkfast.daemon.cli", "thinkfast-run", "--print-config") == 0
     text = capsys.readouterr().out
     path = tmp_path / "run.toml"
     path.write_text(text)
@@ -86,7 +86,7 @@ def test_print_config_writes_a_changed_config_exactly(tmp_path):
 def test_check_config_prints_ok_for_a_valid_file(tmp_path, capsys):
     path = tmp_path / "run.toml"
     path.write_text("[execution]\ncontroller_lag = 0.06\n")
-    assert _run("thinkfast.runtime.cli", "thinkfast-run", "--check-config", str(path)) == 0
+    assert _run("thinkfast.daemon.cli", "thinkfast-run", "--check-config", str(path)) == 0
     assert capsys.readouterr().out.strip() == f"{path}: OK"
 
 

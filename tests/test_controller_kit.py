@@ -221,7 +221,7 @@ def test_doc_sketch_agrees_with_the_table():
 
 # ----------------------------------------------------------------------------- daemon <-> kit
 def test_sample_rate_is_the_daemon_cycle(consts):
-    from thinkfast.runtime.safety import SafetyConfig
+    from thinkfast.control.safety import SafetyConfig
 
     rate = float(consts["EGM_SAMPLE_RATE"][1])
     assert rate == pytest.approx(1000.0 * SafetyConfig().dt)
@@ -229,7 +229,7 @@ def test_sample_rate_is_the_daemon_cycle(consts):
 
 
 def test_comm_timeout_outlasts_the_daemon_resync(consts):
-    from thinkfast.runtime.safety import SafetyConfig
+    from thinkfast.control.safety import SafetyConfig
 
     assert float(consts["EGM_COMM_TIMEOUT"][1]) > SafetyConfig().resync_after
 
@@ -245,9 +245,9 @@ def test_position_and_speed_with_hold(consts, mod_text):
 
 
 def test_udp_port_is_the_daemon_default(udpuc):
-    from thinkfast.runtime import cli
-    from thinkfast.runtime.daemon import Endpoints
-    from thinkfast.runtime.egm_server import parse_hostport
+    from thinkfast.daemon import cli
+    from thinkfast.daemon.egm_server import parse_hostport
+    from thinkfast.daemon.service import Endpoints
 
     option = inspect.signature(cli.run).parameters["egm_bind"].default
     assert option.default == cli.EGM_BIND_DEFAULT, "--egm-bind no longer uses EGM_BIND_DEFAULT"

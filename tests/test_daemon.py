@@ -201,10 +201,10 @@ def socket_port() -> int:
 
 
 def _in_process_daemon(tree_file, robot):
-    from thinkfast.compile.treefile import load_tree
     from thinkfast.contract.zenoh_session import session_config
-    from thinkfast.runtime.config import RunConfig
-    from thinkfast.runtime.daemon import Daemon, Endpoints
+    from thinkfast.control.config import RunConfig
+    from thinkfast.daemon.service import Daemon, Endpoints
+    from thinkfast.tree.file import load_tree
 
     return Daemon(
         load_tree(tree_file),
@@ -223,7 +223,7 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
     of it; the reply to that cycle's EgmRobot sends exactly that, without asking the executor
     again. A detection voids it."""
     from thinkfast.contract.egm import decode_sensor, encode_robot
-    from thinkfast.runtime.safety import filter_step
+    from thinkfast.control.safety import filter_step
 
     d = _in_process_daemon(tree_file, robot)
     try:

@@ -1,4 +1,4 @@
-"""Delta method (thinkfast.runtime.delta): plane crossing, its Jacobian and covariance."""
+"""Delta method (thinkfast.estimate.crossing): plane crossing, its Jacobian and covariance."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import warnings
 
 import numpy as np
 
-from thinkfast.runtime.delta import REASON_PAST, REASON_RECEDING, crossing, crossing_point
+from thinkfast.estimate.crossing import REASON_PAST, REASON_RECEDING, crossing, crossing_point
 
 G = 9.81
 PLANE = 0.8

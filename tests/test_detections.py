@@ -16,7 +16,7 @@ from thinkfast.contract.detection import (
     parse_detection,
 )
 from thinkfast.contract.frames import CameraExtrinsic, rotation_from_rpy, to_base
-from thinkfast.runtime.intake import ORDER_CLASSES, classify_order
+from thinkfast.control.intake import ORDER_CLASSES, classify_order
 
 COV = [0.01, 0.001, 0.0, 0.001, 0.02, 0.0, 0.0, 0.0, 0.03]
 

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from tests.conftest import compile_small_tree
-from thinkfast.compile.treefile import load_tree
-from thinkfast.runtime.config import RunConfig
-from thinkfast.runtime.egm_clock import ControllerClock
-from thinkfast.runtime.egm_control import EgmControl
-from thinkfast.runtime.executor import FAULT, IDLE, RETURNING, Executor
-from thinkfast.runtime.planner import runtime_tree
-from thinkfast.runtime.safety import SafetySupervisor, robot_limits
+from thinkfast.control.config import RunConfig
+from thinkfast.control.core import ControlCore
+from thinkfast.control.egm_clock import ControllerClock
+from thinkfast.control.executor import FAULT, IDLE, RETURNING, Executor
+from thinkfast.control.safety import SafetySupervisor, robot_limits
+from thinkfast.decide.tree_view import runtime_tree
+from thinkfast.tree.file import load_tree
 
 CFG = RunConfig()
 DT = CFG.safety.dt
@@ -33,7 +33,7 @@ def _control(rtree, robot, events=None):
     ex = Executor(rtree, robot, CFG, "naive")
     sup = SafetySupervisor(robot_limits(robot, CFG.safety.position_margin), CFG.safety, robot.home)
     on_event = (lambda t, k, d: events.append(k)) if events is not None else (lambda *a: None)
-    return EgmControl(ex, sup, CFG.safety, on_event)
+    return ControlCore(ex, sup, CFG.safety, on_event)
 
 
 def _away(robot):
@@ -149,7 +149,7 @@ def test_after_a_silence_in_motion_the_restart_takes_the_velocity_the_next_packe
 def test_a_restart_waits_for_a_velocity_at_most_a_few_packets(rtree, robot):
     """Packets that keep arriving too far apart to measure a velocity: the stream restarts
     anyway (from the measured position at rest) after DEFER_MAX unanswered packets."""
-    from thinkfast.runtime.egm_control import DEFER_MAX
+    from thinkfast.control.core import DEFER_MAX
 
     ctl = _control(rtree, robot)
     ctl.on_feedback(0, _away(robot), T0)
@@ -279,14 +279,14 @@ def test_ordinary_throws_never_need_the_supervisor_and_stay_jerk_limited(rtree, 
     """Throws through the control core with the simulated servo's feedback: every request is
     admissible as planned (0 interventions), and the commanded motion over the controller's clock
     is jerk-limited (third differences of positions / dt^3 <= j_max)."""
-    from thinkfast.runtime.intake import Intake
+    from thinkfast.control.intake import Intake
     from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
     from thinkfast.sim.controller import ServoConfig, SimController
     from thinkfast.sim.throws import ThrowConfig, sample_throws
 
     ex = Executor(rtree, robot, CFG, planner)
     sup = SafetySupervisor(robot_limits(robot, CFG.safety.position_margin), CFG.safety, robot.home)
-    ctl = EgmControl(ex, sup, CFG.safety)
+    ctl = ControlCore(ex, sup, CFG.safety)
     arm = SimController(ServoConfig(), q0=robot.home)
     intake = Intake(CFG.camera, CFG.detections)
     t, tm, q = 0.0, 0, []

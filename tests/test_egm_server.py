@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from thinkfast.contract import egm
-from thinkfast.runtime.egm_server import (
+from thinkfast.daemon.egm_server import (
     EgmAddressError,
     EgmServer,
     parse_controller,

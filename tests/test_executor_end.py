@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from thinkfast.compile.treefile import load_tree
-from thinkfast.runtime.config import RunConfig
-from thinkfast.runtime.executor import EXECUTING, IDLE, RETURNING, Executor
-from thinkfast.runtime.intake import Intake
+from thinkfast.control.config import RunConfig
+from thinkfast.control.executor import EXECUTING, IDLE, RETURNING, Executor
+from thinkfast.control.intake import Intake
 from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
 from thinkfast.sim.controller import ServoConfig
 from thinkfast.sim.lockstep import DT, LEAD, World
 from thinkfast.sim.throws import ThrowConfig, make_throw, plane_crossing
+from thinkfast.tree.file import load_tree
 
 CFG = RunConfig()
 
@@ -87,7 +87,7 @@ def test_a_return_whose_way_home_was_replaced_by_a_hold_still_ends_at_home(world
     length, or failed): the executor used to wait in ``returning`` for good, ignoring every
     later throw (seen in a 10-minute soak: 27 of 200 throws executed). It plans the way home
     again and becomes ready."""
-    from thinkfast.runtime.segments import hold
+    from thinkfast.control.segments import hold
 
     robot = world.robot
     ex = Executor(world.tree, robot, CFG, "naive")

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from thinkfast.compile.treefile import load_tree
-from thinkfast.runtime import filter as kf
-from thinkfast.runtime.config import RunConfig
-from thinkfast.runtime.executor import EXECUTING, Executor
-from thinkfast.runtime.planner import runtime_tree
-from thinkfast.runtime.segments import EDGE, Segment
+from thinkfast.control.config import RunConfig
+from thinkfast.control.executor import EXECUTING, Executor
+from thinkfast.control.segments import EDGE, Segment
+from thinkfast.decide.tree_view import runtime_tree
+from thinkfast.estimate import filter as kf
+from thinkfast.tree.file import load_tree
 
 CFG = RunConfig()
 

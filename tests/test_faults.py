@@ -62,7 +62,7 @@ def test_every_fuzz_kind_breaks_the_detection_contract(kind):
     """The contract's intake refuses or drops the payload (never accepts it)."""
     from thinkfast.contract.detection import DetectionLimits
     from thinkfast.contract.frames import CameraExtrinsic
-    from thinkfast.runtime.intake import Intake
+    from thinkfast.control.intake import Intake
 
     intake = Intake(CameraExtrinsic(), DetectionLimits())
     now = time.time()

@@ -1,4 +1,4 @@
-"""RIAE-AKF (thinkfast.runtime.filter) and its motion model (thinkfast.runtime.motion)."""
+"""RIAE-AKF (thinkfast.estimate.filter) and its motion model (thinkfast.estimate.motion)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from scipy.stats import chi2
 
 from thinkfast.config import from_dict
 from thinkfast.errors import ConfigError
-from thinkfast.runtime import filter as kf
-from thinkfast.runtime.delta import crossing
-from thinkfast.runtime.motion import process_noise, transition
+from thinkfast.estimate import filter as kf
+from thinkfast.estimate.crossing import crossing
+from thinkfast.estimate.motion import process_noise, transition
 
 G = 9.81
 PLANE = 0.8

@@ -78,7 +78,7 @@ def test_speed_scale_keeps_every_reply_within_the_scaled_limits(tree_file, tmp_p
 
 
 def test_speed_scale_is_checked(tree_file, tmp_path):
-    from thinkfast.runtime.cli import main
+    from thinkfast.daemon.cli import main
 
     for bad in (["--speed-scale", "0"], ["--speed-scale", "1.5"]):
         with pytest.raises(SystemExit) as exc:
@@ -179,12 +179,12 @@ def _robot_with_post(robot, kin, tmp_path, q_mid):
 
 
 def test_way_home_is_checked_against_the_cell(robot, kin, tmp_path, small_tree_015):
-    from thinkfast.compile.treefile import load_tree
+    from thinkfast.control.config import RunConfig
+    from thinkfast.control.executor import Executor
+    from thinkfast.control.way_home import WayHome
+    from thinkfast.decide.tree_view import runtime_tree
     from thinkfast.robot.collision import CollisionChecker
-    from thinkfast.runtime.config import RunConfig
-    from thinkfast.runtime.executor import Executor
-    from thinkfast.runtime.planner import runtime_tree
-    from thinkfast.runtime.way_home import WayHome
+    from thinkfast.tree.file import load_tree
 
     cfg = RunConfig()
     q0 = robot.home + np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0])
@@ -225,7 +225,7 @@ def test_log_format_json_gives_one_object_per_line(tree_file, tmp_path, robot):
 
 
 def test_scale_limits_scales_velocity_acceleration_and_jerk(robot):
-    from thinkfast.runtime.cli import scale_limits
+    from thinkfast.daemon.cli import scale_limits
 
     slow = scale_limits(robot, 0.25)
     for name in ("v_max", "a_max", "j_max"):

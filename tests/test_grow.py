@@ -10,9 +10,9 @@ import pytest
 from tests.conftest import ROBOT_TOML, small_tree_config
 from thinkfast.compile.build import compile_tree
 from thinkfast.compile.config import load_compile_config
-from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED
-from thinkfast.compile.treefile import tree_fingerprint
 from thinkfast.robot.steering import Steering, state_at
+from thinkfast.tree.action_tree import EDGE_CUT, EDGE_REACHED
+from thinkfast.tree.file import tree_fingerprint
 
 
 def small_config(tmp_path, robot=ROBOT_TOML):

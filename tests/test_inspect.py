@@ -17,8 +17,8 @@ from thinkfast.compile.inspect import (
     tree_diff,
     tree_info,
 )
-from thinkfast.compile.tree import EDGE_CUT, ActionTree
-from thinkfast.compile.treefile import load_tree, save_tree
+from thinkfast.tree.action_tree import EDGE_CUT, ActionTree
+from thinkfast.tree.file import load_tree, save_tree
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ import pytest
 
 from thinkfast.contract.detection import DetectionLimits
 from thinkfast.contract.frames import CameraExtrinsic
-from thinkfast.runtime.intake import Intake, classify_order
+from thinkfast.control.intake import Intake, classify_order
 
 RATE = 50.0  # Hz, the camera's frame rate
 LATENCY = (0.030, 0.060)  # s, capture-to-receive, uniform per frame (the simulated camera's)

@@ -1,13 +1,13 @@
-"""The isotropic disk table (thinkfast.runtime.iso_disk) against the Marcum Q function and the
-disk masses of thinkfast.runtime.disk."""
+"""The isotropic disk table (thinkfast.decide.iso_disk) against the Marcum Q function and the
+disk masses of thinkfast.decide.shield_disk."""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.special import chndtr
 
-from thinkfast.runtime import iso_disk
-from thinkfast.runtime.values import ValueConfig, layout, terminal_values
+from thinkfast.decide import iso_disk
+from thinkfast.decide.values import ValueConfig, layout, terminal_values
 
 
 def test_lookups_match_the_noncentral_chi_square_cdf_to_5e5():

@@ -6,9 +6,9 @@ import dataclasses
 
 import numpy as np
 
-from thinkfast.runtime.config import RunConfig
-from thinkfast.runtime.filter import stereo_r
-from thinkfast.runtime.launch import LaunchDetector, fit_free_flight
+from thinkfast.control.config import RunConfig
+from thinkfast.estimate.filter import stereo_r
+from thinkfast.estimate.launch import LaunchDetector, fit_free_flight
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.throws import ThrowConfig, ball_states, sample_throws
 

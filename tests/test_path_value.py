@@ -1,4 +1,4 @@
-"""P(block) of moving shields (thinkfast.runtime.path_value) against Monte Carlo, today's static
+"""P(block) of moving shields (thinkfast.decide.path_value) against Monte Carlo, today's static
 values, the judge's geometry, and its own invariants."""
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ import pytest
 from path_mc import belief, judge_block, model_block
 from scipy.special import ndtr
 
-from thinkfast.runtime.delta import crossing
-from thinkfast.runtime.normal_rules import normal_rule
-from thinkfast.runtime.path_value import PathValueConfig, block_probability
-from thinkfast.runtime.segments import Steering
-from thinkfast.runtime.shield_paths import BlockGeometry, shield_paths
-from thinkfast.runtime.values import ValueConfig, layout, terminal_values
+from thinkfast.control.segments import Steering
+from thinkfast.decide.normal_rules import normal_rule
+from thinkfast.decide.path_value import PathValueConfig, block_probability
+from thinkfast.decide.shield_paths import BlockGeometry, shield_paths
+from thinkfast.decide.values import ValueConfig, layout, terminal_values
+from thinkfast.estimate.crossing import crossing
 
 GEOM = BlockGeometry(plane_x=0.8, shield_radius=0.2, half_thickness=0.005, ball_radius=0.0335)
 RHO = GEOM.shield_radius + GEOM.ball_radius
@@ -141,8 +141,8 @@ def test_block_probability_matches_a_million_sample_monte_carlo_within_0005(kind
 
 
 def test_a_shield_at_rest_blocks_with_the_disk_mass_of_todays_values():
-    """Static shields on the plane: the disk mass of thinkfast.runtime.disk (via values) within
-    5e-4, for beliefs from 5 mm to 0.5 m, correlated with tau or not."""
+    """Static shields on the plane: the disk mass of thinkfast.decide.shield_disk (via values)
+    within 5e-4, for beliefs from 5 mm to 0.5 m, correlated with tau or not."""
     rng = np.random.default_rng(3)
     for _ in range(40):
         mean, cov = random_belief(rng, v_shield=0.0)

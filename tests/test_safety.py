@@ -7,8 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from thinkfast.errors import ThinkfastError
-from thinkfast.runtime.safety import (
+from thinkfast.control.safety import (
     BRAKE_REASONS,
     KINDS,
     SafetyConfig,
@@ -19,6 +18,7 @@ from thinkfast.runtime.safety import (
     make_limits,
     recoverable,
 )
+from thinkfast.errors import ThinkfastError
 
 D = math.pi / 180.0
 CFG = SafetyConfig()

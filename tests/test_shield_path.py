@@ -7,11 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
+from thinkfast.control.segments import Steering
 from thinkfast.errors import RobotModelError
 from thinkfast.robot.batch_fk import BatchFK
 from thinkfast.robot.shield_path import ShieldSampler, sample_joint_paths
 from thinkfast.robot.wrist import CoplanarWrist
-from thinkfast.runtime.segments import Steering
 
 
 def test_centres_equal_the_full_fk_with_the_coplanar_wrist_to_1e12(robot):

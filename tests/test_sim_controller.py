@@ -9,7 +9,7 @@ import pytest
 
 from thinkfast.config import from_dict
 from thinkfast.contract import egm
-from thinkfast.runtime.egm_server import EgmServer
+from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
 
 CFG = ServoConfig()

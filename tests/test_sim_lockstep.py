@@ -23,11 +23,11 @@ class _Factory:
         self.path = path
 
     def __call__(self):
-        from thinkfast.compile.treefile import load_tree
+        from thinkfast.control.config import RunConfig
         from thinkfast.robot.model import load_robot
-        from thinkfast.runtime.config import RunConfig
         from thinkfast.sim.camera import CameraModelConfig
         from thinkfast.sim.controller import ServoConfig
+        from thinkfast.tree.file import load_tree
 
         return World(
             load_tree(self.path),
@@ -67,7 +67,7 @@ def test_a_long_held_ball_never_starts_the_arm_and_the_throw_still_does(tree_pat
 
 
 def test_oracle_seen_leaves_when_the_first_flight_detection_arrives(tree_path):
-    from thinkfast.runtime.config import RunConfig
+    from thinkfast.control.config import RunConfig
     from thinkfast.sim.camera import CameraModelConfig, observe
     from thinkfast.sim.lockstep import LEAD
 

@@ -11,10 +11,10 @@ from thinkfast.robot.steering import Steering, state_at
 
 @pytest.fixture(scope="module")
 def executor(small_tree_015, robot):
-    from thinkfast.compile.treefile import load_tree
-    from thinkfast.runtime.config import RunConfig
-    from thinkfast.runtime.executor import Executor
-    from thinkfast.runtime.planner import runtime_tree
+    from thinkfast.control.config import RunConfig
+    from thinkfast.control.executor import Executor
+    from thinkfast.decide.tree_view import runtime_tree
+    from thinkfast.tree.file import load_tree
 
     cfg = RunConfig()
     return Executor(runtime_tree(load_tree(small_tree_015), robot, cfg), robot, cfg, "tree-rest")

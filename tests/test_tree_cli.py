@@ -125,7 +125,7 @@ def test_verify_catches_edges_that_do_not_recompute(trees):
 
     import numpy as np
 
-    from thinkfast.compile.treefile import load_tree, save_tree
+    from thinkfast.tree.file import load_tree, save_tree
 
     t = load_tree(trees["a"])
     state = np.array(t.node_state)
@@ -149,7 +149,7 @@ def test_verify_catches_tampered_shield_paths_and_info_shows_them(trees):
 
     import numpy as np
 
-    from thinkfast.compile.treefile import load_tree, save_tree
+    from thinkfast.tree.file import load_tree, save_tree
 
     t = load_tree(trees["a"])
     assert t.edge_shield.shape[1] == 6 and t.meta["shield_dt"] == pytest.approx(0.02, abs=1e-15)

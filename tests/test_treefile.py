@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from tests.treegen import random_tree
-from thinkfast.compile.tree import ActionTree
-from thinkfast.compile.treefile import (
+from thinkfast.errors import TreeFileError
+from thinkfast.tree.action_tree import ActionTree
+from thinkfast.tree.file import (
     DERIVED,
     LAYOUT,
     PATHS,
@@ -23,7 +24,6 @@ from thinkfast.compile.treefile import (
     save_tree,
     tree_fingerprint,
 )
-from thinkfast.errors import TreeFileError
 
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = ROOT / "tests" / "data" / "tree_v2_golden.h5"
@@ -138,7 +138,7 @@ def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path, tree_file
         f.create_dataset("/partial", data=np.zeros(3))
         raise OSError("disk full")
 
-    monkeypatch.setattr("thinkfast.compile.treefile._write", broken)
+    monkeypatch.setattr("thinkfast.tree.file._write", broken)
     with pytest.raises(TreeFileError, match="cannot write \\(disk full\\)"):
         save_tree(random_tree(2), tree_file)
     assert tree_file.read_bytes() == before
@@ -402,3 +402,47 @@ def test_a_missing_or_bad_shield_spacing_is_refused(tmp_path, tree_file, value):
     meta = {k: v for k, v in random_tree(0).meta.items() if k != "shield_dt"}
     with pytest.raises(TreeFileError, match="shield_dt"):
         save_tree(dataclasses.replace(random_tree(0), meta=meta), tmp_path / "x.h5")
+
+
+def test_one_field_table_describes_every_array_and_the_document_agrees():
+    """FIELDS is the one source: the ActionTree's arrays, the writer's layout and units, and the
+    dataset table of docs/TREE_FORMAT.md all follow it."""
+    import dataclasses
+    import re
+    from pathlib import Path
+
+    from thinkfast.tree.action_tree import DTYPES, FIELDS, UNITS, ActionTree
+    from thinkfast.tree.file import LAYOUT
+
+    names = [f.name for f in dataclasses.fields(ActionTree) if f.name != "meta"]
+    assert sorted(f.name for f in FIELDS) == sorted(names)
+    assert [(f.name, f.path, f.doc) for f in FIELDS] == list(LAYOUT)
+    assert set(DTYPES) == set(UNITS) == set(names)
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "TREE_FORMAT.md").read_text()
+    row = r"^\| `(/\w+/\w+)` \| `(\w+)` \| (\w+)[^|]* \| \(([^)]*)\) \| ([^|]+) \|"
+    rows = {m[0]: m[1:] for m in re.findall(row, doc, re.M)}
+    for f in FIELDS:
+        assert f.path in rows, f"{f.path} missing from docs/TREE_FORMAT.md"
+        name, dtype, shape, unit = rows[f.path]
+        assert name == f.name and dtype == np.dtype(f.dtype).name, f.path
+        assert shape.split(",")[0] == f.rows, f.path
+        assert f.unit.startswith(unit.strip()), (f.path, unit, f.unit)
+
+
+def test_provenance_is_typed_and_refuses_what_is_missing(small_tree_015):
+    from thinkfast.errors import TreeFileError
+    from thinkfast.tree.file import load_tree
+    from thinkfast.tree.provenance import Provenance
+
+    t = load_tree(small_tree_015)
+    prov = Provenance.of(t.meta)
+    assert prov.plane_x == 0.8 and prov.eps > 0.0 and prov.shield_dt > 0.0
+    assert prov.versions["thinkfast"] and prov.versions["ruckig"]
+    assert len(prov.config_sha256) == 64 and prov.parameters["tree"]["eps"] == prov.eps
+    robot = prov.robot_toml()
+    assert robot is None or robot.is_file()
+    broken = {k: v for k, v in t.meta.items() if k != "config_sha256"}
+    with pytest.raises(TreeFileError, match="config_sha256"):
+        Provenance.of(broken, "x.h5")
+    with pytest.raises(TreeFileError, match="parameters"):
+        Provenance.of({**t.meta, "parameters": "[1, 2]"}, "x.h5")

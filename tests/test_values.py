@@ -1,4 +1,4 @@
-"""Terminal values (thinkfast.runtime.values) and disk masses (thinkfast.runtime.disk)."""
+"""Terminal values (thinkfast.decide.values) and disk masses (thinkfast.decide.shield_disk)."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import pytest
 from scipy.special import ndtr
 
 from thinkfast.config import from_dict
+from thinkfast.decide.shield_disk import plane_frame
+from thinkfast.decide.values import ValueConfig, layout, terminal_values
 from thinkfast.errors import ConfigError
-from thinkfast.runtime.delta import crossing
-from thinkfast.runtime.disk import plane_frame
-from thinkfast.runtime.values import ValueConfig, layout, terminal_values
+from thinkfast.estimate.crossing import crossing
 
 R = 0.15  # shield radius [m]
 MARGIN = 0.02

@@ -1,6 +1,6 @@
 """Small synthetic but valid action trees for file-format and inspection tests (seeded).
 
-The trees honour every layout invariant of :mod:`thinkfast.compile.tree`: breadth-first nodes,
+The trees honour every layout invariant of :mod:`thinkfast.tree.action_tree`: breadth-first nodes,
 contiguous children, terminal edges sorted by node (leaving from the deepest level only, like the
 compiler), ``child ttc = parent ttc + edge duration`` and ``arrival = ttc(node) + duration``.
 Their numbers are random, not physical; shield paths are sampled every ``SHIELD_DT`` (tree edges:
@@ -14,7 +14,7 @@ import hashlib
 
 import numpy as np
 
-from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED, ActionTree
+from thinkfast.tree.action_tree import EDGE_CUT, EDGE_REACHED, ActionTree
 
 SHIELD_DT = 0.02  # s
 

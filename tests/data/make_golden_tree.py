@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED, ActionTree
-from thinkfast.compile.treefile import save_tree
+from thinkfast.tree.action_tree import EDGE_CUT, EDGE_REACHED, ActionTree
+from thinkfast.tree.file import save_tree
 
 CONFIG_TEXT = """\
 robot = "../robots/irb1600/robot.toml"

@@ -20,10 +20,10 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from thinkfast.calib.camera_record import CalibPose
+from thinkfast.decide.tree_view import BALL_RADIUS
 from thinkfast.errors import ThinkfastError
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
-from thinkfast.runtime.planner import BALL_RADIUS
 from thinkfast.sim.camera import CameraModelConfig, noise_covariance
 
 GATE = 4.03  # whitened residual norm at the 99.9 % quantile of chi with 3 degrees of freedom

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 from ruckig import InputParameter, OutputParameter, Result, Ruckig, Synchronization
 
+from thinkfast.daemon.recorder import Recorder
 from thinkfast.errors import RecorderError
 from thinkfast.robot.model import Robot
-from thinkfast.runtime.recorder import Recorder
 from thinkfast.sim.controller import ServoConfig, SimController
 
 AMPLITUDE = np.array([0.6, 0.5, 0.5, 1.0, 0.8, 1.0])  # rad, excursion about home per joint

@@ -14,10 +14,10 @@ from thinkfast.compile.config import LoadedConfig
 from thinkfast.compile.goals import require_reachable, solve_goal_grid
 from thinkfast.compile.grow import GrowInputs, Progress, grow, subgoals
 from thinkfast.compile.shield import edge_shield_paths, sample_spacing
-from thinkfast.compile.tree import ActionTree
 from thinkfast.config import to_dict
 from thinkfast.robot.batch_fk import BatchFK
 from thinkfast.robot.model import Robot, load_robot
+from thinkfast.tree.action_tree import ActionTree
 
 
 def versions() -> dict[str, str]:

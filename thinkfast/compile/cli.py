@@ -83,8 +83,8 @@ def tree(
     from thinkfast.compile.config import load_compile_config
     from thinkfast.compile.grow import default_jobs
     from thinkfast.compile.inspect import tree_info
-    from thinkfast.compile.treefile import save_tree
     from thinkfast.errors import ConfigError
+    from thinkfast.tree.file import save_tree
 
     if jobs < 0:
         raise ConfigError("--jobs", None, f"must be >= 0, got {jobs}")
@@ -101,9 +101,9 @@ def tree(
 def _up_to_date(output: Path, loaded) -> bool:
     """True when OUTPUT exists, reads, and was compiled from the same config, robot and version."""
     from thinkfast import __version__
-    from thinkfast.compile.treefile import load_meta
     from thinkfast.errors import ThinkfastError
     from thinkfast.robot.model import load_robot
+    from thinkfast.tree.file import load_meta
 
     if not output.is_file():
         return False
@@ -124,7 +124,7 @@ def _up_to_date(output: Path, loaded) -> bool:
 def info(path: Path = typer.Argument(..., help="tree file (HDF5)")) -> None:
     """Counts per depth, goal coverage, arrival times, parameters and provenance of a tree."""
     from thinkfast.compile.inspect import tree_info
-    from thinkfast.compile.treefile import load_tree
+    from thinkfast.tree.file import load_tree
 
     print(tree_info(load_tree(path)))
 
@@ -139,8 +139,8 @@ def diff(
 ) -> None:
     """Compare two trees. Exit status 0 when they are the same, 1 when they differ, 2 on trouble."""
     from thinkfast.compile.inspect import diff_png, tree_diff
-    from thinkfast.compile.treefile import load_tree
     from thinkfast.errors import ThinkfastError
+    from thinkfast.tree.file import load_tree
 
     try:
         ta, tb = load_tree(a), load_tree(b)
@@ -169,10 +169,10 @@ def verify(
 
     from thinkfast.compile.config import CompileConfig
     from thinkfast.compile.grow import default_jobs
-    from thinkfast.compile.treefile import load_tree
     from thinkfast.compile.verify import verify_tree
     from thinkfast.config import from_dict
     from thinkfast.robot.model import load_robot
+    from thinkfast.tree.file import load_tree
 
     tree_ = load_tree(path)
     config = from_dict(CompileConfig, tomllib.loads(tree_.meta["config_text"]), f"{path}:config")

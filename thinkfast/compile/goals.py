@@ -23,9 +23,9 @@ from typing import NamedTuple
 import numpy as np
 
 from thinkfast.compile.config import GoalsConfig
-from thinkfast.compile.ik import solve_shield_ik
 from thinkfast.errors import ConfigError
 from thinkfast.robot.collision import CollisionChecker
+from thinkfast.robot.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 

@@ -33,10 +33,10 @@ import numpy as np
 from thinkfast.compile.config import TreeConfig
 from thinkfast.compile.goals import GoalGrid
 from thinkfast.compile.pathcheck import PathChecker
-from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED
 from thinkfast.errors import NoSolutionError
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering, state_at
+from thinkfast.tree.action_tree import EDGE_CUT, EDGE_REACHED
 
 CHUNK = 8  # parents (or leaves) per work item
 Progress = Callable[[str, int, int], None]

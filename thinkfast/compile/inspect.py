@@ -1,7 +1,7 @@
 """Text and plots about compiled action trees: ``info``, ``diff`` and the diff figure.
 
-Pure functions of :class:`~thinkfast.compile.tree.ActionTree` values (no argument parsing, no file
-reading); the CLI loads the trees and prints what these return.
+Pure functions of :class:`~thinkfast.tree.action_tree.ActionTree` values (no argument parsing,
+no file reading); the CLI loads the trees and prints what these return.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED, ActionTree
-from thinkfast.compile.treefile import tree_fingerprint
+from thinkfast.tree.action_tree import EDGE_CUT, EDGE_REACHED, ActionTree
+from thinkfast.tree.file import tree_fingerprint
 
 ROBOT_KEYS = ("urdf_sha256", "robot_toml_sha256")
 GOAL_KEY_SCALE = 1e6  # goals of two trees are the same goal when (y, z) agree to 1e-6 m

@@ -2,7 +2,7 @@
 ``/terminals/shield``).
 
 The runtime scores a compiled branch by the probability that its shield meets the ball, moving
-or at rest (:mod:`thinkfast.runtime.path_value`); it needs the shield centre along every edge.
+or at rest (:mod:`thinkfast.decide.path_value`); it needs the shield centre along every edge.
 Each primitive is recomputed with Ruckig from its stored start state (exactly as the compiler and
 ``verify`` do) and sampled every ``dt`` from its start: a tree edge at ``0, dt, ..., eps`` (a
 primitive that reached its target holds there), a terminal edge at ``0, dt, ...`` up to the

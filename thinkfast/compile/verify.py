@@ -22,10 +22,10 @@ from thinkfast.compile.config import CompileConfig
 from thinkfast.compile.grow import Progress, _run
 from thinkfast.compile.pathcheck import PathChecker
 from thinkfast.compile.shield import edge_shield_paths
-from thinkfast.compile.tree import EDGE_CUT, EDGE_REACHED, ActionTree
 from thinkfast.errors import NoSolutionError
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering, state_at
+from thinkfast.tree.action_tree import EDGE_CUT, EDGE_REACHED, ActionTree
 
 TOL = 1e-9  # recomputed vs stored: the same computation, so equal to rounding
 GOAL_TOL = 1e-7  # rad, rad/s, rad/s^2: Ruckig reaches its target state to about 1e-8

@@ -105,10 +105,10 @@ def run(
     With --frames the simulator renders the ZED's left and XYZ images of every frame instead
     (docs/CAMERA_FRAMES.md) and a thinkfast-detect process turns them into detections.
     """
+    from thinkfast.control.config import load_run_config
+    from thinkfast.daemon.egm_server import parse_hostport
     from thinkfast.errors import ConfigError
     from thinkfast.robot.model import load_robot
-    from thinkfast.runtime.config import load_run_config
-    from thinkfast.runtime.egm_server import parse_hostport
     from thinkfast.sim.realtime import run_throws, run_with_daemon
 
     if planner not in ONLINE:
@@ -195,10 +195,10 @@ def bench(
     blocked, the difference in rate with a 95 % interval (Newcombe) and an exact McNemar p.
     """
     from thinkfast.compile.grow import default_jobs
-    from thinkfast.compile.treefile import load_tree
+    from thinkfast.control.config import load_run_config
     from thinkfast.errors import ConfigError
-    from thinkfast.runtime.config import load_run_config
     from thinkfast.sim.bench import format_summary, plot_summary, run_bench, summarize
+    from thinkfast.tree.file import load_tree
 
     names = [p.strip() for p in planners.split(",") if p.strip()]
     bad = [p for p in names if p not in PLANNERS]
@@ -239,11 +239,11 @@ class _WorldFactory:
         self.tree, self.cfg = tree, cfg
 
     def __call__(self):
-        from thinkfast.compile.treefile import load_tree
         from thinkfast.robot.model import load_robot
         from thinkfast.sim.camera import CameraModelConfig
         from thinkfast.sim.controller import ServoConfig
         from thinkfast.sim.lockstep import World
+        from thinkfast.tree.file import load_tree
 
         return World(
             load_tree(self.tree), load_robot(), self.cfg, ServoConfig(), CameraModelConfig()
@@ -264,9 +264,9 @@ def replay(
 ) -> None:
     """Re-publish a flight record's detections (raw payloads) with their original timing
     (schema 1 and 2 records, also a partial one)."""
+    from thinkfast.contract.record_format import read_detections
     from thinkfast.contract.zenoh_session import open_peer
     from thinkfast.errors import ConfigError
-    from thinkfast.runtime.record_format import read_detections
 
     t, payloads = read_detections(record)  # RecordFileError: one line naming the file
     if speed <= 0:

@@ -36,7 +36,7 @@ import numpy as np
 
 from thinkfast.config import spec
 from thinkfast.contract.egm import EgmDecodeError, decode_sensor, encode_robot
-from thinkfast.runtime.egm_server import SO_TIMESTAMPNS, arrival_age
+from thinkfast.daemon.egm_server import SO_TIMESTAMPNS, arrival_age
 
 log = logging.getLogger(__name__)
 _DEG = math.pi / 180.0

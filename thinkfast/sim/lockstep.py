@@ -2,7 +2,7 @@
 
 Per throw: the camera model makes the detections (delivered at their delivery times); every 4 ms
 the simulated controller (servo model with transport delay) reports its joints and the daemon's
-control core (:class:`~thinkfast.runtime.egm_control.EgmControl`: executor and safety supervisor
+control core (:class:`~thinkfast.control.core.ControlCore`: executor and safety supervisor
 on the controller's clock, checked against the measured joints) answers with the setpoint it
 follows; detections reach the core between ticks, exactly as in the daemon's loop. The judge
 decides from the controller's joint history.
@@ -25,17 +25,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-from thinkfast.compile.ik import solve_shield_ik
+from thinkfast.control.config import RunConfig
+from thinkfast.control.core import ControlCore
+from thinkfast.control.executor import Executor
+from thinkfast.control.intake import Intake
+from thinkfast.control.safety import SafetySupervisor, robot_limits
+from thinkfast.control.segments import WristTracker
+from thinkfast.decide.tree_view import BALL_RADIUS, runtime_tree
+from thinkfast.robot.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering
-from thinkfast.runtime.config import RunConfig
-from thinkfast.runtime.egm_control import EgmControl
-from thinkfast.runtime.executor import Executor
-from thinkfast.runtime.intake import Intake
-from thinkfast.runtime.planner import BALL_RADIUS, runtime_tree
-from thinkfast.runtime.safety import SafetySupervisor, robot_limits
-from thinkfast.runtime.segments import WristTracker
 from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
 from thinkfast.sim.controller import ServoConfig, SimController
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
@@ -106,7 +106,7 @@ def simulate(
         ex = None
     else:
         ex = Executor(world.tree, robot, cfg, planner)
-        core = EgmControl(ex, sup, cfg.safety, intake=Intake(cfg.camera, cfg.detections))
+        core = ControlCore(ex, sup, cfg.safety, intake=Intake(cfg.camera, cfg.detections))
     k_det, t = 0, 0.0
     moved, t_move = False, math.nan
     while t <= t_end:

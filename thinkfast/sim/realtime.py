@@ -22,9 +22,9 @@ import numpy as np
 from thinkfast.contract import keys
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
+from thinkfast.decide.tree_view import BALL_RADIUS
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
-from thinkfast.runtime.planner import BALL_RADIUS
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint

@@ -37,9 +37,9 @@ _COMMON = set(_LINE) | {
 
 def make_context(tree: Path, seed: int = 1, daemon_opts=(), log=print) -> Context:
     """The shared context: the default robot, its kinematics, the default camera pose."""
+    from thinkfast.control.config import load_run_config
     from thinkfast.robot.kinematics import Kinematics
     from thinkfast.robot.model import default_robot_path, load_robot
-    from thinkfast.runtime.config import load_run_config
     from thinkfast.sim.camera import CameraModelConfig
 
     robot = load_robot(default_robot_path())

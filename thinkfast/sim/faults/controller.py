@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from thinkfast.runtime.egm_server import SO_TIMESTAMPNS
+from thinkfast.daemon.egm_server import SO_TIMESTAMPNS
 from thinkfast.sim.controller import ServoConfig, SimController
 from thinkfast.sim.faults import rows as R
 from thinkfast.sim.faults.egm_pb import decode_reply, robot_message

@@ -1,0 +1,3 @@
+"""Control: intake, the executor (throw episodes), segments and wrist, the safety supervisor and
+the clock-free control core (detections and EGM feedback in, setpoints out, time passed in) that
+the daemon and the lockstep simulator both drive; the runtime configuration."""

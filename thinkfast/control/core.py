@@ -1,0 +1,376 @@
+"""The control core: detections and EGM feedback in, setpoints out, on the controller's clock.
+
+The daemon and the lockstep simulator drive the same core: :meth:`ControlCore.on_detection` takes
+a detection payload (intake, then the executor's filter and planner) and
+:meth:`ControlCore.on_feedback` answers one ``EgmRobot`` with the executor's setpoint for that
+packet's controller time, filtered by the safety supervisor against the measured joints.
+
+Clock-free (time is passed in). For each ``EgmRobot`` the controller's clock
+(:mod:`thinkfast.control.egm_clock`) says which cycle it belongs to, and the reply is the plan
+and the supervisor's state at that time:
+
+* the same cycle again (a duplicated or stale packet): the same setpoint again;
+* one or more cycles on: the supervisor steps through each elapsed cycle (a missed cycle
+  advances the command by two cycles of admissible motion, never by one of double speed);
+* the first packet, or one after a silence longer than ``resync_after``: the stream restarts
+  from the measured feedback (position, and velocity where the feedback measured it: two
+  packets at most three cycles apart), and the executor plans on from there with the same
+  intent. After a silence in motion the arm may still be moving (the controller slowing it
+  down), and one packet measures no velocity: the first two packets are left unanswered (the
+  controller holds its last reference two cycles more, as it did through the silence) and the
+  stream restarts at the third, from its position and the velocity the three measure (exact
+  for a constant deceleration; at most :data:`DEFER_MAX` packets wait, then a pair or nothing
+  is used).
+
+Every plan starts from the commanded state: when the supervisor had to change a request (it
+should almost never have to), the executor is resynchronised to what was actually commanded.
+
+Controller state. The controller follows references only with its motors on and EGM motion
+running (``EgmRobot.motorState``, ``mciState``; RAPID not stopped). Otherwise (``ready`` False)
+every reply commands the measured position at rest (*standby*: the arm may be jogged, and the
+reference must be where it stands when EGM motion starts again), the planner keeps tracking but
+nothing it plans is commanded, and the first ready packet restarts the stream from the measured
+position like a silence does. ``shadow`` (first light) plans and supervises a virtual arm that
+follows every command exactly while the daemon sends the position measured when the stream
+started (a reference that followed the measurement would have no restoring force): the status
+and the mirrored setpoints show what would have been commanded.
+
+Faults. A deviation brake (the arm left the envelope of its recent commands) or a non-finite
+request stops the arm smoothly. Once the commanded stop is complete and the *measured* arm has
+been at rest for ``recover_after``, the stream restarts from the measured position and the arm
+returns home, then is ready again. ``max_faults`` faults within ``fault_window`` latch ``fault``
+for good: the measured position is held until the daemon is restarted.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.control.egm_clock import ClockTick, ControllerClock
+from thinkfast.control.executor import FAULT, IDLE, Executor
+from thinkfast.control.intake import Accepted, Intake
+from thinkfast.control.safety import SafetyConfig, SafetySupervisor
+
+FAULT_REASONS = ("deviation", "nonfinite")
+REST_SPEED = 1e-3  # rad/s: a measured joint slower than this is at rest
+MEASURED_SPAN = 3  # cycles: feedback further apart measures no velocity
+DEFER_MAX = 3  # packets left unanswered after a silence in motion, waiting for a velocity
+
+
+class Reply(NamedTuple):
+    """One reply: ``q`` [rad], ``qd`` [rad/s] (6,), the ``mode`` to mirror, and the tick."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    mode: str
+    tick: ClockTick
+
+
+class ControlCore:
+    """Executor + supervisor on the controller's clock, with fault recovery (module doc).
+
+    Args:
+        executor: the planner/executor (its ``setpoint(t)`` gives the plan at time t).
+        supervisor: the safety supervisor (the last stage before the wire).
+        cfg: supervisor and recovery parameters.
+        on_event: ``on_event(t, kind, detail)`` for things worth logging and recording.
+        shadow: plan a virtual arm, command the position measured at the start (module doc).
+        intake: detection intake for :meth:`on_detection` (None: detections are not taken).
+    """
+
+    def __init__(
+        self,
+        executor: Executor,
+        supervisor: SafetySupervisor,
+        cfg: SafetyConfig,
+        on_event=lambda t, kind, detail: None,
+        shadow: bool = False,
+        intake: Intake | None = None,
+    ):
+        self.ex, self.sup, self.cfg, self.on_event = executor, supervisor, cfg, on_event
+        self.intake = intake
+        self.planner_errors = 0  # executor.on_detection failures (each brakes)
+        self.shadow = shadow
+        self.standby = False  # the controller does not follow references (module doc)
+        self.standby_replies = 0
+        self.hold_q: np.ndarray | None = None  # shadow: the position sent [rad] (6,)
+        self._last_rx = -math.inf  # receive time of the last packet (shadow) [s]
+        self.clock = ControllerClock(cfg.dt, cfg.resync_after)
+        self.last: Reply | None = None
+        self.repeats = 0  # duplicate or stale packets answered with the same setpoint
+        self.resyncs = 0  # restarts from the measured feedback (first packet excluded)
+        self.deferred = 0  # packets left unanswered after a silence (measuring the velocity)
+        self._waiting = -1  # packets deferred since the silence being resynchronised (-1: none)
+        self._track: list[tuple[float, np.ndarray]] = []  # (s, q): consecutive packets since
+        self.faults: collections.deque[float] = collections.deque()  # times, within the window
+        self.fault_count = 0
+        self.latched = False
+        self._fb: tuple[float, np.ndarray] | None = None  # (controller time, q) of last feedback
+        self._rest_since = math.inf  # measured arm at rest since (controller time)
+        self._prepared: tuple | None = None  # (t, q_req, qd_req)
+        self.errors = 0  # executor.setpoint failures (each brakes)
+        self.last_error: Exception | None = None
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def t_next(self) -> float:
+        """Controller time of the next cycle [s] (-inf before the first packet)."""
+        return self.clock.t + self.cfg.dt
+
+    def at_rest(self) -> bool:
+        """Nothing moves and nothing will without a new detection (the time base may move)."""
+        return self.ex.mode == IDLE and self.sup.stopped and not self.sup.braking
+
+    def mode(self) -> str:
+        """Executor mode, ``brake`` while braking, ``fault`` while latched."""
+        if self.latched:
+            return FAULT
+        return "brake" if self.sup.braking else self.ex.mode
+
+    # ------------------------------------------------------------------ cycle
+    def prepare(self) -> None:
+        """Plan the next cycle's setpoint ahead (the supervisor filters it ahead too); a
+        failure leaves nothing prepared (the reply tries again, counts it and brakes)."""
+        t = self.t_next
+        try:
+            q_req, qd_req = self.ex.setpoint(t)
+        except Exception:
+            self._prepared = None
+            return
+        self._prepared = (t, q_req, qd_req)
+        self.sup.prepare(q_req, qd_req)
+
+    def invalidate(self) -> None:
+        """The plan changed: a prepared setpoint is void."""
+        self._prepared = None
+
+    def on_detection(self, payload: bytes, now: float | None, t_plan: float) -> Accepted | None:
+        """One detection ``payload`` received at ``now`` [s] (None: no clock checks, lockstep):
+        validated by the intake and, when accepted, fused and planned on by the executor, the
+        plan taking effect at ``t_plan`` (the controller time of the next cycle). Returns the
+        accepted detection, or None (dropped: counted by the intake). Never raises: a planner
+        failure is counted in ``planner_errors`` (``last_error``) and brakes."""
+        det = self.intake.take(payload, now)
+        if det is None:
+            return None
+        self._prepared = None  # the plan changes: prepare again
+        try:
+            self.ex.on_detection(t_plan, det.stamp, det.position)
+        except Exception as exc:  # a planner bug must not stop the EGM loop: stop the arm
+            self.planner_errors += 1
+            self.last_error = exc
+            self.brake("nonfinite")
+        return det
+
+    def on_feedback(
+        self, tm_ms: int | None, q_meas: np.ndarray, now: float, before=None, ready: bool = True
+    ) -> Reply | None:
+        """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, joints ``q_meas`` [rad])
+        received at ``now`` [s], or None: leave this packet unanswered (after a silence in
+        motion, until three packets measure the velocity; counted in ``deferred``).
+        ``before``: ``(tm_ms, q_meas)`` of the peer's packet just before it when that one was
+        superseded unanswered (it measures the velocity after a stall of this host). ``ready``:
+        the controller follows references (motors on, EGM motion running); otherwise the reply
+        is the measured position (module doc). Never raises: a failing ``executor.setpoint``
+        is counted in ``errors`` and brakes.
+
+        In shadow mode the reply's ``q``/``qd`` are the virtual arm's; the caller sends
+        :attr:`hold_q` at rest instead."""
+        if not (ready or self.shadow):
+            return self._standby(tm_ms, q_meas, now)
+        if self.shadow:  # hold where the arm stands when the stream (re)starts
+            silent = now - self._last_rx > self.cfg.resync_after
+            if not ready or silent or self.hold_q is None:
+                self.hold_q = np.array(q_meas, dtype=float)
+            self._last_rx = now
+        return self._on_feedback(tm_ms, q_meas, now, before)
+
+    def _on_feedback(self, tm_ms, q_meas, now, before) -> Reply | None:
+        tick = self.clock.tick(tm_ms, now, self.at_rest())
+        if self.standby:  # the controller follows references again: restart from the arm
+            self.standby = False
+            self._waiting = -1
+            self.on_event(tick.t, "controller_ready", {"q": np.round(q_meas, 4).tolist()})
+            return self._restart(tick._replace(resync=True), q_meas, np.zeros(6))
+        if tick.repeat and self._waiting >= 0:
+            self.deferred += 1  # the same packet again: still nothing measured
+            return None
+        if tick.repeat and self.last is not None:
+            self.repeats += 1
+            return self.last._replace(tick=tick)
+        qd_meas = self._measure(tick, q_meas, _earlier(tick, tm_ms, before))
+        if tick.resync and self.last is not None and not self.latched and not self.at_rest():
+            self._waiting, self._track = 0, []  # a silence in motion: measure the velocity
+        if self._waiting >= 0:
+            qd_end = self._track_velocity(tick, q_meas, qd_meas)
+            if qd_end is None and self._waiting < DEFER_MAX:
+                self._waiting += 1
+                self.deferred += 1
+                return None
+            self._waiting = -1
+            return self._restart(tick, q_meas, qd_end if qd_end is not None else qd_meas)
+        if tick.resync or self.last is None:
+            return self._restart(tick, q_meas, qd_meas)
+        prepared, self._prepared = self._prepared, None
+        steps = max(1, round(tick.elapsed / self.cfg.dt))
+        h = tick.elapsed / steps
+        t0 = tick.t - tick.elapsed
+        for i in range(1, steps):  # cycles the controller skipped: still admissible motion
+            self.sup.step(*self._plan(t0 + i * h), dt=h)
+        if prepared is not None and steps == 1 and prepared[0] == tick.t:
+            q_req, qd_req = prepared[1], prepared[2]
+        else:
+            q_req, qd_req = self._plan(tick.t)
+        was_braking = self.sup.braking
+        cmd = self.sup.step(q_req, qd_req, q_meas=None if self.shadow else q_meas, dt=h)
+        if cmd.braking and not was_braking:
+            dev = self.sup.deviation(q_meas)
+            self.on_event(
+                tick.t,
+                "brake",
+                {
+                    "reason": self.sup.brake_reason,
+                    "mode": self.ex.mode,
+                    "deviation": None if dev is None else np.round(dev, 4).tolist(),
+                },
+            )
+        if cmd.kinds and not cmd.braking:  # the plan goes on from what was commanded
+            self.ex.resync(cmd.q, cmd.qd, self.sup.qdd, tick.t)
+        if cmd.braking:
+            self._while_braking(tick.t, q_meas, qd_meas)
+        self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
+        return self.last
+
+    def _standby(self, tm_ms, q_meas, now: float) -> Reply:
+        """The controller does not follow references: command the measured position at rest
+        and keep the planner's state on the arm (module doc)."""
+        tick = self.clock.tick(tm_ms, now, True)
+        q = np.array(q_meas, dtype=float)
+        first = self.last is None
+        self.sup.reset(q)
+        if first:
+            self.ex.start_from(np.array(self.sup.q), tick.t)
+        if not self.standby:
+            self.standby = True
+            self.on_event(tick.t, "controller_standby", {"q": np.round(q, 4).tolist()})
+        self.standby_replies += 1
+        self._prepared = None
+        self._fb = (tick.t, q)
+        self.last = Reply(self.sup.q, np.zeros(6), "standby", tick)
+        return self.last
+
+    def brake(self, reason: str) -> None:
+        """Latch a smooth stop (``signal``, or ``nonfinite`` for a planner failure)."""
+        self.sup.request_brake(reason)
+
+    # ------------------------------------------------------------------ internals
+    def _plan(self, t: float):
+        """The executor's setpoint at ``t``, or (None, None) when it fails (the supervisor
+        brakes on it)."""
+        try:
+            return self.ex.setpoint(t)
+        except Exception as exc:  # a planner bug must cost a smooth stop, never a reply
+            self.errors += 1
+            self.last_error = exc
+            return None, None
+
+    def _measure(self, tick: ClockTick, q_meas: np.ndarray, earlier=None) -> np.ndarray | None:
+        """Measured velocity [rad/s] (6,) from this feedback and the one before (``earlier``:
+        ``(span [s], q)`` of a superseded packet, else the last one served), or None."""
+        q = np.asarray(q_meas, dtype=float)
+        last, self._fb = self._fb, (tick.t, q)
+        if earlier is not None:
+            span, q_prev = earlier
+        elif last is not None and not tick.resync:
+            span, q_prev = tick.elapsed, last[1]
+        else:
+            span, q_prev = 0.0, None
+        if q_prev is None or not 0.0 < span <= MEASURED_SPAN * self.cfg.dt + 1e-9:
+            self._rest_since = math.inf
+            return None
+        qd = (q - q_prev) / span
+        if np.max(np.abs(qd)) < REST_SPEED:
+            self._rest_since = min(self._rest_since, tick.t - span)
+        else:
+            self._rest_since = math.inf
+        return qd
+
+    def _track_velocity(self, tick: ClockTick, q_meas, qd_meas) -> np.ndarray | None:
+        """Velocity [rad/s] (6,) at this packet from the packets since the silence, once three
+        consecutive ones measure it (exact for a constant acceleration: an arm that the
+        controller is slowing down decelerates fast), else None. A pair measures only the
+        average over its cycle, up to ``a dt / 2`` off, and the reply acts a cycle later."""
+        track = self._track
+        if qd_meas is None:  # not consecutive with the one before: start again from this one
+            track.clear()
+        s = track[-1][0] + tick.elapsed if track else 0.0  # time since the first one [s]
+        track.append((s, np.asarray(q_meas, dtype=float)))
+        if len(track) < 3:
+            return None
+        (s0, q0), (s1, q1), (s2, q2) = track[-3:]
+        h1, h2 = s1 - s0, s2 - s1
+        if not (h1 > 0.0 and h2 > 0.0):
+            return None
+        # derivative at s2 of the parabola through the three points (in differences: a standing
+        # arm measures exactly zero)
+        return (q2 - q1) / h2 * ((2 * h2 + h1) / (h1 + h2)) - (q1 - q0) / h1 * (h2 / (h1 + h2))
+
+    def _restart(self, tick: ClockTick, q_meas, qd_meas) -> Reply:
+        """First packet or after a silence: command the measured state, plan on from it."""
+        first = self.last is None
+        if first:
+            self.sup.reset(q_meas)
+            self.ex.start_from(np.array(self.sup.q), tick.t)
+        elif self.latched:
+            self.sup.reset(q_meas)
+            self.sup.request_brake("deviation")  # latched: hold where the arm stands
+            self.ex.hold_fault(np.array(self.sup.q), tick.t)
+        elif self.ex.away:  # held away from home: start again from where the arm stands now
+            self.sup.reset(q_meas)
+            self.ex.start_from(np.array(self.sup.q), tick.t)
+        elif not self.sup.resync(q_meas, qd_meas):
+            pass  # unusable measurement: the supervisor brakes from the old state
+        else:
+            self.resyncs += 1
+            self.ex.resync(self.sup.q, self.sup.qd, np.zeros(6), tick.t)
+            self.on_event(tick.t, "resync", {"silence": "restart from the measured feedback"})
+        self._prepared = None
+        self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
+        return self.last
+
+    def _while_braking(self, t: float, q_meas, qd_meas) -> None:
+        reason = self.sup.brake_reason
+        if reason not in FAULT_REASONS or not self.sup.stopped or self.latched:
+            return
+        if t - self._rest_since < self.cfg.recover_after:
+            return  # the commanded stop is done; wait until the arm stands too
+        self.fault_count += 1
+        while self.faults and t - self.faults[0] > self.cfg.fault_window:
+            self.faults.popleft()
+        self.faults.append(t)
+        if len(self.faults) >= self.cfg.max_faults:
+            self.latched = True
+            self.sup.reset(q_meas)
+            self.sup.request_brake(reason)  # stays braked (at rest): requests are ignored
+            self.ex.hold_fault(np.array(self.sup.q), t)
+            self.on_event(t, "fault_latched", {"reason": reason, "faults": len(self.faults)})
+            return
+        self.sup.reset(q_meas)  # the arm stands: restart from where it is, then go home
+        self.ex.recover(np.array(self.sup.q), t)
+        self._prepared = None
+        self.on_event(t, "recover", {"reason": reason, "faults": len(self.faults)})
+
+
+def _earlier(tick: ClockTick, tm_ms: int | None, before) -> tuple[float, np.ndarray] | None:
+    """``(span [s], q)`` of the packet ``before``, when it was sent at most
+    :data:`MEASURED_SPAN` cycles before this one on the controller's clock."""
+    if before is None or tm_ms is None or before[0] is None:
+        return None
+    d_ms = (tm_ms - before[0]) % (1 << 32)
+    if not 0 < d_ms <= MEASURED_SPAN * 4:
+        return None
+    return d_ms / 1000.0, np.asarray(before[1], dtype=float)

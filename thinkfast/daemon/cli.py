@@ -1,0 +1,246 @@
+"""``thinkfast-run``: the runtime daemon (zenoh detections in, EGM setpoints out)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import sys
+from pathlib import Path
+
+import typer
+
+from thinkfast.cli_util import (
+    KEY_PREFIX,
+    ZENOH_CONFIG,
+    ZENOH_CONNECT,
+    ZENOH_LISTEN,
+    ZenohConfigFile,
+    ZenohEndpoints,
+    make_app,
+    run_app,
+)
+
+app = make_app("thinkfast runtime daemon: ball detections over zenoh in, EGM setpoints out.")
+
+# Where the daemon serves EGM. The controller's UDP unicast device sends to this port
+# (robots/irb1600/controller/sys_cfg_udpuc.cfg; tests/test_controller_kit.py keeps them equal).
+EGM_BIND_DEFAULT = "0.0.0.0:6510"
+
+
+@app.command()
+def run(
+    tree: Path | None = typer.Option(None, "--tree", help="compiled action tree (HDF5); required"),
+    config: Path | None = typer.Option(None, "--config", help="runtime configuration (TOML)"),
+    print_config: bool = typer.Option(
+        False, "--print-config", help="print every runtime config default as TOML and exit"
+    ),
+    check_config: Path | None = typer.Option(
+        None, "--check-config", help="load and validate this runtime config, print OK and exit"
+    ),
+    planner: str = typer.Option(
+        "tree",
+        "--planner",
+        help="tree (belief-space), tree-rest (the paper's at-rest values), "
+        "naive or naive-paper (baselines)",
+    ),
+    egm_bind: str = typer.Option(EGM_BIND_DEFAULT, "--egm-bind", help="UDP HOST:PORT to serve EGM"),
+    egm_controller: str | None = typer.Option(
+        None,
+        "--egm-controller",
+        help="serve only this controller, IP or IP:PORT (default: the first valid sender)",
+    ),
+    egm_handover: float = typer.Option(
+        1.0,
+        "--egm-handover",
+        help="without --egm-controller: another sender may take over after the served "
+        "controller was silent this long (s)",
+    ),
+    key_prefix: str = KEY_PREFIX,
+    zenoh_connect: ZenohEndpoints = ZENOH_CONNECT,
+    zenoh_listen: ZenohEndpoints = ZENOH_LISTEN,
+    zenoh_config: ZenohConfigFile = ZENOH_CONFIG,
+    record: Path | None = typer.Option(None, "--record", help="flight recorder file (HDF5)"),
+    log_level: str = typer.Option("info", "--log-level", help="debug, info, warning or error"),
+    log_format: str = typer.Option(
+        "text", "--log-format", help="text, or json (one JSON object per line, for collectors)"
+    ),
+    shadow: bool = typer.Option(
+        False,
+        "--shadow",
+        help="first light: plan and publish everything, command the position measured when "
+        "the stream starts (the arm does not move; status.shadow shows the plan)",
+    ),
+    speed_scale: float = typer.Option(
+        1.0,
+        "--speed-scale",
+        help="scale the velocity, acceleration and jerk limits by this (0 < S <= 1; not with "
+        "--planner tree-rest, whose compiled edges use the full limits)",
+    ),
+    go_home: bool = typer.Option(
+        False,
+        "--go-home",
+        help="arm away from home at start-up: move it home (return speed) once the way is "
+        "checked against the cell; without it the arm holds where it stands",
+    ),
+    busy_poll: bool = typer.Option(
+        False,
+        "--busy-poll",
+        help="never sleep: spin on the EGM socket (hot CPU for every reply; costs one core)",
+    ),
+    spin_ahead: float = typer.Option(
+        0.0,
+        "--spin-ahead-ms",
+        help="spin on the EGM socket from this long before each EgmRobot is due (ms; 0 sleeps)",
+    ),
+    cpu: int | None = typer.Option(
+        None, "--cpu", help="run the EGM loop on this CPU, zenoh's threads on the others"
+    ),
+    fifo: int | None = typer.Option(
+        None, "--fifo", help="run the EGM loop under SCHED_FIFO at this priority (1-99)"
+    ),
+) -> None:
+    """Run until SIGINT/SIGTERM, then brake smoothly and exit 0."""
+    from thinkfast.contract.zenoh_session import session_config
+    from thinkfast.control.config import load_run_config
+    from thinkfast.control.executor import PLANNERS
+    from thinkfast.daemon.egm_server import parse_controller, parse_hostport
+    from thinkfast.daemon.service import Daemon, Endpoints, Modes
+    from thinkfast.errors import ConfigError, RobotModelError
+    from thinkfast.robot.model import default_robot_path, load_robot
+    from thinkfast.tree.file import load_tree
+
+    if print_config or check_config is not None:
+        _config_tool(print_config, check_config)
+        return
+    if tree is None:
+        raise typer.BadParameter(
+            "missing (required unless --print-config or --check-config)", param_hint="'--tree'"
+        )
+    if planner not in PLANNERS:
+        raise ConfigError("--planner", None, f"{planner!r} is not one of {', '.join(PLANNERS)}")
+    if log_level.upper() not in ("DEBUG", "INFO", "WARNING", "ERROR"):
+        raise ConfigError("--log-level", None, f"{log_level!r} is not one of debug, info, ...")
+    if not 0.0 < speed_scale <= 1.0:
+        raise ConfigError("--speed-scale", None, f"{speed_scale} is not in (0, 1]")
+    if speed_scale < 1.0 and planner == "tree-rest":
+        raise ConfigError(
+            "--speed-scale", None, "not with --planner tree-rest (its compiled edges use the full "
+            "limits); use tree, naive or naive-paper",
+        )  # fmt: skip
+    setup_logging(log_level, log_format)
+    parse_hostport(egm_bind)
+    parse_controller(egm_controller)
+    if not 0.0 < egm_handover < math.inf:
+        raise ConfigError("--egm-handover", None, f"{egm_handover} is not a duration > 0")
+    if not 0.0 <= spin_ahead < math.inf:
+        raise ConfigError("--spin-ahead-ms", None, f"{spin_ahead} is not a duration >= 0")
+    if fifo is not None and busy_poll:
+        raise ConfigError(
+            "--fifo", None, "not with --busy-poll: the kernel throttles a SCHED_FIFO thread "
+            "that never sleeps (use --spin-ahead-ms)",
+        )  # fmt: skip
+    cfg = load_run_config(config)
+    if speed_scale < 1.0 and cfg.choice.branches:
+        raise ConfigError(
+            "--speed-scale", None, "not with [choice] branches = true (compiled edges use the "
+            "full limits)",
+        )  # fmt: skip
+    t = load_tree(tree)
+    robot_path = Path(cfg.robot) if cfg.robot else _tree_robot(t) or default_robot_path()
+    robot = load_robot(robot_path)
+    if robot.urdf_sha256 != t.meta.get("urdf_sha256") or robot.toml_sha256 != t.meta.get(
+        "robot_toml_sha256"
+    ):
+        raise RobotModelError(
+            f"{tree}: compiled for another robot description than {robot.toml_path}; recompile it"
+        )
+    robot = scale_limits(robot, speed_scale)
+    conf = session_config(
+        connect=zenoh_connect or (), listen=zenoh_listen or (), config_file=zenoh_config
+    )
+    ends = Endpoints(egm_bind, egm_controller, egm_handover, key_prefix, record)
+    modes = Modes(shadow=shadow, go_home=go_home, speed_scale=speed_scale)
+    spin = math.inf if busy_poll else spin_ahead / 1e3
+    daemon = Daemon(
+        t, robot, cfg, planner, ends, conf, spin_ahead=spin, cpu=cpu, fifo=fifo, modes=modes
+    )
+    sys.exit(daemon.run())
+
+
+def scale_limits(robot, scale: float):
+    """``robot`` with its velocity, acceleration and jerk limits scaled by ``scale``."""
+    import dataclasses
+
+    if scale == 1.0:
+        return robot
+    return dataclasses.replace(
+        robot, v_max=robot.v_max * scale, a_max=robot.a_max * scale, j_max=robot.j_max * scale
+    )
+
+
+class JsonFormatter(logging.Formatter):
+    """One JSON object per record: time, level, logger, message (and the exception)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        out = {
+            "time": round(record.created, 6),
+            "level": record.levelname.lower(),
+            "logger": record.name,
+            "message": record.getMessage(),
+        }
+        if hasattr(record, "event"):  # daemon events: the same fields, structured
+            out["event"], out["detail"] = record.event, record.detail
+        if record.exc_info:
+            out["exception"] = self.formatException(record.exc_info)
+        return json.dumps(out)
+
+
+def setup_logging(level: str, fmt: str) -> None:
+    """Root logging on stderr in ``fmt`` (text or json) at ``level``."""
+    from thinkfast.errors import ConfigError
+
+    if fmt not in ("text", "json"):
+        raise ConfigError("--log-format", None, f"{fmt!r} is not one of text, json")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(
+        JsonFormatter() if fmt == "json"
+        else logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s")
+    )  # fmt: skip
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(level.upper())
+
+
+def _config_tool(print_config: bool, check: Path | None) -> None:
+    """``--print-config``: the defaults as TOML on stdout; ``--check-config FILE``: load and
+    validate FILE (and the robot it names), print ``FILE: OK`` (errors raise, naming the key)."""
+    from thinkfast.control.config import load_run_config, run_config_toml
+
+    if print_config and check is not None:
+        raise typer.BadParameter("not with --check-config", param_hint="'--print-config'")
+    if print_config:
+        print(run_config_toml(), end="")
+        return
+    cfg = load_run_config(check)
+    if cfg.robot:
+        from thinkfast.robot.model import load_robot
+
+        load_robot(Path(cfg.robot))
+    print(f"{check}: OK")
+
+
+def _tree_robot(tree) -> Path | None:
+    """robot.toml named by the tree's compile configuration, if it still exists."""
+    from thinkfast.errors import TreeFileError
+    from thinkfast.tree.provenance import Provenance
+
+    try:
+        return Provenance.of(tree.meta).robot_toml()
+    except TreeFileError:
+        return None
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point."""
+    sys.exit(run_app(app, "thinkfast-run", argv))

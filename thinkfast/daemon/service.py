@@ -1,0 +1,544 @@
+"""The ``thinkfast-run`` daemon: one thread, EGM first.
+
+The loop waits on the EGM socket; every ``EgmRobot`` of the one controller it serves is answered
+at once with the executor's setpoint for that packet's time on the controller's clock, passed
+through the safety supervisor (the last stage before the wire); see
+:mod:`thinkfast.control.core`. Between two EGM packets (4 ms) it drains the zenoh
+detection queue (filter, crossing, values, backup), publishes the mirrored setpoints and the
+status. Signals only set a flag: the loop brakes
+smoothly while the controller still talks to it, then exits 0.
+
+Nothing may delay a reply, so the other work runs right after one: the first queued detection
+is taken at once after a reply, further ones only while, at the cost of the slowest recent one,
+they end before the next ``EgmRobot``'s window opens (:mod:`thinkfast.daemon.cycle`). The
+mirrored setpoints and the status go out in the same place, and so do garbage collections
+(automatic collection is off while serving; the interpreter's own thresholds decide).
+
+When the window opens, shortly before the next ``EgmRobot`` is due, the reply is prepared: the
+executor's setpoint for the time the packet is due, filtered by the supervisor ahead, and the
+EGM codec warmed up; the reply itself then only decodes, runs the supervisor's checks on the
+feedback, and encodes. By default the loop sleeps in ``poll`` (1 ms at a time)
+until a packet comes; with ``spin_ahead`` it spins on the socket inside the window (on a
+virtual machine Python runs several times slower right after a sleep), and with ``spin_ahead
+>= dt`` (busy polling) all the time, at the cost of a whole core. ``cpu`` pins the loop's thread
+to one core (and zenoh's threads to the others), ``fifo`` puts it under SCHED_FIFO
+(:mod:`thinkfast.daemon.rt_thread`). docs/BENCHMARKS.md has the figures.
+"""
+
+from __future__ import annotations
+
+import collections
+import gc
+import json
+import logging
+import math
+import os
+import select
+import signal
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from thinkfast.control.config import RunConfig
+from thinkfast.control.core import FAULT_REASONS, ControlCore
+from thinkfast.control.executor import EXECUTING, FAULT, IDLE, Executor
+from thinkfast.control.intake import Intake
+from thinkfast.control.safety import SafetySupervisor, robot_limits
+from thinkfast.control.way_home import WayHome
+from thinkfast.daemon.cycle import Cycle
+from thinkfast.daemon.egm_server import EgmServer
+from thinkfast.daemon.recorder import Recorder
+from thinkfast.daemon.rt_thread import pin_thread, set_fifo
+from thinkfast.daemon.zenoh_edge import ZenohIO
+from thinkfast.decide.tree_view import runtime_tree
+from thinkfast.robot.model import Robot
+from thinkfast.tree.action_tree import ActionTree
+
+log = logging.getLogger("thinkfast.run")
+STATUS_COST = 0.001  # s set aside for a status message (JSON, timing percentiles)
+
+
+@dataclass(frozen=True)
+class Endpoints:
+    """I/O options of the daemon (from the command line)."""
+
+    egm_bind: str = "0.0.0.0:6510"
+    egm_controller: str | None = None
+    egm_handover: float = 1.0
+    key_prefix: str = "thinkfast"
+    record: Path | None = None
+
+
+@dataclass(frozen=True)
+class Modes:
+    """First-light options (from the command line; docs/CELL.md).
+
+    Attributes:
+        shadow: plan and publish everything, command the position measured at the start.
+        go_home: away from home at start-up, move home once the way is checked against the cell
+            (without it the arm holds where it stands and balls are ignored).
+        speed_scale: the robot's velocity, acceleration and jerk limits are scaled by this
+            (already applied to the robot the daemon is given; reported here).
+    """
+
+    shadow: bool = False
+    go_home: bool = False
+    speed_scale: float = 1.0
+
+
+class Daemon:
+    """Composes executor, supervisor, EGM server, zenoh and recorder (see the module doc)."""
+
+    def __init__(
+        self,
+        tree: ActionTree,
+        robot: Robot,
+        cfg: RunConfig,
+        planner: str,
+        endpoints: Endpoints,
+        zenoh_conf,
+        spin_ahead: float = 0.0,
+        cpu: int | None = None,
+        fifo: int | None = None,
+        modes: Modes = Modes(),
+    ):
+        self.cfg, self.robot, self.planner, self.modes = cfg, robot, planner, modes
+        self.tree_meta = tree.meta
+        self.cycle, self.cpu, self.fifo = Cycle(cfg.safety.dt, spin_ahead), cpu, fifo
+        self.recorder = Recorder(
+            endpoints.record,
+            {
+                "planner": planner,
+                "tree_config_sha256": tree.meta.get("config_sha256", ""),
+                "run_config": json.dumps(_plain(cfg)),
+                "started": time.time(),
+            },
+        )  # first: a record target that cannot be written stops the start, before serving
+        rt = runtime_tree(tree, robot, cfg)
+        self.executor = Executor(rt, robot, cfg, planner)
+        self.executor.home_on_start = False  # the way home is checked first (--go-home)
+        self._new_executor = lambda: Executor(rt, robot, cfg, "naive")
+        self._checker = None  # collision model of the cell, built for the first way home
+        self.way_home: WayHome | None = None
+        self._away_logged: tuple | None = None
+        self.limits = robot_limits(robot, cfg.safety.position_margin)
+        self.supervisor = SafetySupervisor(self.limits, cfg.safety, robot.home)
+        self.intake = Intake(cfg.camera, cfg.detections)
+        self.control = ControlCore(
+            self.executor, self.supervisor, cfg.safety, self._event, modes.shadow, self.intake
+        )
+        self.controller_state: dict | None = None  # motors, MCI, RAPID as last reported
+        self.planned: tuple[np.ndarray, np.ndarray, str] | None = None  # shadow: virtual arm
+        self._drops: dict[str, int] = {}  # rejected detections by reason (log throttling)
+        self._was_connected = False
+        self._last_mode = IDLE
+        self.egm = EgmServer(
+            endpoints.egm_bind,
+            self._reply,
+            endpoints.egm_controller,
+            timing=True,
+            handover=endpoints.egm_handover,
+        )
+        self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix)
+        self.stop_reason: str | None = None
+        self.last_rx = -math.inf  # receive time of the last served EgmRobot (wall clock)
+        self.outbox: list[tuple[float, np.ndarray, np.ndarray, str]] = []
+        self.decision_ms = 0.0
+        self.planner_errors = 0
+        self.pending: collections.deque[bytes] = collections.deque()  # drained, not yet taken
+        self.detection_cost = 0.001  # s, decaying maximum of recent detection handling times
+        self.prepared_for = -math.inf  # last_rx of the cycle _prepare ran in
+        self.last_throw: dict | None = None  # supervisor interventions in the last throw
+        self._throw_mark: tuple[int, int] | None = None  # (ticks, intervened) at its start
+        self._peer = None
+
+    # -------------------------------------------------------------- EGM path
+    def _reply(self, fb, before=None) -> tuple[np.ndarray, np.ndarray] | None:
+        """The setpoint answering ``fb``, or None to leave it unanswered (after a silence in
+        motion, until three packets measure the velocity; see ``egm_control``)."""
+        now = time.time()
+        self.last_rx = now
+        if self.stop_reason is not None:
+            self.control.brake("signal")
+        errors = self.control.errors
+        prev = None if before is None else (before.tm_ms, before.q_rad)
+        ctl = self.controller_state
+        if (
+            ctl is None
+            or ctl["motors_on"] != fb.motors_on
+            or ctl["mci_running"] != fb.mci_running
+            or ctl["rapid_running"] != fb.rapid_running
+        ):
+            self._controller_changed(fb)
+        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, ready=fb.ready)
+        if self.control.errors != errors:
+            self._planner_error("setpoint", self.control.last_error)
+        if r is None:
+            return None
+        self._watch_throw(r.tick.t)
+        q, qd, mode = r.q, r.qd, r.mode
+        if self.modes.shadow:  # the plan is shown, the arm holds (egm_control)
+            self.planned = (q, qd, mode)
+            q, qd, mode = self.control.hold_q, np.zeros(6), "shadow"
+        self.outbox.append((r.tick.t, q, qd, mode))
+        self.recorder.egm(now, fb.seqno, fb.q_rad, q, qd, self.supervisor.braking)
+        return q, qd
+
+    def _controller_changed(self, fb) -> None:
+        """The controller reports another motor, MCI or RAPID state: status and a log line."""
+        self.controller_state = {
+            "motors_on": fb.motors_on,
+            "mci_running": fb.mci_running,
+            "rapid_running": fb.rapid_running,
+            "ready": fb.ready,
+        }
+        self._event(self.control.clock.t, "controller_state", self.controller_state)
+
+    def _planner_error(self, where: str, exc: BaseException | None) -> None:
+        self.planner_errors += 1
+        if self.planner_errors == 1 or self.planner_errors % 100 == 0:
+            log.error("%s error %d: braking", where, self.planner_errors, exc_info=exc)
+
+    def _event(self, t: float, kind: str, detail: dict) -> None:
+        """Something worth a log line and a record row (from the control core or here)."""
+        log.info("%s %s", kind, json.dumps(detail), extra={"event": kind, "detail": detail})
+        self.recorder.event(t, kind, detail)
+
+    def _watch_throw(self, t: float) -> None:
+        """Count the supervisor's interventions per throw (status and record)."""
+        sup, busy = self.supervisor, self.executor.mode != IDLE
+        if busy and self._throw_mark is None:
+            self._throw_mark = (sup.ticks, sup.intervened)
+        elif not busy and self._throw_mark is not None:
+            ticks0, intervened0 = self._throw_mark
+            self._throw_mark = None
+            self.last_throw = {
+                "ticks": sup.ticks - ticks0,
+                "intervened": sup.intervened - intervened0,
+            }
+            self._event(t, "throw_end", {**_episode_text(self.executor), **self.last_throw})
+
+    # -------------------------------------------------------------- main loop
+    def run(self) -> int:
+        """Serve until SIGINT/SIGTERM, then brake and return 0."""
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._on_signal)
+        poller = select.poll()
+        poller.register(self.egm.fileno(), select.POLLIN)
+        gc.collect()
+        gc.freeze()  # nothing allocated so far is ever collected: shorter GC pauses
+        gc.disable()  # collections run after replies (_collect_garbage), never inside one
+        status_period = 1.0 / self.cfg.status_rate
+        next_status = time.time()
+        spin = "always" if self.cycle.busy else f"{1e3 * self.cycle.spin_ahead:g} ms ahead"
+        log.info(
+            "serving EGM on %s:%d, planner %s, spinning %s", *self.egm.address, self.planner,
+            spin if self.cycle.spin_ahead > 0 else "never",
+        )  # fmt: skip
+        cycle = self.cycle
+        try:
+            if self.cpu is not None:  # here: zenoh's threads are running (they move away)
+                others = os.sched_getaffinity(0) - {self.cpu}
+                pin_thread(self.cpu)
+                self.recorder.move_writer(others)
+            if self.fifo is not None:  # this thread only
+                set_fifo(self.fifo)
+            self._event(time.time(), "start", self.summary())
+            while True:
+                since = time.time() - self.last_rx
+                if self.prepared_for != self.last_rx and cycle.in_window(since):
+                    self._prepare()
+                wait_ms = cycle.wait_ms(since)
+                replied = bool(poller.poll(wait_ms)) and self.egm.poll() > 0  # replies at once
+                self._flush_outbox()
+                self._watch_peer()
+                self._take_detections(replied)
+                self._watch_home()
+                now = time.time()
+                if now >= next_status and self._time_left(now) > STATUS_COST:
+                    self.zio.publish_status(self.status(now))
+                    next_status = now + status_period
+                self._collect_garbage(now)
+                if self._time_left(now) > 0.0005:
+                    self.recorder.service()  # hands a batch of rows to the writer process
+                if self.stop_reason is not None and self._may_exit(now):
+                    break
+        finally:
+            gc.enable()
+            gc.unfreeze()
+            self.zio.publish_status({**self.status(time.time()), "exiting": True})
+            self.recorder.close()
+            self.egm.close()
+            self.zio.close()
+        log.info("stopped (%s)", self.stop_reason)
+        return 0
+
+    def _on_signal(self, signum, _frame) -> None:
+        self.stop_reason = signal.Signals(signum).name
+
+    def _may_exit(self, now: float) -> bool:
+        return not self._connected(now) or (self.supervisor.braking and self.supervisor.stopped)
+
+    def _connected(self, now: float) -> bool:
+        """The controller talks to the daemon (a packet within the last 0.1 s)."""
+        return now - self.last_rx < max(0.1, 5.0 * self.cfg.safety.resync_after)
+
+    def _watch_peer(self) -> None:
+        if self.egm.peer != self._peer:
+            self._peer = self.egm.peer
+            self._event(self.control.clock.t, "egm_peer", {"peer": _peer_text(self._peer)})
+        connected = self._connected(time.time())
+        if connected != self._was_connected:
+            self._was_connected = connected
+            kind = "egm_connected" if connected else "egm_lost"
+            self._event(self.control.clock.t, kind, {"peer": _peer_text(self.egm.peer)})
+
+    def _watch_home(self) -> None:
+        """Away from home: hold and say so; with ``go_home``, check the way home between
+        replies and command it once clear (:mod:`thinkfast.control.way_home`)."""
+        ex = self.executor
+        if not ex.away or self.control.standby or self.control.last is None:
+            return
+        q0 = np.array(self.supervisor.q)
+        key = tuple(np.round(q0, 4))
+        if self._away_logged != key:
+            self._away_logged = key
+            far = np.abs(q0 - self.robot.home)
+            joint = int(np.argmax(far))
+            self._event(
+                self.control.clock.t,
+                "away_from_home",
+                {
+                    "q": np.round(q0, 4).tolist(),
+                    "furthest": f"joint_{joint + 1} {far[joint]:.3f} rad",
+                    "action": "checking the way home" if self.modes.go_home else "holding here "
+                    "(balls ignored): jog the arm home, or restart with --go-home",
+                },
+            )  # fmt: skip
+            self.way_home = None
+        if not self.modes.go_home:
+            return
+        if self.way_home is None:
+            if self._checker is None:
+                from thinkfast.robot.collision import CollisionChecker
+
+                self._checker = CollisionChecker(self.robot)
+            self.way_home = WayHome(self._new_executor, self._checker, q0, self.cfg.safety.dt)
+        if self.way_home.result is not None:
+            return
+        now = time.time()
+        budget = min(0.002, self._time_left(now) - 0.0005)
+        if budget <= 0.0:
+            return
+        r = self.way_home.step(time.perf_counter() + budget)
+        if r is None:
+            return
+        detail = {"clear": r.clear, "duration": round(r.duration, 3), "samples": r.samples}
+        if r.clear:
+            ex.go_home(self._plan_time(time.time()))
+            self.control.invalidate()
+            self.prepared_for = -math.inf
+            self._event(self.control.clock.t, "way_home", detail)
+        else:
+            log.error("the way home collides (%s): holding; jog the arm home", r.detail)
+            self._event(self.control.clock.t, "way_home", {**detail, "collision": r.detail})
+
+    def _flush_outbox(self) -> None:
+        for stamp, q, qd, mode in self.outbox:
+            self.zio.publish_setpoint(stamp, q, qd, mode)
+        self.outbox.clear()
+
+    def _prepare(self) -> None:
+        """Compute the next reply's setpoint ahead, for the controller time of the next cycle,
+        and filter it through the supervisor (:meth:`ControlCore.prepare`): the reply then has
+        only the supervisor's feedback check left to run. Taking a detection voids it. Then
+        warm the EGM codec (:meth:`EgmServer.warm`): spinning, the reply path stays in the
+        caches until the packet comes."""
+        self.prepared_for = self.last_rx
+        if self.control.last is None:
+            return
+        self.control.prepare()
+        self.egm.warm()
+
+    def _time_left(self, now: float) -> float:
+        """Seconds of work that still end before the next EgmRobot's window opens."""
+        return self.cycle.time_left(now - self.last_rx)
+
+    def _collect_garbage(self, now: float) -> None:
+        """Collect as the interpreter would (same thresholds), where it cannot delay a reply."""
+        counts, limits = gc.get_count(), gc.get_threshold()
+        if counts[0] < limits[0] or self._time_left(now) < 0.001:
+            return
+        gc.collect(0 if counts[1] < limits[1] else 1 if counts[2] < limits[2] else 2)
+
+    def _take_detections(self, replied: bool) -> None:
+        """Take queued detections: the first at once if a reply just left, the others while
+        each still fits before the next EgmRobot (see the module doc). Zenoh is not even
+        asked when none would fit: its queue shares a lock with zenoh's own threads, which
+        run at a lower priority than a real-time EGM loop."""
+        pending = self.pending
+        if not replied and self._time_left(time.time()) < self.detection_cost:
+            return
+        pending.extend(self.zio.drain())
+        while pending:
+            now = time.time()
+            if not replied and self._time_left(now) < self.detection_cost:
+                return
+            replied = False
+            t0 = time.perf_counter()
+            self._take(pending.popleft(), now)
+            spent = time.perf_counter() - t0
+            self.detection_cost = max(spent, 0.99 * self.detection_cost, 1e-4)
+
+    def _plan_time(self, now: float) -> float:
+        """When a plan made now takes effect: the controller time of the next cycle (plans live
+        on the controller's clock; one starting later than the cycle it is first sampled at
+        would jump), or now when the controller is silent."""
+        return self.control.t_next if self._connected(now) else now
+
+    def _take(self, payload: bytes, now: float) -> None:
+        """One detection payload received at ``now``: intake, recorder, filter and planner."""
+        self.recorder.raw(now, payload)
+        ctl, errors = self.control, self.control.planner_errors
+        t0 = time.perf_counter()
+        det = ctl.on_detection(payload, now, self._plan_time(now))
+        if det is None:
+            self._log_drop()
+            return
+        self.prepared_for = -math.inf
+        self.recorder.detection(now, det.stamp, det.position, det.seq)
+        if ctl.planner_errors != errors:
+            self._planner_error("planner", ctl.last_error)
+            return
+        ex = self.executor
+        self.decision_ms = 1e3 * (time.perf_counter() - t0)
+        if self.recorder.enabled and ex.belief.n_meas >= 2:  # the crossing only for the record
+            c = ex.tree.crossing(ex.belief.mean, ex.belief.cov, self.cfg.filter.gravity)
+            self.recorder.belief(now, ex.belief, c)
+        vg = ex.current_value()
+        if vg is not None:
+            self.recorder.decision(now, ex.mode, ex.node, vg[0], vg[1])
+        if ex.mode == EXECUTING and self._last_mode != EXECUTING:
+            self._event(
+                self.control.clock.t,
+                "throw_start",
+                {"throw": ex.episodes + 1, "value": None if vg is None else round(vg[0], 3)},
+            )
+        self._last_mode = ex.mode
+
+    def _log_drop(self) -> None:
+        """A dropped detection: log the first of each reason, then at 10, 100, 1000, ..."""
+        reason = self.intake.last_drop
+        if reason is None:
+            return
+        n = self._drops[reason[0]] = self._drops.get(reason[0], 0) + 1
+        if n == 1 or math.log10(n).is_integer():
+            log.warning("detection dropped (%s: %s), %d so far for this reason", *reason, n)
+
+    def status(self, now: float) -> dict:
+        """The status message (INTERFACES.md: at least stamp and state)."""
+        ex, ctl, sup = self.executor, self.control, self.supervisor
+        vg = ex.current_value()
+        value = None if vg is None else vg[0]
+        fault = ctl.latched or (sup.braking and sup.brake_reason in FAULT_REASONS)
+        return {
+            "stamp": now,
+            "state": FAULT if fault else ex.mode,
+            "planner": self.planner,
+            "throws": ex.episodes,
+            "node": ex.node,
+            "value": value,
+            "decision_ms": round(self.decision_ms, 3),
+            "detections": self.intake.as_dict(),
+            "egm": {**vars(self.egm.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},
+            "egm_peer": _peer_text(self.egm.peer),
+            "egm_foreign": dict(self.egm.foreign_sources),
+            "egm_connected": self._connected(now),
+            "safety": {k: v for k, v in sup.counts.items() if v},
+            "interventions": {
+                "ticks": sup.ticks,
+                "intervened": sup.intervened,
+                "last_throw": self.last_throw,
+            },
+            "faults": {"count": ctl.fault_count, "recent": len(ctl.faults), "latched": ctl.latched},
+            "braking": sup.braking,
+            "brake_reason": sup.brake_reason,
+            "planner_errors": self.planner_errors,
+            "recorder": self.recorder.status(),
+            "egm_timing": self.egm.timing.summary(),
+            "controller": {
+                **(self.controller_state or {}),
+                "standby": ctl.standby,
+                "standby_replies": ctl.standby_replies,
+            },
+            "away_from_home": ex.away,
+            "way_home": None if self.way_home is None else _way_text(self.way_home.result),
+            "shadow": None if not self.modes.shadow else _planned(self.planned),
+            "speed_scale": self.modes.speed_scale,
+        }
+
+    def summary(self) -> dict:
+        """What the daemon runs with (logged at start-up)."""
+        cfg, robot, meta = self.cfg, self.robot, self.tree_meta
+        return {
+            "tree_config_sha256": str(meta.get("config_sha256", ""))[:16],
+            "tree_urdf_sha256": str(meta.get("urdf_sha256", ""))[:16],
+            "planner": self.planner,
+            "plane_x": float(self.executor.tree.plane_x),
+            "camera": {"xyz": list(cfg.camera.xyz), "rpy": list(cfg.camera.rpy)},
+            "egm": _peer_text(self.egm.address),
+            "zenoh": self.zio.describe(),
+            "limits": {
+                "v_max": np.round(robot.v_max, 3).tolist(),
+                "a_max": np.round(robot.a_max, 2).tolist(),
+                "j_max": np.round(robot.j_max, 1).tolist(),
+                "position_margin": cfg.safety.position_margin,
+            },
+            "controller_lag": cfg.execution.controller_lag,
+            "shadow": self.modes.shadow,
+            "go_home": self.modes.go_home,
+            "speed_scale": self.modes.speed_scale,
+            "record": str(self.recorder.path) if self.recorder.enabled else None,
+        }
+
+
+def _episode_text(ex) -> dict:
+    """What the daemon knows of the throw that just ended (whether it was blocked, it cannot)."""
+    ep = ex.last_episode
+    out: dict = {"throws": ex.episodes, "executed": False}
+    if ep is None or math.isnan(ep.t_start):
+        return out
+    value = None if math.isnan(ep.chosen_value) else round(ep.chosen_value, 3)
+    return {
+        **out,
+        "executed": True,
+        "start_after_confirm": round(ep.t_start - ep.t_confirmed, 4),
+        "cross_after_start": None if math.isnan(ep.t_cross) else round(ep.t_cross - ep.t_start, 3),
+        "value": value,
+        "decisions": ep.decisions,
+    }
+
+
+def _way_text(result) -> str:
+    if result is None:
+        return "checking"
+    return "clear" if result.clear else f"blocked: {result.detail}"
+
+
+def _planned(planned) -> dict | None:
+    if planned is None:
+        return None
+    q, qd, mode = planned
+    return {"q": np.round(q, 6).tolist(), "qd": np.round(qd, 6).tolist(), "mode": mode}
+
+
+def _peer_text(peer) -> str | None:
+    return None if peer is None else f"{peer[0]}:{peer[1]}"
+
+
+def _plain(obj):
+    from thinkfast.config import to_dict
+
+    return to_dict(obj)

@@ -1,0 +1,251 @@
+"""Re-rooted motion choice: the motion whose shield meets the ball, moving or at rest.
+
+At every belief the tree planner scores, with one value, every motion the arm could follow from
+its commanded state now, and takes the best:
+
+- **continue**: the motion in progress (at home: staying there);
+- **direct moves**: minimum-time jerk-limited Ruckig moves from the commanded state (p, v, a) to
+  the ``candidates`` goals nearest the crossing mean (Mahalanobis distance under the crossing's
+  lateral covariance widened by the block radius), always including the goal nearest the mean
+  (naive's choice, so the planner never scores less than naive by its own measure);
+- **tree branches** (``[choice] branches``): when the arm is at a tree node's state (home at
+  rest, or at the end of the compiled edge it follows), each child edge of that node, worth its
+  best continuation in the subtree (:class:`thinkfast.decide.branches.BranchTable`, from the
+  tree file's shield paths) among those ending at the ``branch_goals`` goals nearest the
+  crossing, time-shifted to when the edge would start. A chosen child edge starts there (now at
+  home; at the end of the edge in progress otherwise, as a pending switch that later beliefs
+  may revise). A pending branch is what "continue" means while it stands.
+
+The value of a motion is the probability that the shield covers the ball where and when it
+crosses the plane: the motion's joint path is sampled every ``path_dt``, the shield centre
+follows by forward kinematics (coplanar normal), and :func:`path_value.block_probability`
+integrates it against the crossing Gaussian N(Y, Z, tau) of the delta method. The arm follows a
+command ``lag`` after it is sent, so a motion commanded from ``t_plan`` has its shield at path
+time ``s`` at ``t_plan + lag + s``.
+
+A new motion replaces the one in progress only when it is worth ``switch_margin`` more: equal
+values (a far ball, a hopeless one) never make the arm dither.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.config import spec
+from thinkfast.decide import iso_disk
+from thinkfast.decide.path_value import PathValueConfig, block_probability
+from thinkfast.decide.shield_paths import block_geometry, shield_paths
+from thinkfast.robot.shield_path import ShieldSampler
+from thinkfast.robot.steering import Steering
+
+CONTINUE, DIRECT, BRANCH = "continue", "direct", "branch"
+
+
+@dataclasses.dataclass(frozen=True)
+class ChoiceConfig:
+    """Motion choice of the tree planner (``[choice]`` table of the runtime configuration)."""
+
+    candidates: int = spec(
+        6, lo=1, hi=64, doc="direct moves scored per belief (goals nearest the crossing mean)"
+    )
+    path_dt: float = spec(
+        0.02, unit="s", lo=0.002, hi=0.1, doc="sampling step of a motion's shield path"
+    )
+    switch_margin: float = spec(
+        0.01, lo=0.0, hi=1.0, doc="a new motion must block this much more often than continuing"
+    )
+    horizon_sigmas: float = spec(
+        5.0,
+        unit="sigma",
+        lo=3.0,
+        doc="paths are sampled over the mean crossing time +- this many of its std",
+    )
+    branches: bool = spec(
+        False, doc="also score the compiled child edges of the tree node the arm is at"
+    )
+    branch_goals: int = spec(
+        4, lo=1, hi=64, doc="continuations scored per child edge end at these nearest goals"
+    )
+    branch_per_goal: int = spec(
+        1, lo=0, hi=1000, doc="earliest continuations kept per child edge and goal (0: all)"
+    )
+
+
+class Option(NamedTuple):
+    """One scored motion.
+
+    Attributes:
+        kind: CONTINUE, DIRECT or BRANCH.
+        goal: goal index of a direct move, or of a branch's best continuation (-1 for continue).
+        traj: the Ruckig trajectory of a direct move, from the commanded state at ``t_plan``
+            (None otherwise).
+        value: probability of blocking.
+        node: the child node a branch's edge leads to (-1 otherwise).
+    """
+
+    kind: str
+    goal: int
+    traj: object
+    value: float
+    node: int = -1
+
+
+class BranchPoint(NamedTuple):
+    """Where compiled edges may start: ``node``'s state is (or will be) commanded at wall time
+    ``t_switch`` [s]; ``pending``: the child already chosen to start there (-1: none)."""
+
+    node: int
+    t_switch: float
+    pending: int = -1
+
+
+class Chooser:
+    """Scores motions by the moving-shield block probability (see the module doc).
+
+    Args:
+        goal_q: joint angles of every goal [rad], shape (G, >=3).
+        goal_yz: goal points on the plane [m], shape (G, 2).
+        robot: the robot (shield, kinematics).
+        plane_x: the plane's x in ``base`` [m].
+        ball_radius: [m].
+        steer: minimum-time moves to rest for joints 1-3 (the executor's limits).
+        cfg: choice parameters.
+        quadrature: the path-value kernel's quadrature parameters.
+    """
+
+    def __init__(
+        self, goal_q, goal_yz, robot, plane_x, ball_radius, steer: Steering, cfg,
+        quadrature: PathValueConfig = PathValueConfig(),
+    ):  # fmt: skip
+        self.goal_q = np.asarray(goal_q, dtype=float)[:, :3]
+        self.goal_yz = np.asarray(goal_yz, dtype=float)
+        self.sampler = ShieldSampler(robot)
+        self.geom = block_geometry(robot, plane_x, ball_radius)
+        self.rho = self.geom.shield_radius + self.geom.ball_radius
+        self.steer = steer
+        self.cfg = cfg
+        self.quadrature = quadrature
+        iso_disk.warm_up()  # its table (~0.1 s) now, not in the first decision (26 EGM cycles)
+
+    # ------------------------------------------------------------------ candidates
+    def candidate_goals(self, mean_yz: np.ndarray, cov_yz: np.ndarray) -> np.ndarray:
+        """Goals to try, nearest first under the widened lateral covariance, shape (<=K,)."""
+        d = self.goal_yz - np.asarray(mean_yz, dtype=float)
+        s = np.asarray(cov_yz, dtype=float) + self.rho**2 * np.eye(2)
+        m = np.einsum("gi,ij,gj->g", d, np.linalg.inv(s), d)
+        k = min(self.cfg.candidates, len(m))
+        near = np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
+        near = near[np.argsort(m[near], kind="stable")]
+        nearest = int(np.argmin(np.sum(d * d, axis=1)))  # naive's goal is always a candidate
+        if nearest not in near:
+            near = np.r_[nearest, near[:-1]]
+        return near
+
+    def choose(
+        self,
+        crossing_mean: np.ndarray,
+        crossing_cov: np.ndarray,
+        approach: np.ndarray | None,
+        t_belief: float,
+        t_plan: float,
+        lag: float,
+        state: np.ndarray,
+        current,
+        branch_at: BranchPoint | None = None,
+        table=None,
+    ) -> tuple[Option, list[Option]]:
+        """The best motion from the commanded ``state`` (9,) at ``t_plan`` [s], and all scored.
+
+        Args:
+            crossing_mean, crossing_cov: N(Y, Z, tau) of the crossing, tau from ``t_belief``.
+            approach: the ball's mean velocity at the crossing [m/s] (3,) or None.
+            t_belief: time of the belief [s]. t_plan: when the chosen motion is commanded [s].
+            lag: controller lag [s]. state: commanded joints 1-3 (p, v, a) at ``t_plan``.
+            current: the Segment in progress (its trajectory is "continue").
+            branch_at: the tree node whose child edges may start, or None (no branches).
+            table: the :class:`~thinkfast.decide.branches.BranchTable` (with ``branch_at``).
+        """
+        mean = np.asarray(crossing_mean, dtype=float)
+        goals = self.candidate_goals(mean[:2], np.asarray(crossing_cov)[:2, :2])
+        trajs, options = [], []
+        for g in goals.tolist():
+            traj = self.steer.to_rest(state, self.goal_q[g])
+            if traj is not None:
+                trajs.append(traj)
+                options.append(Option(DIRECT, g, traj, math.nan))
+        times = self._window(mean[2], crossing_cov[2][2], t_plan + lag - t_belief)
+        joints = [_sample(current.traj, times + (t_plan - current.t0), current.end)]
+        joints += [_sample(tr, times, None) for tr in trajs]
+        values = self.score_joint_paths(
+            np.stack(joints), times, mean, crossing_cov, approach, t_plan + lag - t_belief
+        )
+        options = [Option(CONTINUE, -1, None, float(values[0]))] + [
+            o._replace(value=float(v)) for o, v in zip(options, values[1:], strict=True)
+        ]
+        if branch_at is not None and table is not None:
+            options += self._branches(
+                branch_at, table, mean, crossing_cov, approach, t_plan + lag - t_belief
+                + (branch_at.t_switch - t_plan) - float(table.tree.node_ttc[branch_at.node]),
+            )  # fmt: skip
+            held = [o for o in options if o.kind == BRANCH and o.node == branch_at.pending]
+            if held:  # the pending switch is the plan in progress
+                options[0] = options[0]._replace(value=held[0].value)
+        best = max(options[1:], key=lambda o: o.value, default=options[0])
+        if not best.value > options[0].value + self.cfg.switch_margin or (
+            best.kind == BRANCH and branch_at is not None and best.node == branch_at.pending
+        ):
+            best = options[0]
+        return best, options
+
+    def _branches(self, at: BranchPoint, table, mean, cov, approach, t_start) -> list[Option]:
+        """BRANCH options: every child edge of ``at.node`` with a continuation to a nearby goal."""
+        k = min(self.cfg.branch_goals, len(self.goal_yz))
+        near = self.candidate_goals_k(mean[:2], np.asarray(cov)[:2, :2], k)
+        bv = table.values(at.node, near, mean, cov, approach, t_start, self.quadrature)
+        return [
+            Option(BRANCH, int(g), None, float(v), int(c))
+            for c, v, g in zip(bv.child.tolist(), bv.value.tolist(), bv.goal.tolist(), strict=True)
+        ]
+
+    def candidate_goals_k(self, mean_yz, cov_yz, k: int) -> np.ndarray:
+        """The ``k`` goals nearest the crossing mean under the widened lateral covariance."""
+        d = self.goal_yz - np.asarray(mean_yz, dtype=float)
+        s = np.asarray(cov_yz, dtype=float) + self.rho**2 * np.eye(2)
+        m = np.einsum("gi,ij,gj->g", d, np.linalg.inv(s), d)
+        return np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
+
+    def _window(self, tau: float, var_tau: float, t_start: float) -> np.ndarray:
+        """Sample times [s, path clock, 0 at t_plan] covering tau +- ``horizon_sigmas`` std: the
+        kernel reads a path only there (before its first sample it holds the first)."""
+        dt, half = self.cfg.path_dt, self.cfg.horizon_sigmas * math.sqrt(max(var_tau, 0.0))
+        lo = max(math.floor((tau - half - t_start) / dt), 0)
+        hi = max(math.ceil((tau + half - t_start) / dt), lo + 1)
+        return np.arange(lo, hi + 1) * dt
+
+    # ------------------------------------------------------------------ values
+    def score_joint_paths(self, joints, times, mean, cov, approach, t_start) -> np.ndarray:
+        """P(block) of joint 1-3 paths (M, T, 3) sampled at ``times`` (T,) [s, path clock]
+        whose clock reads 0 at ``t_start`` [s] after the belief, shape (M,)."""
+        centres = self.sampler.centres(joints)
+        return self.score_paths(times, centres, mean, cov, approach, t_start)
+
+    def score_paths(self, times, centres, mean, cov, approach, t_start) -> np.ndarray:
+        """P(block) of shield-centre paths (M, T, 3) [m] in ``base``, shape (M,)."""
+        packed = shield_paths(times, centres, self.geom)
+        return block_probability(packed, mean, cov, self.geom, approach, t_start, self.quadrature)
+
+
+def _sample(traj, times: np.ndarray, end) -> np.ndarray:
+    """Joints 1-3 of ``traj`` at ``times`` [s] (clipped to the trajectory), shape (T, 3); a
+    trajectory-less segment stays at ``end[:3]``."""
+    if traj is None:
+        return np.broadcast_to(np.asarray(end[:3], dtype=float), (len(times), 3)).copy()
+    dur = traj.duration
+    out = np.empty((len(times), 3))
+    for i, t in enumerate(np.clip(times, 0.0, dur).tolist()):
+        out[i] = traj.at_time(t)[0]
+    return out

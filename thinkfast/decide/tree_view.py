@@ -1,0 +1,96 @@
+"""Belief to decision: the crossing distribution, every terminal edge's value, the backup.
+
+Pure computation over the tree arrays; the clocks come in as arguments:
+
+- ``t_belief``: time of the belief (the stamp of the last measurement) [s];
+- ``t_start``: wall time at which motion started (or would start now) [s];
+- ``lag``: controller lag [s]: a setpoint commanded at t is reached at t + lag.
+
+A terminal edge arrives (physically) at ``t_start + lag + term_arrival``; its remaining time from
+the belief's time is compared with the crossing time tau (plus the value margin).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.decide import backup as bk
+from thinkfast.decide import values as vl
+from thinkfast.estimate import crossing as delta
+from thinkfast.tree.action_tree import ActionTree
+from thinkfast.tree.provenance import Provenance
+
+BALL_RADIUS = 0.0335  # m, tennis ball (docs/FACTS.md); counts towards the blocking radius
+
+
+class Decision(NamedTuple):
+    """One evaluation of the tree under a belief.
+
+    Attributes:
+        crossing: the plane-crossing Gaussian (``crossing.ok`` False: no decision made).
+        backup: node values, best child and terminal values per node, most probable goal.
+        term_value: value of every terminal edge, shape (T,).
+        t_belief: time of the belief [s].
+    """
+
+    crossing: delta.Crossing
+    backup: bk.Backup | None
+    term_value: np.ndarray | None
+    t_belief: float
+
+
+class RuntimeTree:
+    """A loaded tree with the layouts the value and backup kernels need.
+
+    Args:
+        tree: the compiled tree.
+        value_cfg: terminal-value parameters.
+        block_radius: largest distance [m] from a goal at which the crossing ball is blocked
+            (shield radius + ball radius).
+    """
+
+    def __init__(self, tree: ActionTree, value_cfg: vl.ValueConfig, block_radius: float):
+        self.tree = tree
+        prov = Provenance.of(tree.meta)
+        self.eps = prov.eps
+        self.plane_distance = prov.plane_x
+        self.plane_x = self.plane_distance  # the plane is x = distance in ``base``
+        self.ball_radius = BALL_RADIUS
+        self.goal_q = tree.goal_q
+        self.goal_yz = tree.goal_yz
+        self.subgoal_q = tree.goal_q[tree.subgoal_goal]
+        self.vlay = vl.layout(tree.goal_yz, tree.term_goal, block_radius, value_cfg)
+        self.blay = bk.backup_layout(
+            tree.node_depth, tree.child_start, tree.child_count, tree.term_start, tree.term_count
+        )
+
+    def crossing(self, mean: np.ndarray, cov: np.ndarray, gravity: float) -> delta.Crossing:
+        """Plane crossing of the ball belief N(mean, cov)."""
+        return delta.crossing(mean, cov, self.plane_distance, gravity)
+
+    def decide(self, c: delta.Crossing, t_belief: float, t_start: float, lag: float) -> Decision:
+        """Values of every branch for the crossing ``c`` (see the module doc for the clocks)."""
+        if not c.ok:
+            return Decision(c, None, None, t_belief)
+        remaining = self.tree.term_arrival + (t_start + lag - t_belief)
+        tv = vl.terminal_values(self.vlay, c.mean, c.cov, remaining)
+        return Decision(c, bk.backup(self.blay, tv.value, tv.goal_mass), tv.value, t_belief)
+
+    def best_child(self, d: Decision, node: int) -> int:
+        """Child of ``node`` with the highest value under ``d`` (-1 if none)."""
+        return bk.best_child(self.blay, d.backup.value, node)
+
+    def best_terminal(self, d: Decision, node: int) -> int:
+        """Terminal edge of ``node`` with the highest value under ``d`` (-1 if none)."""
+        return bk.best_terminal(self.blay, d.term_value, node)
+
+    def nearest_goal(self, yz: np.ndarray) -> int:
+        """Goal nearest the plane point ``yz`` (2,) [m]."""
+        return int(np.argmin(np.sum(np.square(self.goal_yz - yz), axis=1)))
+
+
+def runtime_tree(tree: ActionTree, robot, cfg) -> RuntimeTree:
+    """The runtime view of ``tree`` for ``robot``: blocks within shield + ball radius."""
+    return RuntimeTree(tree, cfg.value, robot.shield_radius + BALL_RADIUS)

@@ -1,0 +1,478 @@
+"""RIAE-AKF: robust innovation-based adaptive Kalman filter for the ball, in the ``base`` frame.
+
+State ``[X Y Z Vx Vy Vz]`` (m, m/s); measurement: the ball centre ``z = [X Y Z]`` (m), so
+``H = [I 0]``. Process model: constant velocity plus gravity ``(0, 0, -g)`` as a known input and,
+optionally, quadratic air drag ``a = -k |v| v`` (``k = 0`` reproduces the paper). Process noise
+is white acceleration with spectral density ``q`` per axis. Time comes in as an argument: ``dt``
+follows the measurement stamps and may vary.
+
+One update (measurement ``z`` at time ``t``), after predicting to ``t``:
+
+1. Innovation ``v = z - x[:3]`` and its predicted covariance ``S = P[:3,:3] + R`` (current R).
+2. Robust gate (``robust``), per axis i: ``s_i = |v_i| / sqrt(S_ii)`` is tested against
+   ``c = sqrt(chi2_1^-1(alpha))``. An inlier (``s_i <= c``) is kept. An outlier is revised (eq. 3)
+   to sit on the threshold, ``v_i c / s_i``, and the state update takes it further shrunk by
+   ``exp(-(s_i - c) / shrink_scale)`` (sigmas): a slightly-too-large innovation still counts
+   almost fully, a gross outlier counts for nothing.
+3. Adaptation (``adaptive``): ``C_hat = mean(v' v'^T)`` over the last n <= ``window`` revised
+   innovations (eq. 4) and ``R_hat = diag(C_hat - P[:3,:3])`` (eq. 5, diagonal). C_hat is first
+   divided by ``E[min(x^2, c^2)]`` (0.98 at alpha = 0.99), the share of a variance that clipping
+   at the gate keeps. R0 acts as a prior worth ``w0 = warmup (1 - n / window)`` innovations,
+   ``R = (w0 R0 + n R_hat) / (w0 + n)``: a soft warm-up that fades out as the window fills, so
+   with a full window R is eq. 5 alone. Each variance is floored at ``r_min_std**2``, so R stays
+   positive definite. Guards, each found necessary on simulated throws:
+   - diagonal: from ~20 samples the small eigenvalues of a full 3 x 3 estimate are unreliable,
+     and an R too small in one direction makes the filter overconfident there (NEES ~10 instead
+     of 6). Assumption: the stereo noise is close to axis-aligned in ``base`` (the camera looks
+     along x, so its depth noise is along x).
+   - the window takes the threshold-clipped innovation, shrunk exponentially only beyond
+     ``gross_sigma``. Feeding it the state update's shrunk value would let R collapse (an R too
+     small makes every innovation an outlier whose shrunk square is smaller still); feeding it
+     gross outliers unshrunk would inflate R by ``c^2`` per outlier.
+   - the window only takes innovations once the state has settled (``trace(H P- H^T) <=
+     trace(R)``): right after the two-point start the innovations are dominated by the state
+     uncertainty, and eq. 5, which subtracts the *current* ``H P- H^T``, would read them as noise.
+4. Kalman gain with that R, state update with the revised innovation, covariance
+   ``P - K H P`` (symmetrised).
+5. Recovery: an axis whose innovation was revised ``reset_after`` updates in a row has lost the
+   ball (a gross outlier accepted while P was large, or a real change); that axis's position and
+   velocity are re-initialised from its last two measurements, uncorrelated with the others.
+
+With ``robust`` and ``adaptive`` both off, this is a textbook linear Kalman filter.
+
+Initialisation from the first two measurements: position ``p1``, velocity
+``(p1 - p0) / dt + a dt / 2`` (the finite difference is the mid-interval velocity; the model
+acceleration ``a`` brings it to ``t1``), covariance propagated from ``R0`` plus ``p0_std**2``.
+
+Late and out-of-order policy: a measurement whose stamp is not later than the last accepted
+measurement, or earlier than the belief time, is rejected and counted (``n_late``); the belief is
+otherwise returned unchanged, so late data can never corrupt the state. ``predict`` to a time
+before the belief time is a no-op. Outliers in the two initialising measurements are not gated,
+but the recovery step replaces a bad start within ``reset_after`` frames.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from statistics import NormalDist
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.config import spec
+from thinkfast.estimate.motion import process_noise, transition, two_point
+
+STATUS_FIRST = "first"
+STATUS_INIT = "init"
+STATUS_UPDATED = "updated"
+STATUS_LATE = "late"
+
+
+@dataclasses.dataclass(frozen=True)
+class FilterConfig:
+    """Ball filter parameters (TOML table, loaded with :func:`thinkfast.config.from_dict`).
+
+    The noise defaults are assumptions (a ZED 2i at a few metres, a tennis ball) until tuned on
+    logged throws.
+    """
+
+    accel_psd: tuple[float, ...] = spec(
+        (4.0, 4.0, 4.0),
+        doc="white-acceleration spectral density q (x, y, z): process noise Q",
+        unit="m^2/s^3",
+        lo=0.0,
+        length=3,
+    )
+    r0_std: tuple[float, ...] = spec(
+        (0.03, 0.02, 0.02),
+        doc="initial measurement noise standard deviation (x, y, z): R0",
+        unit="m",
+        lo=0.0,
+        lo_open=True,
+        length=3,
+    )
+    p0_std: tuple[float, ...] = spec(
+        (0.0, 0.0, 0.0, 0.5, 0.5, 0.5),
+        doc="standard deviation added in quadrature to the two-point initial covariance: P0",
+        unit="m, m/s",
+        lo=0.0,
+        length=6,
+    )
+    alpha: float = spec(
+        0.99, doc="confidence of the per-axis chi-square(1) innovation test", lo=0.5, hi=0.999999
+    )
+    shrink_scale: float = spec(
+        2.0,
+        doc="exponential decay of an outlier beyond the threshold",
+        unit="sigma",
+        lo=0.0,
+        lo_open=True,
+    )
+    window: int = spec(20, doc="revised innovations in the sliding window", lo=2)
+    warmup: int = spec(
+        10, doc="weight of R0 in the R estimate, in innovations (soft warm-up)", lo=0
+    )
+    gross_sigma: float = spec(
+        8.0,
+        doc="innovations beyond this enter the window exponentially shrunk",
+        unit="sigma",
+        lo=0.0,
+        lo_open=True,
+    )
+    r_min_std: float = spec(
+        0.002, doc="floor on each adapted measurement noise std", unit="m", lo=0.0, lo_open=True
+    )
+    reset_after: int = spec(
+        3, doc="consecutive revised innovations on an axis before it is re-initialised", lo=1
+    )
+    drag: float = spec(
+        0.0,
+        doc="quadratic drag coefficient k, a = -k |v| v (0: the paper's model)",
+        unit="1/m",
+        lo=0.0,
+    )
+    gravity: float = spec(9.81, doc="gravity, acting along -z of base", unit="m/s^2", lo=0.0)
+    adaptive: bool = spec(True, doc="adapt R from the innovation window (eq. 4-5)")
+    robust: bool = spec(True, doc="per-axis gate with exponential shrink (eq. 3) and recovery")
+    reset_all_axes: bool = spec(
+        False, doc="when one axis restarts (a manoeuvre, e.g. a release), restart all three"
+    )
+    stereo_depth: float = spec(
+        0.0,
+        unit="1/m",
+        lo=0.0,
+        doc="stereo depth noise sigma = stereo_depth * range^2 along the viewing ray (0: off); "
+        "ZED 2i HD720, 0.17 px disparity: 0.17 / (532 px * 0.12 m) = 0.0027",
+    )
+    stereo_lateral: float = spec(
+        0.0,
+        unit="1",
+        lo=0.0,
+        doc="stereo lateral noise sigma = stereo_lateral * range (0: off); 0.5 px / 532 px",
+    )
+
+
+class Belief(NamedTuple):
+    """Filter state; immutable by convention (step functions return new arrays).
+
+    Attributes:
+        t: time of the belief [s].
+        mean: state mean [X Y Z Vx Vy Vz] in base [m, m/s], shape (6,).
+        cov: state covariance, shape (6, 6).
+        r: current measurement noise covariance [m^2], shape (3, 3) (diagonal once adapted).
+        window: ring buffer of revised innovations [m], shape (window, 3).
+        n_innov: revised innovations pushed so far (the window holds ``min(n, window)``).
+        t_meas: stamp of the last accepted measurement [s].
+        z_meas: that measurement [m], shape (3,).
+        gated: per axis, consecutive updates whose innovation was revised, shape (3,).
+        n_meas: accepted measurements (0: empty, 1: waiting for the second one).
+        n_late: measurements rejected as late, duplicated or out of order.
+        n_outliers: axis-measurements revised by the robust gate.
+        n_resets: axis re-initialisations by the recovery step.
+        window_model: the measurement-noise model at each innovation of ``window`` [m^2],
+            shape (window, 3).
+    """
+
+    t: float
+    mean: np.ndarray
+    cov: np.ndarray
+    r: np.ndarray
+    window: np.ndarray
+    n_innov: int
+    t_meas: float
+    z_meas: np.ndarray
+    gated: np.ndarray
+    n_meas: int
+    n_late: int
+    n_outliers: int
+    n_resets: int
+    window_model: np.ndarray
+
+
+class UpdateInfo(NamedTuple):
+    """What one :func:`update` did.
+
+    Attributes:
+        status: ``"first"``, ``"init"``, ``"updated"`` or ``"late"``.
+        innovation: raw innovation z - x_pred [m], shape (3,) (zeros unless updated).
+        weight: per-axis factor applied to the innovation (1 = inlier), shape (3,).
+        nis: normalised innovation squared v^T S^-1 v of the raw innovation.
+        reset: axes re-initialised by the recovery step, shape (3,) bool.
+    """
+
+    status: str
+    innovation: np.ndarray
+    weight: np.ndarray
+    nis: float
+    reset: np.ndarray
+
+
+_ZERO3 = np.zeros(3)
+_ZERO33 = np.zeros((3, 3))
+_ONE3 = np.ones(3)
+_NO3 = np.zeros(3, dtype=bool)
+for _a in (_ZERO3, _ZERO33, _ONE3, _NO3):
+    _a.setflags(write=False)
+
+
+def empty(cfg: FilterConfig) -> Belief:
+    """A belief with no measurement yet (time -inf)."""
+    return Belief(
+        t=-math.inf,
+        mean=np.zeros(6),
+        cov=np.eye(6),
+        r=np.diag(np.square(cfg.r0_std)),
+        window=np.zeros((cfg.window, 3)),
+        n_innov=0,
+        t_meas=-math.inf,
+        z_meas=np.zeros(3),
+        gated=np.zeros(3, dtype=np.intp),
+        n_meas=0,
+        n_late=0,
+        n_outliers=0,
+        n_resets=0,
+        window_model=np.zeros((cfg.window, 3)),
+    )
+
+
+@functools.lru_cache(maxsize=16)
+def gate_threshold(alpha: float) -> float:
+    """Per-axis gate c = sqrt(chi2_1^-1(alpha)) [sigma], the two-sided normal quantile."""
+    return NormalDist().inv_cdf(0.5 + 0.5 * alpha)
+
+
+@functools.lru_cache(maxsize=16)
+def clip_consistency(alpha: float) -> float:
+    """E[min(x^2, c^2)] for x ~ N(0, 1): how much clipping at the gate shrinks a variance."""
+    c = gate_threshold(alpha)
+    tail = 1.0 - NormalDist().cdf(c)
+    return (
+        1.0
+        - 2.0 * tail
+        - 2.0 * c * math.exp(-0.5 * c * c) / math.sqrt(2.0 * math.pi)
+        + (2.0 * c * c * tail)
+    )
+
+
+def predict(belief: Belief, t: float, cfg: FilterConfig) -> Belief:
+    """Predict the belief to time ``t`` [s] (no measurement: e.g. a missing frame).
+
+    Returns the belief unchanged when it is not initialised or ``t`` is not after its time.
+    """
+    dt = t - belief.t
+    if belief.n_meas < 2 or not dt > 0.0:
+        return belief
+    mean, cov = _propagate(belief.mean, belief.cov, dt, cfg)
+    return belief._replace(t=float(t), mean=mean, cov=0.5 * (cov + cov.T))
+
+
+def _propagate(mean, cov, dt: float, cfg: FilterConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance ``dt`` [s] later (covariance not yet symmetrised)."""
+    mean, f = transition(mean, dt, cfg.gravity, cfg.drag)
+    return mean, f @ cov @ f.T + process_noise(dt, cfg.accel_psd)
+
+
+def stereo_r(z: np.ndarray, sensor: np.ndarray | None, cfg: FilterConfig) -> np.ndarray:
+    """Range-dependent stereo noise [m^2] (3, 3) of a measurement ``z`` seen from ``sensor``.
+
+    Depth noise grows with range squared along the viewing ray, lateral noise with range
+    (docs/FACTS.md): ``R = s_l^2 I + (s_d^2 - s_l^2) u u^T``. Zero when the model is off or no
+    sensor position is given.
+    """
+    if sensor is None or (cfg.stereo_depth == 0.0 and cfg.stereo_lateral == 0.0):
+        return _ZERO33
+    d = np.asarray(z, dtype=float) - sensor
+    rng = float(np.sqrt(d @ d))
+    if rng < 1e-6:
+        return _ZERO33
+    u = d / rng
+    s_d, s_l = cfg.stereo_depth * rng * rng, cfg.stereo_lateral * rng
+    return s_l * s_l * np.eye(3) + (s_d * s_d - s_l * s_l) * np.outer(u, u)
+
+
+def update(
+    belief: Belief, t: float, z: np.ndarray, cfg: FilterConfig, sensor: np.ndarray | None = None
+) -> tuple[Belief, UpdateInfo]:
+    """Fuse the position measurement ``z`` [m], shape (3,), stamped ``t`` [s].
+
+    With ``sensor`` (the camera origin in base [m], shape (3,)) and the stereo model on, the
+    measurement noise is the range-dependent stereo model plus the adapted R, which then
+    estimates only what the model does not explain (eq. 5 minus the model's mean share).
+
+    Returns:
+        The new belief (time ``t``) and an :class:`UpdateInfo`. A late, duplicated or
+        out-of-order measurement returns the same belief with ``n_late`` incremented.
+    """
+    if t <= belief.t_meas or t < belief.t:
+        return belief._replace(n_late=belief.n_late + 1), UpdateInfo(
+            STATUS_LATE, _ZERO3, _ZERO3, 0.0, _NO3
+        )
+    z = np.array(z, dtype=float)
+    r_model = stereo_r(z, sensor, cfg)
+    wm = belief.window_model
+    if belief.n_meas == 0:
+        first = belief._replace(
+            t=float(t), mean=np.concatenate([z, _ZERO3]), t_meas=float(t), z_meas=z, n_meas=1
+        )
+        return first, UpdateInfo(STATUS_FIRST, _ZERO3, _ONE3, 0.0, _NO3)
+    if belief.n_meas == 1:
+        r_init = belief.r + r_model
+        mean, cov = two_point(belief.z_meas, z, t - belief.t_meas, r_init, cfg.gravity, cfg.drag)
+        cov += np.diag(np.square(cfg.p0_std))
+        init = belief._replace(t=float(t), mean=mean, cov=cov, t_meas=float(t), z_meas=z, n_meas=2)
+        return init, UpdateInfo(STATUS_INIT, _ZERO3, _ONE3, 0.0, _NO3)
+
+    prior_mean, p = belief.mean, belief.cov
+    if t > belief.t:
+        prior_mean, p = _propagate(prior_mean, p, t - belief.t, cfg)
+    hph = p[:3, :3]
+    innov = z - prior_mean[:3]
+    s = hph + belief.r + r_model
+    s_inv = _inv_sym3(s)
+    nis = float(innov @ s_inv @ innov)
+    keep, weight, gated = _ONE3, _ONE3, np.zeros(3, dtype=np.intp)
+    if cfg.robust:
+        keep, weight, gated = _gate(innov, s, belief.gated, cfg)
+
+    r, window, n_innov = belief.r, belief.window, belief.n_innov
+    if cfg.adaptive and hph.trace() <= r.trace() + r_model.trace():
+        window, wm = window.copy(), wm.copy()
+        window[n_innov % cfg.window] = keep * innov
+        wm[n_innov % cfg.window] = np.diagonal(r_model)
+        n_innov += 1
+    filled = min(n_innov, cfg.window)
+    if cfg.adaptive and filled > 0:
+        rows = window if filled == cfg.window else window[:filled]
+        model = (wm if filled == cfg.window else wm[:filled]).mean(axis=0)
+        c_diag = np.einsum("ij,ij->j", rows, rows) / filled
+        r = adapted_r(c_diag, np.diagonal(hph) + model, filled, cfg)
+        s_inv = _inv_sym3(hph + r + r_model)
+
+    gain = p[:, :3] @ s_inv  # P H^T S^-1
+    mean = prior_mean + gain @ (weight * innov)
+    cov = p - gain @ p[:3, :]
+    cov = 0.5 * (cov + cov.T)
+    reset = gated >= cfg.reset_after
+    if cfg.reset_all_axes and reset.any():
+        reset = np.ones(3, dtype=bool)
+    if reset.any():
+        mean, cov = _reinit_axes(
+            mean, cov, reset, belief.z_meas, z, t - belief.t_meas, r + r_model, cfg
+        )
+        gated = np.where(reset, 0, gated)
+        # the gated innovations of a manoeuvre (a release) are not measurement noise: forget
+        # them on the restarted axes, or R stays inflated for a whole window
+        window, wm = window.copy(), wm.copy()
+        window[:, reset] = 0.0
+        wm[:, reset] = 0.0
+    new = belief._replace(
+        t=float(t),
+        mean=mean,
+        cov=cov,
+        r=r,
+        window=window,
+        n_innov=n_innov,
+        t_meas=float(t),
+        z_meas=z,
+        gated=gated,
+        n_meas=belief.n_meas + 1,
+        n_outliers=belief.n_outliers + int(np.count_nonzero(weight < 1.0)),
+        n_resets=belief.n_resets + int(np.count_nonzero(reset)),
+        window_model=wm,
+    )
+    return new, UpdateInfo(STATUS_UPDATED, innov, weight, nis, reset)
+
+
+def restart(belief: Belief, t: float, mean: np.ndarray, cov: np.ndarray, z: np.ndarray) -> Belief:
+    """Restart the belief from an outside state estimate at time ``t`` [s] (e.g. a launch fit).
+
+    The adapted measurement noise R is kept; the innovations in the window are forgotten (they
+    belong to the motion before the restart) and the outlier counters start afresh.
+    """
+    window = np.zeros_like(belief.window)
+    wm = np.zeros_like(belief.window_model)
+    return belief._replace(
+        t=float(t),
+        mean=np.array(mean, dtype=float),
+        cov=0.5 * (cov + cov.T),
+        window=window,
+        window_model=wm,
+        t_meas=float(t),
+        z_meas=np.array(z, dtype=float),
+        gated=np.zeros(3, dtype=np.intp),
+        n_meas=max(belief.n_meas, 2),
+        n_resets=belief.n_resets + 3,
+    )
+
+
+def adapted_r(c_diag: np.ndarray, hph_diag: np.ndarray, n: int, cfg: FilterConfig) -> np.ndarray:
+    """R from the innovation window (eq. 5, diagonal, blended with R0; see the module doc).
+
+    Args:
+        c_diag: mean squared revised innovation per axis over the window [m^2], shape (3,).
+        hph_diag: diagonal of the predicted position covariance H P- H^T [m^2], shape (3,).
+        n: innovations in the window.
+        cfg: filter configuration (r0_std, warmup, r_min_std).
+
+    Returns:
+        Diagonal R [m^2], shape (3, 3).
+    """
+    if cfg.robust:
+        c_diag = c_diag / clip_consistency(cfg.alpha)
+    r0 = _r0_var(cfg)
+    w0 = cfg.warmup * (1.0 - n / cfg.window)
+    r = (w0 * r0 + n * (c_diag - hph_diag)) / (w0 + n)
+    return np.diag(np.maximum(r, cfg.r_min_std * cfg.r_min_std))
+
+
+@functools.lru_cache(maxsize=16)
+def _r0_var(cfg: FilterConfig) -> np.ndarray:
+    out = np.square(cfg.r0_std)
+    out.setflags(write=False)
+    return out
+
+
+def _gate(innov, s, gated, cfg: FilterConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. 3 per axis: (window factor, state-update factor, consecutive-gate counters)."""
+    c = gate_threshold(cfg.alpha)
+    norm = np.abs(innov) / np.sqrt(np.diagonal(s))
+    out = norm > c
+    if not out.any():
+        return _ONE3, _ONE3, np.zeros(3, dtype=np.intp)
+    clip = np.where(out, c / np.maximum(norm, c), 1.0)
+    keep = clip * np.exp(np.minimum(cfg.gross_sigma - norm, 0.0) / cfg.shrink_scale)
+    weight = clip * np.exp(np.minimum(c - norm, 0.0) / cfg.shrink_scale)
+    return keep, weight, np.where(out, gated + 1, 0)
+
+
+def _reinit_axes(mean, cov, axes, z_prev, z, dt, r, cfg: FilterConfig):
+    """Restart the given axes (bool (3,)) from their last two measurements (see module doc)."""
+    fresh, block = two_point(z_prev, z, dt, r, cfg.gravity, cfg.drag)
+    block += np.diag(np.square(cfg.p0_std))
+    idx = np.flatnonzero(np.concatenate([axes, axes]))
+    mean = mean.copy()
+    mean[idx] = fresh[idx]
+    cov = cov.copy()
+    cov[idx, :] = 0.0
+    cov[:, idx] = 0.0
+    cov[np.ix_(idx, idx)] = block[np.ix_(idx, idx)]
+    return mean, cov
+
+
+def _inv_sym3(s: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive definite 3 x 3 matrix (adjugate; cheap for tiny input)."""
+    (a, b, c), (_, d, e), (_, _, f) = s.tolist()
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    det = a * c00 + b * c01 + c * c02
+    return (
+        np.array(
+            [
+                [c00, c01, c02],
+                [c01, a * f - c * c, b * c - a * e],
+                [c02, b * c - a * e, a * d - b * b],
+            ]
+        )
+        / det
+    )

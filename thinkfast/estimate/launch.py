@@ -1,0 +1,298 @@
+"""Launch detection: has the ball just left the hand towards the plane?
+
+The ball filter (:mod:`thinkfast.estimate.filter`) spends the hold converging on a ball at rest;
+its steady-state gain is small, so after the release it follows the flight only slowly and
+restarts a few frames later, and its velocity then needs more frames to be trusted. The arm
+cannot wait that long: on a 0.5 s flight every 20 ms of reaction time costs a few per cent of the
+throws (docs/RESULTS.md).
+
+This detector looks at the newest accepted detections only (up to ``window`` of them, at least 4,
+within ``max_span``). It fits a free flight (constant velocity, gravity known; drag is negligible
+over 60-100 ms) by weighted least squares, each point weighted by the stereo noise model (depth
+noise along the viewing ray, growing with range squared, scaled by ``noise_scale`` to cover the
+noisiest throws):
+
+    z_i = p + v (t_i - t_n) - g (t_i - t_n)^2 / 2 e_z + e_i,   e_i ~ N(0, R_i)
+
+robust to up to ``max_drop`` gross outliers: every subset that drops at most that many points is
+fitted at once (one batched solve), and the subset with the lowest chi-square plus a penalty per
+dropped point (the 3-dof ``1 - alpha`` quantile) wins. A launch is declared when, for
+``confirm`` windows in a row,
+
+* the fit explains its points (chi-square below its ``1 - alpha`` quantile with ``3 n - 6``
+  degrees of freedom): a window mixing hold and flight fails this;
+* the ball approaches the plane: ``-vx - sigmas * std(vx) > min_speed``; a ball at rest (or
+  moved by the hand at well under a metre per second) never passes;
+* the newest detection is an inlier of the fit and lies nearer the plane than the hold (the
+  median of the detections before the window) by ``sigmas`` of its depth noise: a burst of
+  outliers away from the camera followed by the held ball looks like an approach to the fit,
+  but not to this test;
+* the window without its newest point passes the same tests (one point never decides).
+
+Requiring two windows in a row means a single gross outlier (which can fake any velocity when it
+is the newest point, where the fit is least able to see it) must also pass the next window, in
+which it sits inside the window and is caught by the residual test.
+
+The fit (state and covariance at the newest stamp) then restarts the filter: it uses every
+flight point, where the filter's own restart uses two.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import itertools
+import math
+from collections import deque
+from typing import NamedTuple
+
+import numpy as np
+from scipy.stats import chi2
+
+from thinkfast.config import spec
+from thinkfast.estimate.filter import FilterConfig, stereo_r
+
+
+@dataclasses.dataclass(frozen=True)
+class LaunchConfig:
+    """Launch detector parameters (``[launch]`` table of the runtime configuration)."""
+
+    enabled: bool = spec(True, doc="detect the launch from a short free-flight fit")
+    window: int = spec(6, lo=4, hi=12, doc="detections per fit (the newest ones)")
+    check_hold: bool = spec(
+        True, doc="the newest detection must have left the hold position (see the module doc)"
+    )
+    check_without_newest: bool = spec(
+        True, doc="the window without its newest point must pass too (one point never decides)"
+    )
+    max_drop: int = spec(
+        2,
+        lo=0,
+        hi=3,
+        doc="gross outliers a window may hold (a point is one when leaving it out lowers the "
+        "residual chi-square by more than its 1 - alpha quantile with 3 degrees of freedom)",
+    )
+    confirm: int = spec(2, lo=1, hi=5, doc="consecutive passing fits that declare a launch")
+    max_span: float = spec(
+        0.12, unit="s", lo=0.0, lo_open=True, doc="longest time a window may cover (dropouts)"
+    )
+    alpha: float = spec(
+        0.001, lo=1e-9, hi=0.5, doc="false-rejection rate of the residual chi-square test"
+    )
+    min_speed: float = spec(
+        3.0,
+        unit="m/s",
+        lo=0.0,
+        doc="approach speed a launch must exceed with confidence (throws of 6-8 m in 0.4-0.8 s "
+        "leave the hand at 8.5 m/s or more, docs/FACTS.md; a hand moves the ball at under 1 m/s)",
+    )
+    sigmas: float = spec(
+        2.0, unit="sigma", lo=0.0, doc="confidence of the approach-speed test (2: ~98 %)"
+    )
+    noise_scale: float = spec(
+        1.5,
+        lo=0.1,
+        doc="ASSUMED: noise std of the noisiest throw over the filter's stereo model "
+        "(0.25 px against 0.17 px disparity noise)",
+    )
+    floor_std: float = spec(
+        0.004, unit="m", lo=0.0, lo_open=True, doc="noise std added on every axis (model floor)"
+    )
+
+
+class FlightFit(NamedTuple):
+    """A free-flight fit at the newest detection.
+
+    Attributes:
+        t: stamp of the newest detection [s].
+        mean: [X Y Z Vx Vy Vz] in base at ``t`` [m, m/s], shape (6,).
+        cov: its covariance, shape (6, 6).
+        chi2: residual chi-square of the fit.
+        z: the newest detection [m], shape (3,).
+        n: detections the fit used.
+        uses_newest: the newest detection is one of them (not dropped as an outlier).
+    """
+
+    t: float
+    mean: np.ndarray
+    cov: np.ndarray
+    chi2: float
+    z: np.ndarray
+    n: int
+    uses_newest: bool = True
+
+
+HOLD_POINTS = 10  # detections kept before the window to locate the hold
+
+
+@functools.lru_cache(maxsize=16)
+def _chi2_limit(alpha: float, dof: int) -> float:
+    return float(chi2.isf(alpha, dof))
+
+
+def fit_free_flight(
+    times: np.ndarray,
+    points: np.ndarray,
+    covs: np.ndarray,
+    gravity: float,
+    masks: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted least-squares free flights through subsets of ``points`` [m] (N, 3) seen at
+    ``times`` [s] (N,) with noise covariances ``covs`` [m^2] (N, 3, 3).
+
+    Each row of ``masks`` (S, N) bool selects the points of one fit (default: one fit, all
+    points). Every state is at the last time ``times[-1]``, whether or not that point is used.
+
+    Returns:
+        (means (S, 6), covariances (S, 6, 6), residual chi-squares (S,)).
+    """
+    if masks is None:
+        masks = np.ones((1, len(times)), dtype=bool)
+    m = masks.astype(float)
+    dt = times - times[-1]
+    w = np.linalg.inv(covs)  # (N, 3, 3)
+    y = np.array(points, dtype=float)
+    y[:, 2] += 0.5 * gravity * dt * dt  # remove the known gravity term
+    # per point: A_i = [I, dt_i I]; info_i = A_i^T W_i A_i, rhs_i = A_i^T W_i y_i
+    info_i = np.empty((len(dt), 6, 6))
+    info_i[:, :3, :3] = w
+    info_i[:, :3, 3:] = info_i[:, 3:, :3] = dt[:, None, None] * w
+    info_i[:, 3:, 3:] = (dt * dt)[:, None, None] * w
+    wy = np.einsum("nij,nj->ni", w, y)
+    rhs_i = np.concatenate([wy, dt[:, None] * wy], axis=1)
+    info = np.einsum("sn,nij->sij", m, info_i)
+    cov = np.linalg.inv(info)
+    cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
+    x = np.einsum("sij,sj->si", cov, m @ rhs_i)
+    res = y[None] - (x[:, None, :3] + dt[None, :, None] * x[:, None, 3:])  # (S, N, 3)
+    c2 = np.einsum("sn,sni,nij,snj->s", m, res, w, res)
+    return x, cov, c2
+
+
+@functools.lru_cache(maxsize=32)
+def _subsets(n: int, max_drop: int) -> tuple[np.ndarray, np.ndarray]:
+    """Masks (S, n) keeping all but up to ``max_drop`` points (at least 4 kept), and the number
+    each drops (S,); the full set first."""
+    rows = []
+    for drop in range(min(max_drop, n - 4) + 1):
+        for out in itertools.combinations(range(n), drop):
+            keep = np.ones(n, dtype=bool)
+            keep[list(out)] = False
+            rows.append(keep)
+    masks = np.array(rows)
+    masks.setflags(write=False)
+    dropped = n - masks.sum(axis=1)
+    dropped.setflags(write=False)
+    return masks, dropped
+
+
+class LaunchDetector:
+    """Feeds on accepted detections; :meth:`add` returns the fit when a launch is declared.
+
+    Args:
+        cfg: launch parameters.
+        fcfg: filter parameters (stereo noise model, gravity).
+        sensor: camera origin in base [m], shape (3,).
+    """
+
+    def __init__(self, cfg: LaunchConfig, fcfg: FilterConfig, sensor):
+        self.cfg, self.fcfg = cfg, fcfg
+        self.sensor = np.asarray(sensor, dtype=float)
+        # the window, and before it the detections that show where the ball was held
+        # (stamp, position, noise covariance) of each detection
+        self.points: deque[tuple[float, np.ndarray, np.ndarray]] = deque(
+            maxlen=cfg.window + HOLD_POINTS
+        )
+        self.passed = 0
+        self.fits = 0
+        self.launches = 0
+
+    def reset(self) -> None:
+        """Forget everything (a new ball)."""
+        self.points.clear()
+        self.passed = 0
+
+    def add(self, t: float, z: np.ndarray) -> FlightFit | None:
+        """A detection stamped ``t`` [s] at ``z`` [m] (base); the fit if this declares a launch."""
+        cfg = self.cfg
+        if self.points and t <= self.points[-1][0]:
+            return None  # late or duplicated: the filter has rejected it too
+        z = np.asarray(z, dtype=float)
+        self.points.append((float(t), z, self._cov(z)))
+        fit = self.fit()
+        if fit is None or not self.passes(fit):
+            self.passed = 0
+            return None
+        self.passed += 1
+        if self.passed < cfg.confirm:
+            return None
+        self.launches += 1
+        return fit
+
+    def fit(self) -> FlightFit | None:
+        """The free-flight fit of the newest detections (up to ``window`` of them, within
+        ``max_span``); None with fewer than 4."""
+        if not self.points:
+            return None
+        fit = self._robust_fit(self._window(list(self.points), self.points[-1][0]))
+        self.fits += fit is not None
+        return fit
+
+    def _window(self, points: list, t_new: float) -> list:
+        """The newest of ``points`` (up to ``window``) no older than ``max_span`` before
+        ``t_new``."""
+        return [p for p in points if t_new - p[0] <= self.cfg.max_span][-self.cfg.window :]
+
+    def _cov(self, z: np.ndarray) -> np.ndarray:
+        """Noise covariance of a detection at ``z`` [m^2] (3, 3): scaled stereo model + floor."""
+        cfg = self.cfg
+        r = stereo_r(z, self.sensor, self.fcfg)
+        return cfg.noise_scale * cfg.noise_scale * r + cfg.floor_std * cfg.floor_std * np.eye(3)
+
+    def _robust_fit(self, window: list) -> FlightFit | None:
+        """The fit at ``times[-1]`` over the subset (dropping up to ``max_drop`` points) with the
+        lowest residual chi-square plus the 3-dof ``1 - alpha`` quantile per dropped point: a
+        point is called a gross outlier only when leaving it out explains the rest better by
+        that much. None with fewer than 4 detections."""
+        if len(window) < 4:
+            return None
+        times = np.array([p[0] for p in window])
+        pts = np.array([p[1] for p in window])
+        covs = np.array([p[2] for p in window])
+        cfg = self.cfg
+        masks, dropped = _subsets(len(pts), cfg.max_drop)
+        x, cov, c2 = fit_free_flight(times, pts, covs, self.fcfg.gravity, masks)
+        k = int(np.argmin(c2 + _chi2_limit(cfg.alpha, 3) * dropped))
+        n = int(len(pts) - dropped[k])
+        newest = bool(masks[k, -1])
+        return FlightFit(float(times[-1]), x[k], cov[k], float(c2[k]), pts[-1].copy(), n, newest)
+
+    def _left_hold(self, fit: FlightFit) -> bool:
+        """The newest detection is nearer the plane than where the ball was held, by more than
+        ``sigmas`` of its depth noise (where the hold was seen: the median of the detections
+        before the window, at least ``HOLD_POINTS // 2`` of them)."""
+        before = [p[1] for p in self.points if fit.t - p[0] > self.cfg.max_span]
+        if len(before) < HOLD_POINTS // 2:
+            return True  # first seen in flight: nothing to compare with
+        hold = np.median(np.array(before), axis=0)
+        sd_x = math.sqrt(self.points[-1][2][0, 0])
+        return bool(hold[0] - fit.z[0] > self.cfg.sigmas * sd_x)
+
+    def _consistent(self, fit: FlightFit) -> bool:
+        return fit.chi2 <= _chi2_limit(self.cfg.alpha, 3 * fit.n - 6)
+
+    def _approaching(self, fit: FlightFit) -> bool:
+        speed_lo = -fit.mean[3] - self.cfg.sigmas * float(np.sqrt(fit.cov[3, 3]))
+        return speed_lo > self.cfg.min_speed
+
+    def passes(self, fit: FlightFit) -> bool:
+        """Residual and approach-speed tests, on the fit and (``check_without_newest``) on the
+        window without its newest point (see the module doc)."""
+        if not (fit.uses_newest and self._consistent(fit) and self._approaching(fit)):
+            return False
+        if self.cfg.check_hold and not self._left_hold(fit):
+            return False
+        if not self.cfg.check_without_newest:
+            return True
+        older = self._robust_fit(self._window(list(self.points)[:-1], fit.t))
+        return older is not None and self._consistent(older) and self._approaching(older)
