@@ -6,8 +6,8 @@ warm, no system call). Batches
 go as frames (:mod:`~thinkfast.daemon.record_wire`) through a non-blocking pipe to a writer
 process (:mod:`~thinkfast.daemon.record_writer`) that appends them to chunked HDF5 datasets and
 commits the file every half second: the file on disk is a complete record at any moment
-(docs/RECORD_FORMAT.md). Shipping costs a system call (0.1-0.3 ms on this virtual machine,
-bench/recorder.py), so the daemon should call :meth:`Recorder.service` in idle time, which
+(docs/RECORD_FORMAT.md). Shipping costs a system call (docs/BENCHMARKS.md, bench/recorder.py),
+so the daemon should call :meth:`Recorder.service` in idle time, which
 ships every 0.1 s; else a row method ships when its batch is full (egm: every 256 rows) or,
 except :meth:`Recorder.egm`, a second old.
 
@@ -99,8 +99,8 @@ class Recorder(RowMethods):
     # -------------------------------------------------------------- idle time
     def service(self) -> None:
         """Ship the batches (every SERVICE_PERIOD) and read the writer's news. Call it in idle
-        time: the row methods then never ship (one system call, 0.1-0.3 ms on a virtual
-        machine); without it they ship when a batch is full or a second old."""
+        time: the row methods then never ship (one system call each time); without it they ship
+        when a batch is full or a second old."""
         if self.state != "recording":
             return
         try:
