@@ -42,7 +42,7 @@ def chooser(rtree, robot):
 
 @pytest.fixture(scope="module")
 def table(rtree, chooser):
-    return BranchTable(rtree.tree, chooser.geom, per_goal=0)
+    return BranchTable(rtree.compiled, chooser.geom, per_goal=0)
 
 
 def sweep_belief(path: np.ndarray, dt: float, k: int, t_start: float, sd_t: float, sig_a=0.01):
@@ -58,7 +58,7 @@ def sweep_belief(path: np.ndarray, dt: float, k: int, t_start: float, sd_t: floa
 
 
 def test_continuations_are_the_stored_edges_end_to_end_under_each_child(rtree, table):
-    t = rtree.tree
+    t = rtree.compiled
     steps = t.edge_shield.shape[1] - 1
     deep = np.flatnonzero(t.node_depth[t.term_node] == 2)
     row = int(deep[len(deep) // 2])
@@ -86,7 +86,7 @@ def test_continuations_are_the_stored_edges_end_to_end_under_each_child(rtree, t
 def _scenario(rtree, table):
     """The continuation that leaves home for the sub-goal at (-0.6, 1.45) and, from the first
     node, swings to the goal at (0.15, 0.85): it sweeps across the plane at 1.6 m/s 0.52 s in."""
-    t = rtree.tree
+    t = rtree.compiled
     sub_yz = t.goal_yz[t.subgoal_goal[t.edge_target]]
     member, child = table.through(0)
     rows = table.rows[member]
@@ -102,7 +102,7 @@ def _scenario(rtree, table):
 
 
 def test_a_branch_value_is_its_best_continuation_and_agrees_with_monte_carlo(rtree, table):
-    t = rtree.tree
+    t = rtree.compiled
     m, c, path = _scenario(rtree, table)
     rng = np.random.default_rng(12)
     cases = [
@@ -130,7 +130,7 @@ def test_the_chooser_takes_a_branch_when_only_its_sweep_covers_both_goals(rtree,
     """The crossing point runs with its time from one goal to the next (the ball's time and
     height are correlated): resting at either goal covers one end of it, the compiled branch
     that sweeps across at the right time covers both."""
-    t = rtree.tree
+    t = rtree.compiled
     m, c, path = _scenario(rtree, table)
     mean, cov = sweep_belief(path, table.dt, 26, 0.04, 0.1)
     ends = [mean[:2] + s * np.sqrt(cov[2, 2]) * cov[:2, 2] / cov[2, 2] for s in (-1.0, 1.0)]
@@ -163,7 +163,7 @@ def _executor(rtree, robot):
 
 
 def test_the_executor_follows_a_chosen_edge_and_the_child_chosen_for_its_end(rtree, robot):
-    t = rtree.tree
+    t = rtree.compiled
     ex = _executor(rtree, robot)
     eps = rtree.eps
     at = ex._branch_point(0.2)
@@ -194,7 +194,7 @@ def test_the_executor_follows_a_chosen_edge_and_the_child_chosen_for_its_end(rtr
 
 
 def test_no_branch_point_off_the_tree_and_a_replaced_edge_drops_its_pending_child(rtree, robot):
-    t = rtree.tree
+    t = rtree.compiled
     ex = _executor(rtree, robot)
     child = int(t.child_start[0])
     ex._take_branch(Option(BRANCH, 0, None, 0.5, child), ex._branch_point(0.0), 0.0)

@@ -19,7 +19,7 @@ def rtree(small_tree_015, robot):
 
 
 def test_tree_rest_takes_the_next_edge_when_the_one_in_progress_ends(rtree, robot):
-    t = rtree.tree
+    t = rtree.compiled
     child = int(t.child_start[0])  # a first-level node, reached by an edge from home
     assert t.child_count[0] > 0 and t.child_count[child] + t.term_count[child] > 0
     ex = Executor(rtree, robot, CFG, "tree-rest")

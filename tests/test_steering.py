@@ -25,7 +25,7 @@ def test_runtime_edges_are_the_compiled_edges(executor):
     branches follow edges so): where the compiler stopped it, eps later or at rest, the runtime
     motion is exactly the stored child state."""
     rt = executor.tree
-    t, eps = rt.tree, rt.eps
+    t, eps = rt.compiled, rt.eps
     assert isinstance(executor.steer, Steering)
     for child in range(1, t.n_nodes):
         parent = t.node_parent[child]

@@ -250,12 +250,12 @@ class Executor:
 
     def _is_stay(self, seg: Segment) -> bool:
         return bool(
-            np.array_equal(self.tree.tree.node_state[seg.ref], self.tree.tree.node_state[0])
+            np.array_equal(self.tree.compiled.node_state[seg.ref], self.tree.compiled.node_state[0])
         )
 
     def _next_from(self, node: int, t0: float, t_now: float) -> Segment | None:
         """The segment leaving ``node`` at ``t0``: best child, or best terminal when worth more."""
-        t = self.tree.tree
+        t = self.tree.compiled
         d = self.decision
         if d is None or d.backup is None:
             return None
@@ -283,7 +283,7 @@ class Executor:
             self.episode.path.append(node)
             nxt = self._next_from(node, self.segment.t_end, t)
             if nxt is None:  # no decision possible: stop at the node's state
-                self.segment = hold(self.tree.tree.node_state[node], self.segment.t_end)
+                self.segment = hold(self.tree.compiled.node_state[node], self.segment.t_end)
                 return
             self.segment = nxt
 
@@ -295,7 +295,7 @@ class Executor:
         goal = d.backup.best_goal
         current = self.segment.ref
         if self.segment.kind == TERMINAL:
-            current = int(self.tree.tree.term_goal[current])
+            current = int(self.tree.compiled.term_goal[current])
         if current == goal:
             return
         self._steer_to(goal, t_now)
@@ -338,7 +338,7 @@ class Executor:
         the compiled edge in progress (still ahead); None anywhere else (off the tree)."""
         if self.branches is None:
             return None
-        t = self.tree.tree
+        t = self.tree.compiled
         seg = self.segment
         if seg.kind == EDGE and t_now < seg.t0 + self.tree.eps:
             if t.child_count[seg.ref] == 0:
@@ -364,7 +364,7 @@ class Executor:
         """Follow the compiled edge into ``child`` from the commanded state at ``t0`` (the state
         of its parent node), steering on to its sub-goal after ``eps`` unless a child of it
         is taken then."""
-        t = self.tree.tree
+        t = self.tree.compiled
         target = self.tree.subgoal_q[t.edge_target[child], :3]
         traj = self.steer.to_rest(self.segment.state(t0), target)
         self.pending = None
@@ -379,7 +379,7 @@ class Executor:
         """At the end of the edge in progress, start the pending child edge."""
         child, t_switch = self.pending
         seg = self.segment
-        if seg.kind != EDGE or self.tree.tree.node_parent[child] != seg.ref:
+        if seg.kind != EDGE or self.tree.compiled.node_parent[child] != seg.ref:
             self.pending = None  # the edge it was to follow was replaced
         elif t >= t_switch:
             self._start_edge(child, t_switch)
@@ -548,5 +548,5 @@ def branch_table(tree: RuntimeTree, geom, per_goal: int) -> BranchTable:
     cache = tree.__dict__.setdefault("_branch_tables", {})
     key = (geom, per_goal)
     if key not in cache:
-        cache[key] = BranchTable(tree.tree, geom, per_goal)
+        cache[key] = BranchTable(tree.compiled, geom, per_goal)
     return cache[key]

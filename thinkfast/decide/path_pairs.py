@@ -20,7 +20,7 @@ REACH_A = 4.5  # the isotropic disk probability is 1 or 0 within 4e-6 beyond 4.5
 REACH_Z = 4.0  # nodes beyond 4 sigma along tau or the major axis weigh < 1e-4 in all
 
 
-class Belief(NamedTuple):
+class CrossingConditional(NamedTuple):
     """The crossing Gaussian as the kernel uses it (see the module doc)."""
 
     m_yz: np.ndarray  # (2,) [m]
@@ -32,7 +32,7 @@ class Belief(NamedTuple):
     e: np.ndarray  # (2,) major axis of (Y, Z) | tau
 
 
-def conditional(o_mean, o_cov, sigma_floor: float) -> Belief:
+def conditional(o_mean, o_cov, sigma_floor: float) -> CrossingConditional:
     """The crossing Gaussian N(o_mean, o_cov) of (Y, Z, tau) in the kernel's terms; the lateral
     standard deviations are floored at ``sigma_floor`` [m], tau's at 1 us."""
     (syy, syz, syt), (_, szz, szt), (_, _, stt) = np.asarray(o_cov, dtype=float).tolist()
@@ -43,7 +43,7 @@ def conditional(o_mean, o_cov, sigma_floor: float) -> Belief:
     lam0 = max(0.5 * (a + d) - half_gap, sigma_floor**2)
     lam1 = 0.5 * (a + d) + half_gap
     angle = 0.5 * math.atan2(2.0 * c, a - d)  # major axis
-    return Belief(
+    return CrossingConditional(
         np.array([float(o_mean[0]), float(o_mean[1])]),
         float(o_mean[2]),
         math.sqrt(var_t),
@@ -54,7 +54,7 @@ def conditional(o_mean, o_cov, sigma_floor: float) -> Belief:
     )
 
 
-def cut_cells(paths: ShieldPaths, path, start, b: Belief, z, half):
+def cut_cells(paths: ShieldPaths, path, start, b: CrossingConditional, z, half):
     """Where a touch-depth crossing falls inside a node's cell (half width ``half`` [s], 0: no
     cell), the node stands for the part of its cell where contact is possible.
 
@@ -82,7 +82,7 @@ def cut_cells(paths: ShieldPaths, path, start, b: Belief, z, half):
     return z, share
 
 
-def relative(paths: ShieldPaths, path, start, b: Belief, z, geom, approach):
+def relative(paths: ShieldPaths, path, start, b: CrossingConditional, z, geom, approach):
     """The shield at every (path, tau node) pair relative to the conditional mean.
 
     Args:
@@ -136,7 +136,9 @@ def relative(paths: ShieldPaths, path, start, b: Belief, z, geom, approach):
     return r_y, r_z, rho, contact
 
 
-def disk_mean(r_y, r_z, rho, contact, b: Belief, eta, w_eta, geom, levels: int) -> np.ndarray:
+def disk_mean(
+    r_y, r_z, rho, contact, b: CrossingConditional, eta, w_eta, geom, levels: int
+) -> np.ndarray:
     """E over eta of the isotropic disk probability for every pair (any shape S), shape S.
 
     Pairs farther than every node's reach from the rim are 1 (inside) or 0 (outside); when they
@@ -173,7 +175,7 @@ def disk_mean(r_y, r_z, rho, contact, b: Belief, eta, w_eta, geom, levels: int) 
 
 
 def _lookup(
-    r_y, r_z, d2, rho, b: Belief, eta, w_eta, geom: BlockGeometry, levels: int
+    r_y, r_z, d2, rho, b: CrossingConditional, eta, w_eta, geom: BlockGeometry, levels: int
 ) -> np.ndarray:
     """Isotropic disk probability averaged over the eta nodes for pairs of any shape S (offsets
     r_y, r_z [m], squared distance d2, radius rho or None for the full one), shape S."""

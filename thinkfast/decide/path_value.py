@@ -70,7 +70,7 @@ from thinkfast.decide.normal_rules import cells, normal_rule
 from thinkfast.decide.path_pairs import (
     REACH_A,
     REACH_Z,
-    Belief,
+    CrossingConditional,
     conditional,
     cut_cells,
     disk_mean,
@@ -189,7 +189,9 @@ def block_probability(
     return out
 
 
-def _reachable(paths: ShieldPaths, cand, b: Belief, geom: BlockGeometry, approach) -> np.ndarray:
+def _reachable(
+    paths: ShieldPaths, cand, b: CrossingConditional, geom: BlockGeometry, approach
+) -> np.ndarray:
     """Positions in ``cand`` of the paths whose bounding box (widened by the meeting shift) comes
     within reach of a node that weighs: |z| <= 4 along tau and the major axis, 4.5 sigma_a
     across."""
@@ -215,7 +217,9 @@ def _reachable(paths: ShieldPaths, cand, b: Belief, geom: BlockGeometry, approac
     return np.flatnonzero(ok)
 
 
-def _jumps(paths: ShieldPaths, alive, start, b: Belief, geom: BlockGeometry, cfg) -> np.ndarray:
+def _jumps(
+    paths: ShieldPaths, alive, start, b: CrossingConditional, geom: BlockGeometry, cfg
+) -> np.ndarray:
     """Which paths cross the touch depth (their value jumps) within +-k_sigma of tau and within
     reach of the conditional mean at that time, shape (A,) bool."""
     cuts = paths.cuts[alive]
@@ -232,7 +236,7 @@ def _jumps(paths: ShieldPaths, alive, start, b: Belief, geom: BlockGeometry, cfg
     return out
 
 
-def _time_scale(paths: ShieldPaths, group, b: Belief, geom: BlockGeometry) -> float:
+def _time_scale(paths: ShieldPaths, group, b: CrossingConditional, geom: BlockGeometry) -> float:
     """Scale of the integrand along tau [sigma_tau] for the paths ``group``: their lateral motion
     against sigma_a, and their x motion inside the touch band against the band's depth."""
     rate = b.sd_t * (float(paths.speed[group].max()) + math.hypot(*b.k))

@@ -26,7 +26,7 @@ from scipy.special import ndtr
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 
-class Frame(NamedTuple):
+class PlaneFrame(NamedTuple):
     """The crossing belief in the (u, w) frame of the plane (see the module docstring).
 
     Attributes:
@@ -67,7 +67,7 @@ class DiskNodes(NamedTuple):
     tau_hi: np.ndarray
 
 
-def plane_frame(o_mean: np.ndarray, o_cov: np.ndarray) -> Frame:
+def plane_frame(o_mean: np.ndarray, o_cov: np.ndarray) -> PlaneFrame:
     """Decompose N(o_mean, o_cov) of (Y [m], Z [m], tau [s]); ``o_cov`` shape (3, 3)."""
     (a, b, cy), (_, d, cz), (_, _, tt) = o_cov.tolist()
     a += 1e-12  # a 1 um floor keeps the (Y, Z) block invertible
@@ -80,7 +80,7 @@ def plane_frame(o_mean: np.ndarray, o_cov: np.ndarray) -> Frame:
     suw = uy * (-uz) * a + (uy * uy - uz * uz) * b + uz * uy * d
     sw2 = uz * uz * a - 2.0 * uy * uz * b + uy * uy * d
     gamma = suw / su2
-    return Frame(
+    return PlaneFrame(
         m_yz=np.array(o_mean[:2], dtype=float),
         e_u=np.array([uy, uz]),
         e_w=np.array([-uz, uy]),
@@ -93,7 +93,7 @@ def plane_frame(o_mean: np.ndarray, o_cov: np.ndarray) -> Frame:
     )
 
 
-def disk_nodes(frame: Frame, goal_yz: np.ndarray, radius: float, cfg) -> DiskNodes | None:
+def disk_nodes(frame: PlaneFrame, goal_yz: np.ndarray, radius: float, cfg) -> DiskNodes | None:
     """Node masses of every goal disk that can hold more than ``2 Q(k_sigma)``; None if none.
 
     Args:

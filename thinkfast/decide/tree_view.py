@@ -52,7 +52,7 @@ class RuntimeTree:
     """
 
     def __init__(self, tree: ActionTree, value_cfg: vl.ValueConfig, block_radius: float):
-        self.tree = tree
+        self.compiled = tree  # the ActionTree's arrays
         prov = Provenance.of(tree.meta)
         self.eps = prov.eps
         self.plane_distance = prov.plane_x
@@ -74,7 +74,7 @@ class RuntimeTree:
         """Values of every branch for the crossing ``c`` (see the module doc for the clocks)."""
         if not c.ok:
             return Decision(c, None, None, t_belief)
-        remaining = self.tree.term_arrival + (t_start + lag - t_belief)
+        remaining = self.compiled.term_arrival + (t_start + lag - t_belief)
         tv = vl.terminal_values(self.vlay, c.mean, c.cov, remaining)
         return Decision(c, bk.backup(self.blay, tv.value, tv.goal_mass), tv.value, t_belief)
 
