@@ -318,3 +318,12 @@ def test_sweep_files_are_checked_key_by_key(tmp_path):
         {"compile.tree.eps": 0.1, "run.launch.window": 6},
         {"compile.tree.eps": 0.15, "run.launch.window": 8},
     ]
+
+
+def test_the_example_and_benchmark_sweeps_load():
+    from thinkfast.sim.sweep import load_sweep
+
+    example = load_sweep(ROOT / "examples" / "SWEEP.toml")
+    assert (len(example.points), len({p.tree_key for p in example.points})) == (8, 4)
+    timed = load_sweep(ROOT / "bench" / "sweep_4x200.toml")
+    assert len({p.tree_key for p in timed.points}) == 4 and len(timed.throws) == 220

@@ -49,6 +49,7 @@ class NeedsDask(ThinkfastError):
 # --- tasks (run on workers) -----------------------------------------------------------------
 
 _CACHE: dict[str, Any] = {}
+WORLDS_KEPT = 3  # lockstep worlds a worker process keeps (the most recently used)
 _LOCK = threading.Lock()
 
 
@@ -112,8 +113,10 @@ def _world(tree_bytes: bytes, run_cfg, robot_path: str | None, hashes):
     digest = hashlib.sha256(tree_bytes).hexdigest()
     key = f"{digest}:{robot_path}:{hashlib.sha256(repr(to_dict(run_cfg)).encode()).hexdigest()}"
     with _LOCK:
-        if _CACHE.get("world_key") == key:
-            return _CACHE["world"]
+        worlds = _CACHE.setdefault("worlds", {})
+        if key in worlds:
+            worlds[key] = worlds.pop(key)  # most recently used last
+            return worlds[key]
     robot = _check_robot(robot_path, hashes)
     path = _workdir() / f"{digest[:16]}.h5"
     if not path.exists():
@@ -121,8 +124,10 @@ def _world(tree_bytes: bytes, run_cfg, robot_path: str | None, hashes):
         tmp.write_bytes(tree_bytes)
         tmp.replace(path)
     world = World(load_tree(path), robot, run_cfg, ServoConfig(), CameraModelConfig())
-    with _LOCK:  # one world at a time: a sweep's chunks arrive point by point
-        _CACHE["world_key"], _CACHE["world"] = key, world
+    with _LOCK:  # a few: a sweep's chunks arrive point by point
+        worlds[key] = world
+        while len(worlds) > WORLDS_KEPT:
+            worlds.pop(next(iter(worlds)))
     return world
 
 
@@ -369,7 +374,7 @@ def run_sweep(sweep, store, client, progress: Callable | None = None) -> SweepRe
             fut = client.submit(
                 chunk_task, trees[p.tree_key], p.run_config, robot, sweep.robot_hashes,
                 sweep.throws[c[0]:c[1]], list(sweep.settings.planners), sweep.settings.seed,
-                c[0], key=f"chunk-{p.point_key[:16]}-{c[0]}-{c[1]}", priority=-p.index, retries=2,
+                c[0], key=f"chunk-{p.point_key[:16]}-{c[0]}-{c[1]}", priority=-p.index,
             )  # fmt: skip
             jobs[fut.key] = ("chunk", p, c)
             futures.append(fut)
@@ -447,7 +452,7 @@ def bench_on_client(
     for s in range(0, len(throws), chunk):
         fut = client.submit(
             chunk_task, tree, run_cfg, None, hashes, throws[s:s + chunk], list(planners), seed,
-            s, key=f"bench-{run}-{s}", retries=2,
+            s, key=f"bench-{run}-{s}",
         )  # fmt: skip
         futures.append(fut)
         where[fut.key] = s
