@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import hashlib
 import itertools
 import json
@@ -90,8 +91,18 @@ class Sweep:
     points: list[Point]
     robot_path: Path
     robot_hashes: tuple[str, str]  # (URDF sha256, robot.toml sha256)
-    throws: list
+    throw_config: Any  # ThrowConfig (the mix applied)
+    feints: int
     reference: str
+
+    @functools.cached_property
+    def throws(self) -> list:
+        """The throws of every point, drawn as ``bench --throws --seed --mix --feints`` does
+        (on first use)."""
+        from thinkfast.sim.throws import sample_throws
+
+        return sample_throws(self.throw_config, self.settings.throws, self.settings.seed,
+                             self.feints)  # fmt: skip
 
     @property
     def chunks(self) -> list[tuple[int, int]]:
@@ -206,7 +217,7 @@ def load_sweep(path: str | Path) -> Sweep:
             ``list`` mode, a reference that is not among the planners.
     """
     from thinkfast.robot.model import load_robot
-    from thinkfast.sim.throws import ThrowConfig, sample_throws
+    from thinkfast.sim.throws import ThrowConfig
 
     path = Path(path)
     src = str(path)
@@ -267,8 +278,7 @@ def load_sweep(path: str | Path) -> Sweep:
             throw_cfg, thrower=dataclasses.replace(throw_cfg.thrower, mix=mix)
         )
     feints = settings.throws // 10 if settings.feints == -1 else settings.feints
-    throws = sample_throws(throw_cfg, settings.throws, settings.seed, feints)
-    return Sweep(path, settings, axes, points, robot_path, hashes, throws, reference)
+    return Sweep(path, settings, axes, points, robot_path, hashes, throw_cfg, feints, reference)
 
 
 # --- outcomes on disk -----------------------------------------------------------------------
