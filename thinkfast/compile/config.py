@@ -99,6 +99,20 @@ class LoadedConfig:
     robot_path: Path
 
 
+def check_compile_config(cfg: CompileConfig, source: str, prefix: str = "") -> CompileConfig:
+    """``cfg`` when its values agree with each other (the goal ranges are not empty).
+
+    Raises:
+        ConfigError: naming ``source`` and the key (under ``prefix``, e.g. ``compile``).
+    """
+    g, pre = cfg.goals, f"{prefix}." if prefix else ""
+    if g.y_max < g.y_min:
+        raise ConfigError(source, f"{pre}goals.y_max", f"must be >= goals.y_min ({g.y_min:g})")
+    if g.z_max < g.z_min:
+        raise ConfigError(source, f"{pre}goals.z_max", f"must be >= goals.z_min ({g.z_min:g})")
+    return cfg
+
+
 def load_compile_config(path: str | Path) -> LoadedConfig:
     """Read and validate a compile TOML file.
 
@@ -107,12 +121,7 @@ def load_compile_config(path: str | Path) -> LoadedConfig:
     """
     path = Path(path)
     data = load_toml(path)
-    cfg = from_dict(CompileConfig, data, str(path))
-    g = cfg.goals
-    if g.y_max < g.y_min:
-        raise ConfigError(str(path), "goals.y_max", f"must be >= goals.y_min ({g.y_min:g})")
-    if g.z_max < g.z_min:
-        raise ConfigError(str(path), "goals.z_max", f"must be >= goals.z_min ({g.z_min:g})")
+    cfg = check_compile_config(from_dict(CompileConfig, data, str(path)), str(path))
     text = path.read_text(encoding="utf-8")
     return LoadedConfig(
         config=cfg,

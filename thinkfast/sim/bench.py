@@ -2,7 +2,8 @@
 
 Throw ``i`` of seed ``s`` is the same throw (and the same camera noise) for every planner, so the
 comparison is paired (``paired``: every planner against a reference, :mod:`thinkfast.sim.paired`).
-Work is split over processes by throw; results do not depend on the number of processes.
+Every throw is seeded by its index alone (:func:`throw_seed`), so work can be split over
+processes, chunks of throws or machines (``thinkfast/sim/cluster.py``) with identical results.
 """
 
 from __future__ import annotations
@@ -26,9 +27,24 @@ def _init(make_world: Callable[[], World]) -> None:
     _W["world"] = make_world()
 
 
+def throw_seed(seed: int, index: int) -> int:
+    """Camera-noise seed of the throw at ``index`` (0-based, in the bench's throw order)."""
+    return seed * 100_003 + index
+
+
 def _one(job: tuple) -> list[Outcome]:
     throw, planners, seed = job
     return [simulate(_W["world"], throw, p, seed) for p in planners]
+
+
+def run_chunk(world: World, throws, planners, seed: int, start: int) -> list[Outcome]:
+    """Outcomes of ``throws`` (the bench's throws ``start``, ``start + 1``, ...), every planner
+    per throw, in throw order: the same rows :func:`run_bench` gives for them."""
+    return [
+        simulate(world, t, p, throw_seed(seed, start + k))
+        for k, t in enumerate(throws)
+        for p in planners
+    ]
 
 
 def run_bench(make_world, throws, planners, seed: int, jobs: int = 1, progress=None) -> list:
@@ -38,11 +54,11 @@ def run_bench(make_world, throws, planners, seed: int, jobs: int = 1, progress=N
         make_world: builds the :class:`World` (called once per process).
         throws: the throws.
         planners: planner names ("tree", "naive", "oracle").
-        seed: camera-noise seed base (throw i uses seed * 100003 + i).
+        seed: camera-noise seed base (throw i uses :func:`throw_seed`, seed * 100003 + i).
         jobs: processes.
         progress: called with (done, total).
     """
-    items = [(t, tuple(planners), seed * 100_003 + i) for i, t in enumerate(throws)]
+    items = [(t, tuple(planners), throw_seed(seed, i)) for i, t in enumerate(throws)]
     out: list[Outcome] = []
     if jobs > 1:
         ctx = mp.get_context("fork")

@@ -27,6 +27,10 @@ MIX_HELP = (
     "thinkfast/sim/thrower.py DEFAULT_MIX: half still holds, half wind-ups)"
 )
 FEINTS_HELP = "feints appended to the drawn throws (ids s<seed>-f<j>)"
+SCHEDULER_HELP = (
+    "run as Dask tasks (docs/SWEEPS.md): local (an embedded cluster on this machine), serial "
+    "(this process, no Dask) or a running scheduler's address, tcp://HOST:8786; same results"
+)
 
 
 def _throw_config(mix: str | None):
@@ -182,10 +186,14 @@ def bench(
     feints: int = typer.Option(
         -1, "--feints", help=FEINTS_HELP + "; default: a tenth of --throws (none with --throw-set)"
     ),
-    jobs: int = typer.Option(0, "--jobs", "-j", help="processes (0: all cores)"),
+    jobs: int = typer.Option(
+        0, "--jobs", "-j", help="processes (0: all cores); with --scheduler local: Dask workers"
+    ),
     config: Path | None = typer.Option(None, "--config", help="runtime config (TOML)"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object"),
     png: Path | None = typer.Option(None, "--png", help="plot success by flight time"),
+    scheduler: str | None = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),
+    chunk: int = typer.Option(25, "--chunk", help="throws per task (with --scheduler)"),
 ) -> None:
     """Lockstep statistics: the daemon's kernels in simulated time, every planner, same throws.
 
@@ -210,16 +218,26 @@ def bench(
     load_tree(tree)  # fail here, with the file's name, not in a worker
     if feints == -1:
         feints = 0 if throw_set is not None else n // 10
+    if chunk < 1:
+        raise ConfigError("--chunk", None, f"must be >= 1, got {chunk}")
     balls = _throws(n, seed, throw_set, mix, feints)
     start = time.perf_counter()
-    out = run_bench(
-        _WorldFactory(tree, cfg),
-        balls,
-        names,
-        seed,
-        jobs or default_jobs(),
-        None if as_json else _progress,
-    )
+    if scheduler is not None:
+        from thinkfast.sim.cluster import bench_on_client, open_client
+
+        with open_client(scheduler, jobs or default_jobs()) as client:
+            out = bench_on_client(
+                client, tree, cfg, balls, names, seed, chunk, None if as_json else _progress
+            )
+    else:
+        out = run_bench(
+            _WorldFactory(tree, cfg),
+            balls,
+            names,
+            seed,
+            jobs or default_jobs(),
+            None if as_json else _progress,
+        )
     summary = summarize(out, names, reference)
     summary["seconds"] = round(time.perf_counter() - start, 1)
     summary["seed"] = seed
@@ -253,6 +271,66 @@ class _WorldFactory:
 def _progress(done: int, total: int) -> None:
     if done == total or done % 25 == 0:
         print(f"  {done}/{total} throws", file=sys.stderr, flush=True)
+
+
+@app.command()
+def sweep(
+    sweep_file: Path = typer.Argument(..., help="sweep file (TOML, docs/SWEEPS.md)"),
+    output: Path | None = typer.Option(
+        None, "-o", "--output", help="results directory (default: ./<sweep file name>-sweep)"
+    ),
+    scheduler: str = typer.Option("local", "--scheduler", help=SCHEDULER_HELP),
+    workers: int = typer.Option(
+        0, "--workers", help="workers of the embedded cluster (0: all cores)"
+    ),
+    png: bool = typer.Option(True, "--png/--no-png", help="plot rate against every swept key"),
+    as_json: bool = typer.Option(False, "--json", help="print results.json instead of a table"),
+) -> None:
+    """Compile and bench a grid of compile and runtime parameters, as Dask tasks.
+
+    Trees are compiled once per distinct config; benches run as chunks of throws. Every
+    finished chunk and point is kept in the results directory, so running the same command
+    again (after an interruption, or with more values) computes only what is missing. Results:
+    results.csv (a row per point and planner), results.json, results.png.
+    """
+    from thinkfast.compile.grow import default_jobs
+    from thinkfast.errors import ConfigError, ThinkfastError
+    from thinkfast.sim.cluster import SweepProgress, open_client, run_sweep
+    from thinkfast.sim.sweep import SweepStore, format_table, load_sweep, plot_sweep, write_results
+
+    if workers < 0:
+        raise ConfigError("--workers", None, f"must be >= 0, got {workers}")
+    spec = load_sweep(sweep_file)
+    store = SweepStore(output or Path(f"{sweep_file.stem}-sweep"))
+    trees = len({p.tree_key for p in spec.points})
+    with open_client(scheduler, workers or default_jobs()) as client:
+        print(
+            f"sweep {sweep_file}: {len(spec.points)} points ({trees} trees) x "
+            f"{len(spec.throws)} throws x {len(spec.settings.planners)} planners "
+            f"{client.description}; results in {store.root}",
+            file=sys.stderr,
+            flush=True,
+        )
+        report = run_sweep(spec, store, client, SweepProgress())
+    paths = write_results(spec, store, report.docs)
+    if png and report.docs:
+        plot_sweep(spec, report.docs, store.root / "results.png")
+    if as_json:
+        print(paths["json"].read_text(encoding="utf-8"))
+    else:
+        print(format_table(spec, report.docs))
+        print(
+            f"\n{report.points_from_disk} points and {report.chunks_from_disk} chunks from disk, "
+            f"{report.chunks_computed} chunks computed, {report.trees_compiled} trees compiled "
+            f"({report.seconds:.1f} s); {paths['csv']}, {paths['json']}"
+            + (f", {store.root / 'results.png'}" if png and report.docs else "")
+        )
+    if report.failures:
+        raise ThinkfastError(
+            f"{len(report.failures)} failed: {report.failures[0]}"
+            + (f" (and {len(report.failures) - 1} more)" if len(report.failures) > 1 else "")
+            + "; finished points are kept, rerun to retry"
+        )
 
 
 @app.command()

@@ -1,0 +1,525 @@
+"""Parameter sweeps: a grid (or list) of compile and run parameters, every planner, one throw set.
+
+A sweep file (TOML, docs/SWEEPS.md) names a base compile config, an optional base runtime
+config, the planners and the throws, and under ``[compile]`` and ``[run]`` the values to try for
+dotted keys of those configs. Each combination is a *point*: a tree (compiled from the base
+config with the point's compile values) benched with the point's runtime config, exactly as
+``thinkfast-sim bench`` would bench it.
+
+Everything a point depends on is hashed into keys, so finished work is found again:
+
+* ``tree_key``: the compile config's values (not its file name or the robot's path), the robot
+  files' hashes and the thinkfast version; points that differ only in ``[run]`` share a tree.
+* ``point_key``: the tree key, the runtime config's values, the planners, reference and throws.
+
+The results directory (:class:`SweepStore`) keeps trees, one file per finished chunk of throws
+and one per finished point; a rerun recomputes only what is missing. This module is pure
+bookkeeping; ``thinkfast/sim/cluster.py`` runs the work (in this process or on Dask).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import functools
+import hashlib
+import itertools
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from thinkfast import __version__
+from thinkfast.compile.config import CompileConfig, check_compile_config
+from thinkfast.config import from_dict, include_table, load_toml, spec, to_dict, to_toml
+from thinkfast.errors import ConfigError
+from thinkfast.runtime.config import CameraExtrinsic, RunConfig
+from thinkfast.sim.lockstep import Outcome
+
+PLANNERS = ("tree", "tree-rest", "naive", "naive-paper", "oracle", "oracle_seen")
+DEFAULT_PLANNERS = ("tree", "naive", "naive-paper", "oracle", "oracle_seen")  # as bench
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSettings:
+    """The ``[sweep]`` table: what every point shares."""
+
+    compile_config: str = spec(doc="base compile config (TOML), relative to the sweep file")
+    run_config: str = spec("", doc="base runtime config (TOML), relative; empty: the defaults")
+    planners: tuple[str, ...] = spec(DEFAULT_PLANNERS, doc="planners run on every throw",
+                                     choices=PLANNERS)  # fmt: skip
+    reference: str = spec("", doc="planner the others are compared with (empty: as bench)")
+    throws: int = spec(200, lo=1, doc="throws per point (the same throws at every point)")
+    seed: int = spec(1, lo=0, doc="throw and camera-noise seed")
+    mix: str = spec("", doc="kinds of throw, KIND=WEIGHT,... as --mix (empty: default mix)")
+    feints: int = spec(-1, lo=-1, doc="feints appended to the throws (-1: a tenth of throws)")
+    chunk: int = spec(25, lo=1, doc="throws per task (any value gives the same results)")
+    mode: str = spec("grid", choices=("grid", "list"), doc="grid: every combination; list: "
+                     "the i-th values of every key together")  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class Point:
+    """One combination of swept values.
+
+    Attributes:
+        index: position in the sweep (0-based).
+        params: swept dotted key (``compile.tree.eps``, ``run.launch.x``) -> value.
+        compile_config: the point's compile config (robot path absolute).
+        run_config: the point's runtime config.
+        tree_key: hash naming the tree (see the module docstring).
+        point_key: hash naming the point's results.
+    """
+
+    index: int
+    params: dict[str, Any]
+    compile_config: CompileConfig
+    run_config: RunConfig
+    tree_key: str
+    point_key: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """A loaded sweep file: its settings, swept keys, points and throws."""
+
+    path: Path
+    settings: SweepSettings
+    axes: dict[str, list[Any]]
+    points: list[Point]
+    robot_path: Path
+    robot_hashes: tuple[str, str]  # (URDF sha256, robot.toml sha256)
+    throw_config: Any  # ThrowConfig (the mix applied)
+    feints: int
+    reference: str
+
+    @functools.cached_property
+    def throws(self) -> list:
+        """The throws of every point, drawn as ``bench --throws --seed --mix --feints`` does
+        (on first use)."""
+        from thinkfast.sim.throws import sample_throws
+
+        return sample_throws(self.throw_config, self.settings.throws, self.settings.seed,
+                             self.feints)  # fmt: skip
+
+    @property
+    def chunks(self) -> list[tuple[int, int]]:
+        """Throw index ranges ``[start, stop)`` of the tasks of one point."""
+        n, c = len(self.throws), self.settings.chunk
+        return [(s, min(s + c, n)) for s in range(0, n, c)]
+
+
+def flatten(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested TOML tables to dotted keys; a non-table value ends a key (``{"a": {"b": 1}}`` ->
+    ``{"a.b": 1}``; a quoted ``"a.b"`` key gives the same)."""
+    out: dict[str, Any] = {}
+    for k, v in table.items():
+        key = f"{prefix}.{k}" if prefix else k
+        if isinstance(v, dict):
+            out.update(flatten(v, key))
+        else:
+            out[key] = v
+    return out
+
+
+def with_value(data: dict[str, Any], dotted: str, value: Any) -> dict[str, Any]:
+    """A copy of the nested table ``data`` with ``dotted`` (``a.b.c``) set to ``value``."""
+    out = dict(data)
+    head, _, rest = dotted.partition(".")
+    if not rest:
+        out[head] = value
+        return out
+    inner = out.get(head, {})
+    out[head] = with_value(inner if isinstance(inner, dict) else {}, rest, value)
+    return out
+
+
+def combinations(axes: dict[str, list[Any]], mode: str) -> list[dict[str, Any]]:
+    """The points' values: every combination (``grid``, the last key varying fastest) or the
+    i-th value of every key together (``list``; every key has as many values)."""
+    keys = list(axes)
+    if not keys:
+        return [{}]
+    if mode == "list":
+        return [dict(zip(keys, vals, strict=True)) for vals in zip(*axes.values(), strict=True)]
+    return [dict(zip(keys, vals, strict=True)) for vals in itertools.product(*axes.values())]
+
+
+def _sha(obj: Any) -> str:
+    text = json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def tree_key(cfg: CompileConfig, robot_hashes: tuple[str, str]) -> str:
+    """Hash of what a compiled tree depends on: the config's values but not where the robot
+    files are, the robot files' contents, the thinkfast version."""
+    values = to_dict(cfg)
+    values.pop("robot")
+    return _sha({"compile": values, "robot": list(robot_hashes), "thinkfast": __version__})
+
+
+def point_key(tree: str, run: RunConfig, settings: SweepSettings, reference: str) -> str:
+    """Hash of what a point's results depend on (chunking and scheduling do not count)."""
+    s = dataclasses.replace(settings, compile_config="", run_config="", chunk=1, mode="grid")
+    return _sha({"tree": tree, "run": to_dict(run), "sweep": to_dict(s), "reference": reference})
+
+
+def compile_text(cfg: CompileConfig, robot_path: Path) -> str:
+    """The compile config file of a point (TOML, the robot as an absolute path)."""
+    return to_toml(
+        dataclasses.replace(cfg, robot=str(robot_path)), "compile config of a sweep point"
+    )
+
+
+def _axes(table: Any, section: str, source: str) -> dict[str, list[Any]]:
+    """``[compile]`` or ``[run]`` as ``section.key -> values`` (each a non-empty array)."""
+    if table is None:
+        return {}
+    if not isinstance(table, dict):
+        raise ConfigError(source, section, "expected a table of dotted keys and arrays of values")
+    out = {}
+    for key, values in flatten(table).items():
+        if not isinstance(values, list) or not values:
+            raise ConfigError(source, f"{section}.{key}", "expected a non-empty array of values "
+                              "to try (a tuple-valued key takes an array of arrays)")  # fmt: skip
+        out[f"{section}.{key}"] = values
+    return out
+
+
+def _build_compile(base: dict, values: dict[str, Any], source: str) -> CompileConfig:
+    data = base
+    for k, v in values.items():
+        data = with_value(data, k.removeprefix("compile."), v)
+    cfg = from_dict(CompileConfig, data, source, "compile")
+    return check_compile_config(cfg, source, "compile")
+
+
+def _build_run(base: dict, values: dict[str, Any], source: str) -> RunConfig:
+    data = base
+    for k, v in values.items():
+        data = with_value(data, k.removeprefix("run."), v)
+    return from_dict(RunConfig, data, source, "run")
+
+
+def _relative(sweep_path: Path, name: str) -> Path:
+    p = Path(name)
+    return p if p.is_absolute() else sweep_path.parent / p
+
+
+def load_sweep(path: str | Path) -> Sweep:
+    """Read, validate and expand a sweep file.
+
+    Raises:
+        ConfigError: naming the sweep file (or a base config) and the key: unknown table or
+            key, a value the compile or runtime config refuses, lists of unequal length in
+            ``list`` mode, a reference that is not among the planners.
+    """
+    from thinkfast.robot.model import load_robot
+    from thinkfast.sim.throws import ThrowConfig
+
+    path = Path(path)
+    src = str(path)
+    data = load_toml(path)
+    unknown = sorted(set(data) - {"sweep", "compile", "run"})
+    if unknown:
+        raise ConfigError(src, unknown[0], "unknown table (valid: sweep, compile, run)")
+    if "sweep" not in data:
+        raise ConfigError(src, "sweep", "missing [sweep] table (compile_config is required)")
+    settings = from_dict(SweepSettings, data["sweep"], src, "sweep")
+    if not settings.planners:
+        raise ConfigError(src, "sweep.planners", "name at least one planner")
+    reference = settings.reference or ("tree" if "tree" in settings.planners
+                                       else settings.planners[0])  # fmt: skip
+    if reference not in settings.planners:
+        raise ConfigError(src, "sweep.reference", f"{reference!r} is not one of the planners")
+
+    base_path = _relative(path, settings.compile_config)
+    base_compile = load_toml(base_path)
+    base_cfg = from_dict(CompileConfig, base_compile, str(base_path))
+    robot_path = (base_path.parent / base_cfg.robot).resolve()
+    base_compile = with_value(base_compile, "robot", str(robot_path))
+    if settings.run_config:
+        run_path = _relative(path, settings.run_config)
+        base_run = include_table(load_toml(run_path), run_path, "camera_file", "camera",
+                                 CameraExtrinsic)  # fmt: skip
+        from_dict(RunConfig, base_run, str(run_path))  # its own errors name its own file
+    else:
+        base_run = {}
+
+    axes = {**_axes(data.get("compile"), "compile", src), **_axes(data.get("run"), "run", src)}
+    for key, values in axes.items():  # one value at a time: the error names the key
+        for v in values:
+            if key.startswith("compile."):
+                _build_compile(base_compile, {key: v}, src)
+            else:
+                _build_run(base_run, {key: v}, src)
+    if settings.mode == "list" and len({len(v) for v in axes.values()}) > 1:
+        sizes = ", ".join(f"{k} {len(v)}" for k, v in axes.items())
+        raise ConfigError(src, "sweep.mode", f"list mode needs as many values per key ({sizes})")
+
+    robot = load_robot(robot_path)
+    hashes = (robot.urdf_sha256, robot.toml_sha256)
+    points = []
+    for i, values in enumerate(combinations(axes, settings.mode)):
+        ccfg = _build_compile(base_compile, {k: v for k, v in values.items()
+                                             if k.startswith("compile.")}, src)  # fmt: skip
+        rcfg = _build_run(base_run, {k: v for k, v in values.items() if k.startswith("run.")}, src)
+        tk = tree_key(ccfg, hashes)
+        points.append(Point(i, values, ccfg, rcfg, tk, point_key(tk, rcfg, settings, reference)))
+
+    throw_cfg = ThrowConfig()
+    if settings.mix:
+        from thinkfast.sim.thrower import parse_mix
+
+        mix = parse_mix(settings.mix, f"{src}: sweep.mix")
+        throw_cfg = dataclasses.replace(
+            throw_cfg, thrower=dataclasses.replace(throw_cfg.thrower, mix=mix)
+        )
+    feints = settings.throws // 10 if settings.feints == -1 else settings.feints
+    return Sweep(path, settings, axes, points, robot_path, hashes, throw_cfg, feints, reference)
+
+
+# --- outcomes on disk -----------------------------------------------------------------------
+
+
+def outcome_rows(outcomes: list[Outcome]) -> list[list[Any]]:
+    """Outcomes as JSON-able rows (field order of :class:`Outcome`)."""
+    return [list(o) for o in outcomes]
+
+
+def outcomes_from_rows(rows: list[list[Any]]) -> list[Outcome]:
+    """Inverse of :func:`outcome_rows` (floats survive JSON exactly, NaN included)."""
+    return [Outcome(*r) for r in rows]
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file and a rename (never half a file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+class SweepStore:
+    """The results directory: ``trees/KEY.h5`` (and the ``.toml`` it was compiled from),
+    ``chunks/POINT/START-STOP.json``, ``points/POINT.json``, and the tables and plot."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+
+    def tree_path(self, key: str) -> Path:
+        return self.root / "trees" / f"{key[:16]}.h5"
+
+    def save_tree(self, key: str, data: bytes, config_text: str | None = None) -> None:
+        if config_text is not None:
+            write_atomic(self.tree_path(key).with_suffix(".toml"), config_text.encode("utf-8"))
+        write_atomic(self.tree_path(key), data)
+
+    def chunk_path(self, point: str, start: int, stop: int) -> Path:
+        return self.root / "chunks" / point[:16] / f"{start:06d}-{stop:06d}.json"
+
+    def save_chunk(self, point: str, start: int, stop: int, outcomes, seconds: float) -> None:
+        doc = {"start": start, "stop": stop, "seconds": round(seconds, 3),
+               "outcomes": outcome_rows(outcomes)}  # fmt: skip
+        write_atomic(self.chunk_path(point, start, stop), json.dumps(doc).encode("utf-8"))
+
+    def load_chunk(self, point: str, start: int, stop: int) -> tuple[list[Outcome], float] | None:
+        """The chunk's outcomes and seconds, or None when it is not on disk (or unreadable)."""
+        try:
+            doc = json.loads(self.chunk_path(point, start, stop).read_text(encoding="utf-8"))
+            return outcomes_from_rows(doc["outcomes"]), float(doc["seconds"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+
+    def point_path(self, point: str) -> Path:
+        return self.root / "points" / f"{point[:16]}.json"
+
+    def save_point(self, doc: dict) -> None:
+        write_atomic(self.point_path(doc["point_key"]), json.dumps(doc).encode("utf-8"))
+
+    def load_point(self, point: str) -> dict | None:
+        try:
+            return json.loads(self.point_path(point).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+
+
+def point_doc(sweep: Sweep, point: Point, outcomes: list[Outcome], seconds: float) -> dict:
+    """A finished point: its values, keys and the bench summary of its outcomes (the same dict
+    ``thinkfast-sim bench --json`` prints, ``seconds`` being simulation time summed over the
+    chunks)."""
+    from thinkfast.sim.bench import summarize
+
+    summary = summarize(outcomes, list(sweep.settings.planners), sweep.reference)
+    summary["seconds"] = round(seconds, 1)
+    summary["seed"] = sweep.settings.seed
+    return {
+        "index": point.index,
+        "params": point.params,
+        "tree_key": point.tree_key,
+        "point_key": point.point_key,
+        "summary": summary,
+    }
+
+
+# --- tables and plot ------------------------------------------------------------------------
+
+COLUMNS = (
+    "point", "planner", "throws", "blocked", "rate", "ci95_lo", "ci95_hi", "rate_of_feasible",
+    "reference", "difference", "diff_ci95_lo", "diff_ci95_hi", "p_exact", "p_reference_better",
+    "starts_before_release", "start_median_s", "tree_key", "point_key",
+)  # fmt: skip
+
+
+def table_rows(sweep: Sweep, docs: list[dict]) -> list[dict[str, Any]]:
+    """One row per point and planner: the swept values, rate and interval, the paired
+    difference from the reference with its interval and exact McNemar p (empty for the
+    reference itself)."""
+    rows = []
+    for doc in docs:
+        s = doc["summary"]
+        pairs = s.get("paired", {}).get("planners", {})
+        for p, e in s["planners"].items():
+            d = pairs.get(p, {}).get("overall")
+            row = {"point": doc["index"], **{k: doc["params"].get(k) for k in sweep.axes}}
+            row.update(
+                planner=p, throws=e["throws"], blocked=e["blocked"], rate=e["rate"],
+                ci95_lo=e["ci95"][0], ci95_hi=e["ci95"][1],
+                rate_of_feasible=e.get("rate_of_feasible", ""), reference=sweep.reference,
+                difference=d["difference"] if d else "",
+                diff_ci95_lo=d["ci95"][0] if d else "", diff_ci95_hi=d["ci95"][1] if d else "",
+                p_exact=d["p_exact"] if d else "",
+                p_reference_better=d["p_reference_better"] if d else "",
+                starts_before_release=e["starts_before_release"],
+                start_median_s=e["start_median_s"], tree_key=doc["tree_key"][:16],
+                point_key=doc["point_key"][:16],
+            )  # fmt: skip
+            rows.append(row)
+    return rows
+
+
+def write_results(sweep: Sweep, store: SweepStore, docs: list[dict]) -> dict[str, Path]:
+    """``results.csv`` (:func:`table_rows`) and ``results.json`` (the sweep's settings and axes,
+    every point's full summary) in the store; returns their paths."""
+    rows = table_rows(sweep, docs)
+    fields = ["point", *sweep.axes, *COLUMNS[1:]]
+    csv_path, json_path = store.root / "results.csv", store.root / "results.json"
+    store.root.mkdir(parents=True, exist_ok=True)
+    with open(csv_path, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: _cell(v) for k, v in r.items()})
+    doc = {
+        "sweep": str(sweep.path),
+        "settings": to_dict(sweep.settings),
+        "reference": sweep.reference,
+        "axes": sweep.axes,
+        "points": docs,
+    }
+    write_atomic(json_path, json.dumps(doc, indent=1).encode("utf-8"))
+    return {"csv": csv_path, "json": json_path}
+
+
+def _cell(v: Any) -> Any:
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else repr(v)
+    if isinstance(v, list | tuple):
+        return json.dumps(v)
+    return v
+
+
+def format_table(sweep: Sweep, docs: list[dict]) -> str:
+    """The sweep as text: a line per point with every planner's rate and the difference from
+    the reference [points] with its 95 % interval."""
+    w = max(len(p) for p in sweep.settings.planners)
+    feints = sum(t.kind == "feint" for t in sweep.throws)
+    lines = [
+        f"{len(docs)} points, {len(sweep.throws) - feints} throws"
+        + (f" and {feints} feints" if feints else "")
+        + f" each (seed {sweep.settings.seed}); rate [95 % Wilson]; vs {sweep.reference}: "
+        "difference in points [95 % Newcombe], exact McNemar p",
+    ]
+    for doc in docs:
+        s = doc["summary"]
+        pairs = s.get("paired", {}).get("planners", {})
+        lines.append("")
+        vals = ", ".join(f"{k} = {_short(doc['params'][k])}" for k in sweep.axes) or "(base)"
+        lines.append(f"point {doc['index']}: {vals}")
+        for p, e in s["planners"].items():
+            lo, hi = e["ci95"]
+            text = f"  {p:<{w}} {100 * e['rate']:5.1f} % [{100 * lo:5.1f}, {100 * hi:5.1f}]"
+            d = pairs.get(p, {}).get("overall")
+            if d:
+                dl, dh = d["ci95"]
+                text += (f"  {100 * d['difference']:+5.1f} [{100 * dl:+5.1f}, {100 * dh:+5.1f}]"
+                         f"  p {d['p_exact']:.2g}")  # fmt: skip
+            lines.append(text)
+    return "\n".join(lines)
+
+
+def _short(v: Any) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def plot_sweep(sweep: Sweep, docs: list[dict], path: str | Path) -> None:
+    """Rate against each swept key (one panel per key), every planner with its 95 % Wilson
+    interval; points that share the other keys' values are joined by a line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    keys = list(sweep.axes) or ["point"]
+    planners = list(sweep.settings.planners)
+    fig, axes = plt.subplots(1, len(keys), figsize=(5.0 * len(keys), 4.2), squeeze=False)
+    for ax, key in zip(axes[0], keys, strict=True):
+        values = sweep.axes.get(key, [d["index"] for d in docs])
+        labels = [json.dumps(v) if not isinstance(v, int | float) else _short(v) for v in values]
+        uniq = list(dict.fromkeys(labels))
+        numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in values)
+        span = (max(values) - min(values)) if numeric and len(values) > 1 else 1.0
+        groups: dict[tuple, list[dict]] = {}
+        for d in docs:
+            rest = tuple(json.dumps(d["params"].get(k)) for k in sweep.axes if k != key)
+            groups.setdefault(rest, []).append(d)
+        for j, p in enumerate(planners):
+            offset = (j - (len(planners) - 1) / 2) * 0.012 * span
+            colour = f"C{j}"
+            for g, (_, members) in enumerate(sorted(groups.items())):
+                xs, ys, err = [], [], []
+                for d in members:
+                    v = d["params"].get(key, d["index"])
+                    x = v if numeric else uniq.index(json.dumps(v)) / max(len(uniq) - 1, 1)
+                    e = d["summary"]["planners"][p]
+                    xs.append(float(x) + offset)
+                    ys.append(e["rate"])
+                    err.append(
+                        (max(e["rate"] - e["ci95"][0], 0.0), max(e["ci95"][1] - e["rate"], 0.0))
+                    )
+                order = np.argsort(xs)
+                ax.errorbar(
+                    np.array(xs)[order], np.array(ys)[order],
+                    yerr=np.array(err)[order].T, fmt="o-", capsize=3, color=colour, lw=0.8,
+                    alpha=1.0 if g == 0 else 0.5, label=p if g == 0 else None,
+                )  # fmt: skip
+        if not numeric:
+            ax.set_xticks([i / max(len(uniq) - 1, 1) for i in range(len(uniq))], uniq)
+        ax.set(xlabel=key, ylabel="blocked (95 % Wilson)", ylim=(0, 1))
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle(
+        f"{len(sweep.throws)} throws per point (seed {sweep.settings.seed}); lines join points "
+        "that share the other keys' values", fontsize=9,
+    )  # fmt: skip
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
