@@ -75,13 +75,13 @@ def reference(sweep_dir):
     (tree fingerprint, summary JSON without seconds)."""
     from thinkfast.compile.build import compile_tree
     from thinkfast.compile.config import load_compile_config
-    from thinkfast.compile.treefile import load_tree, save_tree, tree_fingerprint
     from thinkfast.robot.model import load_robot
     from thinkfast.sim.bench import run_bench, summarize
     from thinkfast.sim.camera import CameraModelConfig
     from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.lockstep import World
     from thinkfast.sim.sweep import compile_text, load_sweep
+    from thinkfast.tree.file import load_tree, save_tree, tree_fingerprint
 
     spec = load_sweep(sweep_dir / "sweep.toml")
     d = sweep_dir / "serial"
@@ -118,7 +118,7 @@ def local_run(sweep_dir):
 
 
 def test_a_sweep_on_a_two_worker_local_cluster_equals_serial_benches(local_run, reference):
-    from thinkfast.compile.treefile import load_tree, tree_fingerprint
+    from thinkfast.tree.file import load_tree, tree_fingerprint
 
     spec, store, report = local_run
     assert not report.failures

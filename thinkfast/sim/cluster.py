@@ -84,7 +84,7 @@ def compile_task(config_text: str, robot_path: str, hashes: tuple[str, str]) -> 
     tree file's bytes."""
     from thinkfast.compile.build import compile_tree
     from thinkfast.compile.config import load_compile_config
-    from thinkfast.compile.treefile import save_tree
+    from thinkfast.tree.file import save_tree
 
     try:
         _check_robot(robot_path, hashes)
@@ -104,11 +104,11 @@ def given_task(data: bytes) -> bytes:
 
 def _world(tree_bytes: bytes, run_cfg, robot_path: str | None, hashes):
     """The lockstep world of this tree and runtime config, built once per worker process."""
-    from thinkfast.compile.treefile import load_tree
     from thinkfast.config import to_dict
     from thinkfast.sim.camera import CameraModelConfig
     from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.lockstep import World
+    from thinkfast.tree.file import load_tree
 
     digest = hashlib.sha256(tree_bytes).hexdigest()
     key = f"{digest}:{robot_path}:{hashlib.sha256(repr(to_dict(run_cfg)).encode()).hexdigest()}"

@@ -34,8 +34,8 @@ from typing import Any
 from thinkfast import __version__
 from thinkfast.compile.config import CompileConfig, check_compile_config
 from thinkfast.config import from_dict, include_table, load_toml, spec, to_dict, to_toml
+from thinkfast.control.config import CameraExtrinsic, RunConfig
 from thinkfast.errors import ConfigError
-from thinkfast.runtime.config import CameraExtrinsic, RunConfig
 from thinkfast.sim.lockstep import Outcome
 
 PLANNERS = ("tree", "tree-rest", "naive", "naive-paper", "oracle", "oracle_seen")
