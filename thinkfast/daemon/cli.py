@@ -61,6 +61,12 @@ def run(
     zenoh_listen: ZenohEndpoints = ZENOH_LISTEN,
     zenoh_config: ZenohConfigFile = ZENOH_CONFIG,
     record: Path | None = typer.Option(None, "--record", help="flight recorder file (HDF5)"),
+    ros_domain: int | None = typer.Option(
+        None,
+        "--ros-domain",
+        help="also speak ROS 2 on this domain (rmw_zenoh layout, docs/ROS2.md): PointStamped "
+        "detections in, JointState and DiagnosticArray out; needs the ros extra",
+    ),
     log_level: str = typer.Option("info", "--log-level", help="debug, info, warning or error"),
     log_format: str = typer.Option(
         "text", "--log-format", help="text, or json (one JSON object per line, for collectors)"
@@ -140,6 +146,10 @@ def run(
             "--fifo", None, "not with --busy-poll: the kernel throttles a SCHED_FIFO thread "
             "that never sleeps (use --spin-ahead-ms)",
         )  # fmt: skip
+    if ros_domain is not None:  # one clear error before anything starts
+        from thinkfast.contract import ros
+
+        ros.check_options(ros_domain, key_prefix)
     cfg = load_run_config(config)
     if speed_scale < 1.0 and cfg.choice.branches:
         raise ConfigError(
@@ -159,7 +169,7 @@ def run(
     conf = session_config(
         connect=zenoh_connect or (), listen=zenoh_listen or (), config_file=zenoh_config
     )
-    ends = Endpoints(egm_bind, egm_controller, egm_handover, key_prefix, record)
+    ends = Endpoints(egm_bind, egm_controller, egm_handover, key_prefix, record, ros_domain)
     modes = Modes(shadow=shadow, go_home=go_home, speed_scale=speed_scale)
     spin = math.inf if busy_poll else spin_ahead / 1e3
     daemon = Daemon(

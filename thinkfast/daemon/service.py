@@ -69,6 +69,7 @@ class Endpoints:
     egm_handover: float = 1.0
     key_prefix: str = "thinkfast"
     record: Path | None = None
+    ros_domain: int | None = None  # also the ROS 2 topics (daemon/ros_edge.py) on this domain
 
 
 @dataclass(frozen=True)
@@ -141,10 +142,15 @@ class Daemon:
             timing=True,
             handover=endpoints.egm_handover,
         )
-        self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix)
+        if endpoints.ros_domain is None:
+            self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix)
+        else:  # rosbags (the ros extra) only when asked for
+            from thinkfast.daemon.ros_edge import RosIO
+
+            self.zio = RosIO(zenoh_conf, endpoints.key_prefix, endpoints.ros_domain)
         self.stop_reason: str | None = None
         self.last_rx = -math.inf  # receive time of the last served EgmRobot (wall clock)
-        self.outbox: list[tuple[float, np.ndarray, np.ndarray, str]] = []
+        self.outbox: list[tuple[float, np.ndarray, np.ndarray, str, np.ndarray]] = []
         self.decision_ms = 0.0
         self.planner_errors = 0
         self.pending: collections.deque[bytes] = collections.deque()  # drained, not yet taken
@@ -182,7 +188,7 @@ class Daemon:
         if self.modes.shadow:  # the plan is shown, the arm holds (egm_control)
             self.planned = (q, qd, mode)
             q, qd, mode = self.control.hold_q, np.zeros(6), "shadow"
-        self.outbox.append((r.tick.t, q, qd, mode))
+        self.outbox.append((r.tick.t, q, qd, mode, fb.q_rad))
         self.recorder.egm(now, fb.seqno, fb.q_rad, q, qd, self.supervisor.braking)
         return q, qd
 
@@ -346,8 +352,8 @@ class Daemon:
             self._event(self.control.clock.t, "way_home", {**detail, "collision": r.detail})
 
     def _flush_outbox(self) -> None:
-        for stamp, q, qd, mode in self.outbox:
-            self.zio.publish_setpoint(stamp, q, qd, mode)
+        for stamp, q, qd, mode, q_meas in self.outbox:
+            self.zio.publish_setpoint(stamp, q, qd, mode, q_meas)
         self.outbox.clear()
 
     def _prepare(self) -> None:

@@ -64,7 +64,8 @@ class ZenohIO:
         """Payloads received since the last call (at most ``limit``)."""
         return drain(self.sub, limit)
 
-    def publish_setpoint(self, stamp: float, q, qd, mode: str) -> None:
+    def publish_setpoint(self, stamp: float, q, qd, mode: str, q_meas=None) -> None:
+        """Mirror one setpoint (``q_meas``, the feedback it answers, is for the ROS edge)."""
         msg = {
             "stamp": stamp,
             "q": [float(x) for x in q],

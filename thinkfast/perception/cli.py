@@ -39,6 +39,11 @@ def run(
         None, "--source", help="colour, boxes or auto (default: the config's)"
     ),
     threads: int = typer.Option(1, "--threads", help="OpenCV threads (1: one core)"),
+    ros_domain: int | None = typer.Option(
+        None,
+        "--ros-domain",
+        help="also publish detections as ROS 2 PointStamped on this domain (docs/ROS2.md)",
+    ),
     print_config: bool = typer.Option(
         False, "--print-config", help="print every detector config default as TOML and exit"
     ),
@@ -70,10 +75,14 @@ def run(
     if threads < 1:
         raise ConfigError("--threads", None, f"must be >= 1, got {threads}")
     cv2.setNumThreads(threads)
+    if ros_domain is not None:
+        from thinkfast.contract.ros import check_options
+
+        check_options(ros_domain, key_prefix)
     conf = session_config(
         connect=zenoh_connect or (), listen=zenoh_listen or (), config_file=zenoh_config
     )
-    node = DetectorNode(cfg, conf, key_prefix)
+    node = DetectorNode(cfg, conf, key_prefix, ros_domain=ros_domain)
     stop = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _f: stop.append(signum))

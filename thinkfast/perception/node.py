@@ -85,9 +85,18 @@ class DetectorNode:
         conf: zenoh configuration.
         prefix: key prefix.
         clock: wall clock [s] (box waits and status stamps).
+        ros_domain: also publish each detection as a ROS 2 PointStamped on this domain
+            (docs/ROS2.md), or None.
     """
 
-    def __init__(self, cfg: DetectConfig, conf: zenoh.Config, prefix: str, clock=time.time):
+    def __init__(
+        self,
+        cfg: DetectConfig,
+        conf: zenoh.Config,
+        prefix: str,
+        clock=time.time,
+        ros_domain: int | None = None,
+    ):
         self.cfg, self.clock = cfg, clock
         self.R, self.p = cfg.camera.rotation(), cfg.camera.translation()
         self.counters = Counters()
@@ -103,6 +112,12 @@ class DetectorNode:
             self.sub_boxes = self.session.declare_subscriber(keys.camera_boxes(prefix), fifo)
         self.pub = self.session.declare_publisher(keys.detections(prefix))
         self.pub_status = self.session.declare_publisher(keys.detector_status(prefix))
+        self.ros_node = self.ros_pub = None
+        if ros_domain is not None:
+            from thinkfast.contract import ros
+
+            self.ros_node = ros.RosNode(self.session, ros_domain, ros.NODE_DETECT)
+            self.ros_pub = self.ros_node.publisher(ros.topics(prefix).detections, ros.POINT_STAMPED)
         self.alone = warn_if_alone(
             self.session, f"{prefix}/detections (and no frames arrive)", ALONE_AFTER
         )
@@ -202,6 +217,10 @@ class DetectorNode:
                 result, frame.stamp, frame.seq, self.cfg.frame, self.R, self.p
             )
             self.pub.put(payload)
+            if self.ros_pub is not None:
+                from thinkfast.contract.ros import point_from_detection
+
+                self.ros_pub.put(point_from_detection(payload))
             self.counters.published += 1
         else:
             c["missed"][result.reason] += 1
@@ -213,4 +232,6 @@ class DetectorNode:
 
     def close(self) -> None:
         self.alone.cancel()
+        if self.ros_node is not None:
+            self.ros_node.close()
         close_session(self.session)
