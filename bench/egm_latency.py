@@ -50,6 +50,7 @@ import json
 import os
 import platform
 import select
+import shlex
 import signal
 import socket
 import subprocess
@@ -225,6 +226,7 @@ def run_daemon(args) -> dict:
         cmd += ["--busy-poll"] if args.busy_poll else ["--spin-ahead-ms", str(args.spin_ahead_ms)]
     cmd += ["--cpu", str(args.cpu)] if args.cpu >= 0 else []
     cmd += ["--fifo", "50"] if args.realtime else []  # the EGM thread only, not zenoh's
+    cmd += shlex.split(args.daemon_args)  # e.g. "--rerun save=/tmp/x.rrd"
     n_throws = int((args.n + args.warmup) / args.rate / args.throw_period) + 3
     stream_cmd = [sys.executable, str(Path(__file__).with_name("throw_stream.py")), "--connect",
                   zenoh_ep, "--prefix", prefix, "--period", str(args.throw_period), "--throws",
@@ -334,6 +336,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="--daemon: throws and camera noise")
     ap.add_argument("--record", help="--daemon: the daemon's flight record (HDF5)")
     ap.add_argument("--daemon-exe", help="--daemon: daemon executable (default thinkfast-run)")
+    ap.add_argument(
+        "--daemon-args",
+        default="",
+        help='--daemon: more thinkfast-run options, one string (e.g. "--rerun save=/tmp/x.rrd")',
+    )
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument(
         "--realtime",

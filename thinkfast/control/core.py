@@ -117,6 +117,11 @@ class ControlCore:
 
     # ------------------------------------------------------------------ queries
     @property
+    def measured(self) -> tuple[float, np.ndarray] | None:
+        """(controller time [s], joints [rad] (6,)) of the last feedback, None before any."""
+        return self._fb
+
+    @property
     def t_next(self) -> float:
         """Controller time of the next cycle [s] (-inf before the first packet)."""
         return self.clock.t + self.cfg.dt

@@ -105,6 +105,12 @@ def run(
     fifo: int | None = typer.Option(
         None, "--fifo", help="run the EGM loop under SCHED_FIFO at this priority (1-99)"
     ),
+    rerun: str | None = typer.Option(
+        None,
+        "--rerun",
+        help="live view with Rerun: spawn, connect[=URL] or save=FILE.rrd (docs/LIVE_VIEW.md; "
+        "needs the view extra); logged in idle time, never in an EGM reply",
+    ),
 ) -> None:
     """Run until SIGINT/SIGTERM, then brake smoothly and exit 0."""
     from thinkfast.contract.zenoh_session import session_config
@@ -135,6 +141,10 @@ def run(
             "limits); use tree, naive or naive-paper",
         )  # fmt: skip
     setup_logging(log_level, log_format)
+    if rerun is not None:
+        from thinkfast.daemon.live_view import parse_sink
+
+        parse_sink(rerun)
     parse_hostport(egm_bind)
     parse_controller(egm_controller)
     if not 0.0 < egm_handover < math.inf:
@@ -175,6 +185,10 @@ def run(
     daemon = Daemon(
         t, robot, cfg, planner, ends, conf, spin_ahead=spin, cpu=cpu, fifo=fifo, modes=modes
     )
+    if rerun is not None:
+        from thinkfast.daemon.live_view import daemon_view
+
+        daemon.view = daemon_view(rerun, robot, daemon.executor.tree, cfg)
     sys.exit(daemon.run())
 
 

@@ -58,6 +58,7 @@ from thinkfast.tree.action_tree import ActionTree
 
 log = logging.getLogger("thinkfast.run")
 STATUS_COST = 0.001  # s set aside for a status message (JSON, timing percentiles)
+VIEW_COST = 0.0015  # s set aside for one live-view job (daemon/live_view.py)
 
 
 @dataclass(frozen=True)
@@ -104,8 +105,10 @@ class Daemon:
         cpu: int | None = None,
         fifo: int | None = None,
         modes: Modes = Modes(),
+        view=None,
     ):
         self.cfg, self.robot, self.planner, self.modes = cfg, robot, planner, modes
+        self.view = view  # live view (daemon/live_view.DaemonView) or None: off
         self.tree_meta = tree.meta
         self.cycle, self.cpu, self.fifo = Cycle(cfg.safety.dt, spin_ahead), cpu, fifo
         self.recorder = Recorder(
@@ -266,6 +269,8 @@ class Daemon:
                 if now >= next_status and self._time_left(now) > STATUS_COST:
                     self.zio.publish_status(self.status(now))
                     next_status = now + status_period
+                if self.view is not None and self._time_left(now) > VIEW_COST:
+                    self.view.service(now, self.last_rx, self.control)
                 self._collect_garbage(now)
                 if self._time_left(now) > 0.0005:
                     self.recorder.service()  # hands a batch of rows to the writer process
@@ -278,6 +283,8 @@ class Daemon:
             self.recorder.close()
             self.egm.close()
             self.zio.close()
+            if self.view is not None:
+                self.view.close()  # logs what is still queued, flushes (a saved file ends)
         log.info("stopped (%s)", self.stop_reason)
         return 0
 
@@ -410,6 +417,8 @@ class Daemon:
         ctl, errors = self.control, self.control.planner_errors
         t0 = time.perf_counter()
         det = ctl.on_detection(payload, now, self._plan_time(now))
+        if self.view is not None:  # queued only: logged in idle time (service)
+            self.view.on_detection(now, payload, det, self.executor)
         if det is None:
             self._log_drop()
             return

@@ -31,6 +31,10 @@ SCHEDULER_HELP = (
     "run as Dask tasks (docs/SWEEPS.md): local (an embedded cluster on this machine), serial "
     "(this process, no Dask) or a running scheduler's address, tcp://HOST:8786; same results"
 )
+RERUN_HELP = (
+    "live view with Rerun: spawn, connect[=URL] or save=FILE.rrd (docs/LIVE_VIEW.md; needs the "
+    "view extra)"
+)
 
 
 def _throw_config(mix: str | None):
@@ -103,6 +107,7 @@ def run(
     detect_config: Path | None = typer.Option(
         None, "--detect-config", help="thinkfast-detect config (TOML, with --frames)"
     ),
+    rerun: str | None = typer.Option(None, "--rerun", help=RERUN_HELP),
 ) -> None:
     """Real time, end to end: daemon process, EGM over UDP, detections over zenoh.
 
@@ -115,6 +120,10 @@ def run(
     from thinkfast.robot.model import load_robot
     from thinkfast.sim.realtime import run_throws, run_with_daemon
 
+    if rerun is not None:
+        from thinkfast.daemon.live_view import parse_sink
+
+        parse_sink(rerun)  # fail here, not in the daemon
     if planner not in ONLINE:
         raise ConfigError("--planner", None, f"{planner!r} is not one of {', '.join(ONLINE)}")
     if frames_resolution not in ("hd720", "vga"):
@@ -134,6 +143,8 @@ def run(
     if egm is not None or zenoh_endpoint is not None:
         if egm is None or zenoh_endpoint is None:
             raise ConfigError("--egm/--zenoh", None, "give both to use a running daemon")
+        if rerun is not None:
+            raise ConfigError("--rerun", None, "not with --egm/--zenoh: give it to that daemon")
         hostport = parse_hostport(egm, "--egm")
         pipeline = None
         if frames:
@@ -154,6 +165,7 @@ def run(
         res = run_with_daemon(
             tree, planner, robot, balls, seed, cfg.camera, key_prefix, record, config,
             frames=frames_resolution if frames else None, detect_config=detect_config,
+            daemon_args=() if rerun is None else ("--rerun", rerun),
         )  # fmt: skip
     k = sum(r.blocked for r in res)
     nt = sum(r.kind != "feint" for r in res)
@@ -339,16 +351,31 @@ def replay(
     zenoh_connect: list[str] | None = typer.Option(None, "--zenoh-connect", help="endpoint"),
     key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
     speed: float = typer.Option(1.0, "--speed", help="replay speed factor"),
+    rerun: str | None = typer.Option(
+        None, "--rerun", help=RERUN_HELP + "; draws the whole record (offline)"
+    ),
+    mcap: Path | None = typer.Option(
+        None, "--mcap", help="write the record as MCAP with ROS 2 messages (Foxglove)"
+    ),
+    tree: Path | None = typer.Option(None, "--tree", help="with --rerun: draw its goal grid"),
 ) -> None:
     """Re-publish a flight record's detections (raw payloads) with their original timing
-    (schema 1 and 2 records, also a partial one)."""
+    (schema 1 and 2 records, also a partial one).
+
+    With --rerun or --mcap the record is converted instead (docs/LIVE_VIEW.md), and its
+    detections are re-published only when --zenoh-connect is given as well.
+    """
     from thinkfast.contract.record_format import read_detections
     from thinkfast.contract.zenoh_session import open_peer
     from thinkfast.errors import ConfigError
 
-    t, payloads = read_detections(record)  # RecordFileError: one line naming the file
     if speed <= 0:
         raise ConfigError("--speed", None, "must be > 0")
+    if rerun is not None or mcap is not None:
+        _convert(record, rerun, mcap, tree)
+        if not zenoh_connect:
+            return
+    t, payloads = read_detections(record)  # RecordFileError: one line naming the file
     session = open_peer(connect=list(zenoh_connect or ()))
     pub = session.declare_publisher(keys.detections(key_prefix))
     time.sleep(0.5)
@@ -367,6 +394,84 @@ def replay(
             "--zenoh-connect to its endpoint)",
             file=sys.stderr,
         )
+
+
+def _convert(record: Path, rerun: str | None, mcap: Path | None, tree: Path | None) -> None:
+    """``--rerun`` and ``--mcap`` of replay and the record commands."""
+    from thinkfast.contract.record_format import read_record
+
+    sink = None
+    if rerun is not None:
+        from thinkfast.daemon.live_view import parse_sink
+
+        sink = parse_sink(rerun)  # before reading: a bad option fails at once
+    rec = read_record(record)
+    if mcap is not None:
+        from thinkfast.daemon.record_mcap import write_mcap
+        from thinkfast.daemon.record_tables import run_config
+        from thinkfast.robot.model import load_robot
+
+        cfg = run_config(rec)
+        robot = load_robot(Path(cfg.robot) if cfg.robot else None)
+        counts = write_mcap(rec, mcap, robot.joint_names)
+        print(f"wrote {sum(counts.values())} messages on {len(counts)} topics to {mcap}")
+    if sink is not None:
+        from thinkfast.daemon.record_view import record_to_rerun
+
+        counts = record_to_rerun(rec, sink, tree)
+        what = ", ".join(f"{n} {k}" for k, n in counts.items())
+        print(f"rerun ({sink.kind}{' ' + sink.target if sink.target else ''}): {what}")
+
+
+record_app = typer.Typer(
+    help="Flight records of thinkfast-run: summary, plot, MCAP, Rerun.",
+    no_args_is_help=True,
+    rich_markup_mode=None,
+)
+app.add_typer(record_app, name="record")
+
+
+@record_app.command("info")
+def record_info_cmd(
+    record: Path = typer.Argument(..., help="flight record (HDF5)"),
+) -> None:
+    """Attributes, streams, span, EGM rate and events of a flight record."""
+    from thinkfast.contract.record_format import read_record
+    from thinkfast.daemon.record_plot import record_info
+
+    print("\n".join(record_info(read_record(record))))
+
+
+@record_app.command("plot")
+def record_plot_cmd(
+    record: Path = typer.Argument(..., help="flight record (HDF5)"),
+    output: Path = typer.Option(..., "-o", "--output", help="PNG to write"),
+) -> None:
+    """Joints, ball track against the belief, crossing prediction and decisions, as PNG."""
+    from thinkfast.contract.record_format import read_record
+    from thinkfast.daemon.record_plot import plot_record
+
+    plot_record(read_record(record), output)
+    print(f"wrote {output}", flush=True)
+
+
+@record_app.command("mcap")
+def record_mcap_cmd(
+    record: Path = typer.Argument(..., help="flight record (HDF5)"),
+    output: Path = typer.Option(..., "-o", "--output", help="MCAP file to write"),
+) -> None:
+    """The record as MCAP with ROS 2 messages (sensor_msgs/JointState, PointStamped, ...)."""
+    _convert(record, None, output, None)
+
+
+@record_app.command("view")
+def record_view_cmd(
+    record: Path = typer.Argument(..., help="flight record (HDF5)"),
+    rerun: str = typer.Option("spawn", "--rerun", help=RERUN_HELP),
+    tree: Path | None = typer.Option(None, "--tree", help="draw its goal grid"),
+) -> None:
+    """The record in the Rerun viewer (the live view's entities, offline)."""
+    _convert(record, rerun, None, tree)
 
 
 def main(argv: list[str] | None = None) -> None:

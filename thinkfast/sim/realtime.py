@@ -221,14 +221,17 @@ def run_with_daemon(
     report=print,
     frames: str | None = None,
     detect_config: Path | None = None,
+    daemon_args: tuple[str, ...] = (),
 ):
     """Start a daemon, throw, stop it (SIGINT: it brakes and exits 0); returns the results.
+
+    ``daemon_args``: more ``thinkfast-run`` options (e.g. ``("--rerun", "spawn")``).
 
     ``frames`` (``"hd720"`` or ``"vga"``): publish rendered camera frames to a ``thinkfast-detect``
     process (configured by ``detect_config``) instead of detections to the daemon.
     """
     egm_port, zport = free_tcp_port(), free_tcp_port()
-    proc = start_daemon(tree, planner, egm_port, zport, prefix, record, config)
+    proc = start_daemon(tree, planner, egm_port, zport, prefix, record, config, daemon_args)
     pipeline = None
     try:
         wait_port(proc, zport)
