@@ -1,33 +1,65 @@
 """Throw episodes as a state machine: idle -> tracking -> executing -> returning -> idle.
 
-Pure logic, no I/O and no clock reads: the daemon and the lockstep simulator feed it detections
-(``on_detection``) and ask for the setpoint of every 4 ms tick (``setpoint``), both with the wall
-time. States:
+Pure logic, no I/O and no clock reads: the control core (:mod:`thinkfast.control.core`, driven
+by the daemon and by the lockstep simulator) feeds it detections (``on_detection``) and asks for
+the setpoint of every 4 ms tick (``setpoint``), both with the time the plans run on. States
+(:class:`Mode`; tests/test_executor_modes.py drives every transition):
 
 - ``idle``: at home, no ball. The first detection starts ``tracking``.
-- ``tracking``: the filter follows the ball; a throw is confirmed once the belief shows it
-  approaching the plane (``throw.confirm_updates`` beliefs in a row: a ball held still never
-  is). With the tree planner the robot leaves home once the best branch at the root blocks with
-  at least ``min_move_value`` and is not "stay"; the naive planner leaves at once.
-- ``executing``: tree planner: every ``eps`` the robot takes the best child of the node it reaches
-  (a primitive in progress is finished), or commits to the node's best terminal edge when that is
-  worth more. Once committed, every belief update re-targets Ruckig to the most probable goal
-  when it differs from the committed one (the tree is exhausted: the paper's fallback). When no
-  branch at home blocks with at least ``min_move_value`` (the ball comes too fast for any edge to
-  arrive in time), the robot rushes to the most probable goal anyway, re-targeted at every
-  belief: a shield on its way may still catch the ball. Naive planner: at every belief update,
-  Ruckig from the commanded state to the goal nearest the most likely crossing point.
-  ``naive-paper`` (the paper's baseline): the same, from the first belief that predicts a
-  throw (mean approach speed above ``min_approach_speed``, crossing within ``max_tau`` near the
-  goals), with neither the launch detector nor the confirmation.
-- ``returning``: after the crossing (plus ``after_crossing``) or when detections stop, a move to
-  home within the limits; then ``idle``.
-- away from home at start (``away``): with ``home_on_start`` (the simulators) the arm returns
-  home first; without it (the daemon, unless ``--go-home``) it holds where it stands and ignores
+- ``tracking``: the filter follows the ball (started afresh when the previous detection is older
+  than ``throw.detection_timeout``). A belief *predicts a throw* when the ball approaches the
+  plane faster than ``min_approach_speed`` at ``approach_sigmas``, its crossing is due within
+  ``max_tau`` and lies within ``region_margin`` of the goal grid; a ball held still never does.
+  Once the filter has absorbed ``settle_updates`` updates since its last (re)start, each belief
+  that predicts a throw adds one to a count and each one that does not takes one off (never
+  below zero: one outlier frame costs one step, not the whole count); the throw is confirmed
+  when the count reaches ``confirm_updates``. A launch found by the launch detector
+  (``[launch]``) restarts the filter from its fit, and confirms at once when that belief
+  predicts a throw. From the confirmation on, every belief goes to the planner, which leaves
+  home (``executing``) as below. No detection for ``detection_timeout`` (counted from the last
+  stamp plus ``stamp_lag``) ends the episode: back to ``idle``.
+- ``executing``: what the planner does at every belief from the confirmation on:
+  - ``tree`` (the re-rooted choice, :mod:`thinkfast.decide.choice`): the best of continuing
+    the motion in progress (at home: waiting there), direct moves to goals and (``[choice]
+    branches``) the compiled child edges of the node the arm is at; a move or a branch replaces
+    continuing only when it is worth ``switch_margin`` more. When continuing wins but is worth
+    less than ``min_move_value`` (the ball comes too fast for any move to help), it rushes to
+    the goal nearest the most likely crossing point, as ``naive`` does.
+  - ``tree-rest`` (the paper's at-rest tree): the arm leaves home once the root of the at-rest
+    backup blocks with at least ``min_move_value`` and its best first edge is not "stay"; every
+    ``eps`` it takes the best child of the node it reaches (a primitive in progress is finished), or
+    commits to the node's best terminal edge when that is worth more. Once committed, every belief
+    re-targets Ruckig to the most probable goal when it differs from the committed one (the tree is
+    exhausted: the paper's fallback). When the root is worth less than ``min_move_value``, it rushes
+    to the most probable goal, re-targeted at every belief.
+  - ``naive``: at every belief, Ruckig from the commanded state to the goal nearest the most likely
+    crossing point (it leaves home at the confirmation).
+  - ``naive-paper`` (the paper's baseline): the same, from the first belief that predicts a throw at
+    zero sigmas (mean approach speed), with neither the launch detector, the settling nor the count.
+  A throw ends (``returning``) at the first tick after its predicted crossing plus
+  ``controller_lag`` plus ``after_crossing``, after ``max_blind`` without a detection, or after
+  ``detection_timeout`` without one when no crossing was ever predicted: a silence alone does not
+  end a throw whose crossing is still ahead (the ball may leave the camera's view before the plane).
+- ``returning``: detections are ignored; a move home within the return limits
+  (``return_speed_scale``; the full limits when those cannot brake it). When the way home ends
+  elsewhere, was replaced by a hold (a :meth:`resync` Ruckig could not plan) or was never
+  planned, it is planned again from the commanded state. ``idle`` once joints 1-3 are home at
+  rest and the wrist is home (``wrist_home_tolerance``, ``wrist_home_speed``), or
+  ``wrist_home_timeout`` after the arm's way home ended.
+- away from home at start (``away``; the mode is ``idle``): :meth:`start_from` further than
+  ``HOME_TOLERANCE`` from home. With ``home_on_start`` (the simulators) the arm returns home at
+  once; without it (the daemon, unless ``--go-home``) it holds where it stands and ignores
   balls until :meth:`go_home` (called once the way home was checked against the cell) or until
   it starts again at home.
-- ``fault``: latched by the daemon after repeated supervisor faults (:meth:`hold_fault`); left
-  only by a restart. A single fault is recovered from: :meth:`recover` returns home.
+- ``fault``: :meth:`hold_fault`, called by the control core once supervisor faults repeat
+  (latched): the throw is dropped, detections are ignored and no tick changes the mode; only a
+  restart (:meth:`start_from`) leaves it. The setpoints go on with the motion in progress,
+  resynchronised at the stop (:meth:`resync`): the core keeps its supervisor braked, so the arm
+  holds. A single fault is recovered from: :meth:`recover` drops the throw and returns home
+  from where the arm was stopped.
+
+A confirmed throw is counted in ``episodes`` (and kept as ``last_episode``) when its episode is
+dropped: back at ``idle``, at a fault, a recovery or a restart.
 """
 
 from __future__ import annotations
@@ -508,7 +540,9 @@ class Executor:
         self._start_return(t)
 
     def hold_fault(self, q: np.ndarray, t: float) -> None:
-        """Latched fault: drop the throw and hold ``q`` (6,) until restarted."""
+        """Latched fault: drop the throw and stay in ``fault`` until restarted. The motion in
+        progress is resynchronised at ``q`` (6,) at rest (:meth:`resync`), not replaced by a
+        hold: the control core's braked supervisor holds the arm (module doc)."""
         self.resync(q, np.zeros(6), np.zeros(6), t)
         self._reset_episode(FAULT)
 
