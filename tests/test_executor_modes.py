@@ -233,10 +233,6 @@ def _throw_row(planner: str, kinds: tuple[str, ...], cfg: RunConfig = CFG) -> Ro
     )
 
 
-HOLD_FAULT_MOVES = (
-    "hold_fault resynchronises with the same intent (resync), so the move in progress goes on "
-    "in fault; the control core keeps the supervisor braked then, so the arm holds anyway"
-)
 WIDE = Ball(aim=(2.6, 0.9))  # crosses 1.1 m beside the goal grid's margin
 LOB = Ball(flight=1.4, t_lost=RELEASE + 0.3)  # a slow lob lost from view 0.3 s after release
 
@@ -432,7 +428,6 @@ ROWS = [
         (call("hold_fault", "here"), tick(RELEASE + 0.5)),
         (EXECUTING, FAULT),
         kind=HOLD,
-        xfail=HOLD_FAULT_MOVES,
     ),
     Row(
         "fault:holds where it was stopped, from returning",
@@ -442,7 +437,6 @@ ROWS = [
         (RETURNING, FAULT),
         kind=HOLD,
         at_home=False,
-        xfail=HOLD_FAULT_MOVES,
     ),
     Row(
         "fault:detections and time are ignored",

@@ -53,9 +53,8 @@ the setpoint of every 4 ms tick (``setpoint``), both with the time the plans run
   it starts again at home.
 - ``fault``: :meth:`hold_fault`, called by the control core once supervisor faults repeat
   (latched): the throw is dropped, detections are ignored and no tick changes the mode; only a
-  restart (:meth:`start_from`) leaves it. The setpoints go on with the motion in progress,
-  resynchronised at the stop (:meth:`resync`): the core keeps its supervisor braked, so the arm
-  holds. A single fault is recovered from: :meth:`recover` drops the throw and returns home
+  restart (:meth:`start_from`) leaves it. The setpoints hold the position where the arm was
+  stopped (and the core keeps its supervisor braked). A single fault is recovered from: :meth:`recover` drops the throw and returns home
   from where the arm was stopped.
 
 A confirmed throw is counted in ``episodes`` (and kept as ``last_episode``) when its episode is
@@ -540,10 +539,11 @@ class Executor:
         self._start_return(t)
 
     def hold_fault(self, q: np.ndarray, t: float) -> None:
-        """Latched fault: drop the throw and stay in ``fault`` until restarted. The motion in
-        progress is resynchronised at ``q`` (6,) at rest (:meth:`resync`), not replaced by a
-        hold: the control core's braked supervisor holds the arm (module doc)."""
-        self.resync(q, np.zeros(6), np.zeros(6), t)
+        """Latched fault: drop the throw and hold ``q`` (6,) at rest until restarted (the control
+        core's braked supervisor holds the arm too; the requests say the same)."""
+        q = np.asarray(q, dtype=float)
+        self.wrist.reset(q[3:], t)
+        self.segment = hold(np.r_[q[:3], np.zeros(6)], t)
         self._reset_episode(FAULT)
 
     def resync(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, t: float) -> None:
