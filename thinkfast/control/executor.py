@@ -54,7 +54,8 @@ the setpoint of every 4 ms tick (``setpoint``), both with the time the plans run
 - ``fault``: :meth:`hold_fault`, called by the control core once supervisor faults repeat
   (latched): the throw is dropped, detections are ignored and no tick changes the mode; only a
   restart (:meth:`start_from`) leaves it. The setpoints hold the position where the arm was
-  stopped (and the core keeps its supervisor braked). A single fault is recovered from: :meth:`recover` drops the throw and returns home
+  stopped (and the core keeps its supervisor braked). A single fault is recovered from:
+  :meth:`recover` drops the throw and returns home
   from where the arm was stopped.
 
 A confirmed throw is counted in ``episodes`` (and kept as ``last_episode``) when its episode is
