@@ -61,7 +61,7 @@ def test_cameras_are_read_from_an_array_of_tables(tmp_path):
         ("[[cameras]]\nid = 'a'\n[[cameras]]\nid = 'a'\n", "cameras[1].id"),
         ("[[cameras]]\nid = 'a b'\n", "cameras[0].id"),
         ("[[cameras]]\nxyz = [1.0, 2.0, 3.0]\n", "cameras[0].id"),
-        ("[fusion]\nreference = 'side'\n", "fusion.reference"),
+        ("[[cameras]]\nid = 'top'\n[fusion]\nreference = 'side'\n", "fusion.reference"),
     ],
 )
 def test_a_bad_camera_table_names_its_key(tmp_path, text, key):
@@ -245,3 +245,48 @@ def test_the_side_camera_sees_the_whole_corridor():
         dets = observe_cameras(th, (cam,), k, 0.0)
         t = np.array([d.capture_stamp for d in dets])
         assert t.min() < -th.t_release + 0.1 and t.max() > plane_crossing(th).t - 0.05
+
+
+# ------------------------------------------------------------------ tools
+def test_bench_cameras_option_names_the_set_up_and_refuses_a_bad_one():
+    from thinkfast.sim.cli import with_cameras
+
+    assert with_cameras(BASE, None) is BASE
+    assert with_cameras(TWO, "base").cameras == ()
+    assert [c.id for c in with_cameras(BASE, "base,side").cameras] == ["side"]
+    top = dataclasses.replace(SIDE_CAMERA, id="top")
+    assert with_cameras(dataclasses.replace(BASE, cameras=(top,)), "base,top").cameras == (top,)
+    for bad in ("side", "base,base", "base,nope", ""):
+        with pytest.raises(ConfigError) as err:
+            with_cameras(BASE, bad)
+        assert err.value.source == "--cameras"
+
+
+def test_calibrating_another_camera_writes_a_cameras_table():
+    import tomllib
+
+    from thinkfast.calib.camera_fit import CameraFit, camera_toml
+    from thinkfast.config import from_dict
+    from thinkfast.estimate.fusion import CameraConfig
+
+    fit = CameraFit(
+        np.array([4.7, 3.9, 1.25]), np.array([0.01, -0.02, -1.55]), np.eye(3), np.zeros(3), [],
+        0.003, 100, 2, np.full(3, 1e-3), np.full(3, 1e-4), 1.0,
+    )  # fmt: skip
+    doc = tomllib.loads(camera_toml(fit, "side.jsonl", "side"))
+    assert "camera" not in doc and doc["cameras"][0]["id"] == "side"
+    cam = from_dict(CameraConfig, doc["cameras"][0], "side.toml", "cameras[0]")
+    assert np.allclose(cam.xyz, fit.xyz) and np.allclose(cam.rpy, fit.rpy, atol=1e-6)
+    assert "camera" in tomllib.loads(camera_toml(fit, "base.jsonl"))  # the default camera
+
+
+def test_the_detector_stamps_its_camera_id():
+    from thinkfast.contract import keys
+    from thinkfast.perception.detect import detection_payload as detector_payload
+
+    found = type("Found", (), {"position": np.array([5.0, 0.1, 0.2]), "confidence": 0.9})()
+    msg = parse_detection(detector_payload(found, 3.0, 1, camera="side"))
+    assert msg.camera == "side"
+    assert parse_detection(detector_payload(found, 3.0, 1)).camera is None
+    assert keys.camera_frame("tf", "side") == "tf/camera/side/frame"
+    assert keys.camera_frame("tf") == "tf/camera/frame"

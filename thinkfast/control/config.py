@@ -177,8 +177,8 @@ def load_run_config(path: str | Path | None) -> RunConfig:
 
 
 def check_cameras(cfg: RunConfig, source: str) -> RunConfig:
-    """``cfg`` once its camera ids are distinct, none is the default camera's and the fusion
-    reference is one of them.
+    """``cfg`` once its camera ids are distinct, none is the default camera's and (with any)
+    the fusion reference is one of them.
 
     Raises:
         ConfigError: names the ``cameras[i].id`` or ``fusion.reference`` key.
@@ -191,7 +191,11 @@ def check_cameras(cfg: RunConfig, source: str) -> RunConfig:
             what = "the default camera's ([camera])" if cam.id == DEFAULT_CAMERA else "taken"
             raise ConfigError(source, f"cameras[{i}].id", f"{cam.id!r} is {what}")
         seen.add(cam.id)
-    if cfg.fusion.reference not in seen:
+    if cfg.fusion.check_fail > cfg.fusion.check_window:
+        raise ConfigError(
+            source, "fusion.check_fail", f"above fusion.check_window ({cfg.fusion.check_window})"
+        )
+    if cfg.cameras and cfg.fusion.reference not in seen:  # [fusion] is unused without them
         raise ConfigError(
             source, "fusion.reference", f"{cfg.fusion.reference!r} is not one of {sorted(seen)}"
         )

@@ -111,7 +111,7 @@ class FusionConfig:
     reference: str = spec(
         DEFAULT_CAMERA, doc="camera the others are checked against (never itself rejected)"
     )
-    check: bool = spec(True, doc="check every other camera against the reference (module doc)")
+    check: bool = spec(True, doc="check every other camera against the reference (docs/CAMERAS.md)")
     check_alpha: float = spec(
         0.001, lo=1e-9, hi=0.5, doc="false-failure rate of one consistency test (3 dof)"
     )
