@@ -22,7 +22,10 @@ fused once ``trust_after`` of its detections passed; it is inconsistent while ``
 its last ``check_window`` tests failed, and every detection of it is then counted
 ``inconsistent_camera`` and dropped (it is still tested: a camera whose detections agree again
 is fused again). While the reference camera has no track (it lost the ball, or never saw it)
-nothing is tested and a camera not inconsistent is fused.
+nothing is tested: a trusted camera goes on being fused (one camera dropping out leaves the
+other tracking), one never tested is not. The record is kept for the life of the check (the
+daemon's run): trust earned on one hold carries to the next throws. Without a reference camera
+that sees the holds, set ``check = false`` or make another camera the reference.
 """
 
 from __future__ import annotations
@@ -197,16 +200,13 @@ class CameraCheck:
         it (``fused``, ``rejected``, ``untrusted``)."""
         st = self.state(camera)
         if self.cfg.check:
-            tracked = self.ref.n_meas >= 2 and abs(stamp - self.ref_last) <= self.timeout
+            tracked = self.ref.n_meas >= 2 and stamp - self.ref_last <= self.timeout
             slow = float(np.linalg.norm(self.ref.mean[3:])) < self.cfg.check_speed
             if tracked and slow and self.ref_clean >= self.cfg.check_settle:
                 ok = self.nis(stamp, z, r_model) <= self.limit
                 st.tests.append(ok)
                 st.passed += ok
                 st.inconsistent = len(st.tests) - sum(st.tests) >= self.cfg.check_fail
-            elif not tracked and not st.inconsistent:
-                st.fused += 1
-                return True  # nothing to check against: fuse (module doc)
         if st.inconsistent:
             st.rejected += 1
             return False
