@@ -9,6 +9,10 @@
 Both overall and by kind of throw (the default mix: still holds and wind-ups).
 
     python bench/reaction.py --throws 200 [--tree trees/irb1600_default.h5] [--json]
+        [--cameras base,side]
+
+``--cameras`` (as ``thinkfast-sim bench --cameras``, docs/CAMERAS.md): the cameras that see the
+throws; "seen k" counts flight detections of any camera.
 """
 
 from __future__ import annotations
@@ -25,7 +29,8 @@ from thinkfast.control.config import RunConfig
 from thinkfast.machine import machine_info
 from thinkfast.robot.model import load_robot
 from thinkfast.sim import lockstep as ls
-from thinkfast.sim.camera import CameraModelConfig, observe
+from thinkfast.sim.camera import CameraModelConfig, observe_cameras
+from thinkfast.sim.cli import with_cameras
 from thinkfast.sim.controller import ServoConfig
 from thinkfast.sim.throws import ThrowConfig, sample_throws
 from thinkfast.tree.file import load_tree
@@ -34,10 +39,9 @@ DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.
 _W: dict = {}
 
 
-def _init(tree: str) -> None:
-    _W["world"] = ls.World(
-        load_tree(tree), load_robot(), RunConfig(), ServoConfig(), CameraModelConfig()
-    )
+def _init(tree: str, cameras: str | None = None) -> None:
+    cfg = with_cameras(RunConfig(), cameras)
+    _W["world"] = ls.World(load_tree(tree), load_robot(), cfg, ServoConfig(), CameraModelConfig())
 
 
 def _one(job) -> dict:
@@ -45,7 +49,7 @@ def _one(job) -> dict:
     w = _W["world"]
     t_rel = ls.LEAD + th.t_release
     cam_seed = seed * 100_003 + i  # the bench's camera noise for throw i
-    dets = observe(th, w.camera, w.cfg.camera, np.random.default_rng(cam_seed), t_rel)
+    dets = observe_cameras(th, w.cameras, cam_seed, t_rel)
     seen = sorted(d.delivery_time for d in dets if d.capture_stamp > t_rel)
 
     def oracle_from(delay: float) -> bool:
@@ -86,13 +90,14 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--cameras", default=None, help="e.g. base,side (default: the base camera)")
     args = ap.parse_args()
     throws = sample_throws(ThrowConfig(), args.throws, args.seed)
     jobs = [(i, th, args.seed) for i, th in enumerate(throws)]
-    with mp.get_context("fork").Pool(args.jobs, _init, (args.tree,)) as pool:
+    with mp.get_context("fork").Pool(args.jobs, _init, (args.tree, args.cameras)) as pool:
         rows = pool.map(_one, jobs)
     kinds = sorted({r["kind"] for r in rows})
-    out = {"seed": args.seed, "all": _summary(rows)}
+    out = {"seed": args.seed, "cameras": args.cameras or "base", "all": _summary(rows)}
     out["by_kind"] = {k: _summary([r for r in rows if r["kind"] == k]) for k in kinds}
     out["machine"] = machine_info()
     if args.json:

@@ -261,16 +261,19 @@ def fit_report(fit: CameraFit, source: str) -> str:
     return "\n".join(lines)
 
 
-def camera_toml(fit: CameraFit, source: str) -> str:
+def camera_toml(fit: CameraFit, source: str, camera_id: str | None = None) -> str:
     """The fitted pose as a TOML file: a ``[camera]`` table that the run and detect configs take
-    (``camera_file = "..."`` or pasted), and a ``[calibration]`` table they ignore."""
+    (``camera_file = "..."`` or pasted), and a ``[calibration]`` table they ignore. With
+    ``camera_id`` (another camera than the default one, docs/CAMERAS.md) the pose is a
+    ``[[cameras]]`` table with that ``id`` instead, to paste into the run config."""
     flagged = [r.index for r in fit.poses if r.flag]
     deg = np.degrees
+    head = "[camera]\n" if camera_id is None else f"[[cameras]]\nid = {json.dumps(camera_id)}\n"
     return (
         f"# thinkfast-calib camera: pose of the camera in base, fitted from {source}\n"
         f"# rpy in degrees: [{', '.join(f'{v:.3f}' for v in deg(fit.rpy))}]\n"
-        "[camera]\n"
-        f"xyz = [{', '.join(f'{v:.6f}' for v in fit.xyz)}]\n"
+        + head
+        + f"xyz = [{', '.join(f'{v:.6f}' for v in fit.xyz)}]\n"
         f"rpy = [{', '.join(f'{v:.7f}' for v in fit.rpy)}]\n"
         "\n"
         "[calibration]\n"

@@ -123,19 +123,30 @@ def camera(
         False, "--fit-ball-offset", help="fit the ball's mount offset on the shield too"
     ),
     robot: Path | None = ROBOT,
+    camera_id: str | None = typer.Option(
+        None,
+        "--camera",
+        help="another camera than the default one (docs/CAMERAS.md): write a [[cameras]] table "
+        "with this id, to paste into the run config",
+    ),
 ) -> None:
-    """Fit the camera pose in base; write it as a [camera] table (camera_file = OUTPUT)."""
+    """Fit the camera pose in base; write it as a [camera] table (camera_file = OUTPUT), or with
+    --camera ID as a [[cameras]] table with that id."""
     from thinkfast.calib.camera_fit import camera_toml, fit_camera, fit_report
     from thinkfast.calib.camera_record import read_camera_record
+    from thinkfast.contract.detection import CAMERA_ID
+    from thinkfast.errors import ConfigError
     from thinkfast.robot.model import load_robot
 
+    if camera_id is not None and (camera_id == "base" or not CAMERA_ID.fullmatch(camera_id)):
+        raise ConfigError("--camera", None, f"{camera_id!r}: not base; 1-64 of A-Z a-z 0-9 _ . -")
     rec = read_camera_record(record)
     fit = fit_camera(rec.poses, load_robot(robot), fit_offset=fit_ball_offset)
     print(fit_report(fit, str(record)))
     truth = rec.header.get("truth")
     if isinstance(truth, dict):
         print(_truth_line(fit, truth))
-    output.write_text(camera_toml(fit, str(record)), encoding="utf-8")
+    output.write_text(camera_toml(fit, str(record), camera_id), encoding="utf-8")
     print(f"wrote {output}")
 
 

@@ -14,7 +14,9 @@ contract is silent:
 * ``seq`` is an integer in [0, 2**63) (it must fit an int64 column); ``stamp`` a finite number
   >= 0 (plausibility against the receiver's clock is the intake's job);
 * ``position`` components beyond ``DetectionLimits.max_abs_position`` are rejected: no camera
-  sees a ball that far, and such values would only poison the filter.
+  sees a ball that far, and such values would only poison the filter;
+* ``camera`` (which camera measured it, docs/CAMERAS.md) is 1-64 characters of letters, digits,
+  ``_``, ``.`` and ``-``; absent means the default camera (the run config's ``[camera]``).
 """
 
 from __future__ import annotations
@@ -22,16 +24,20 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from thinkfast.config import spec
 
+# the last two are the intake's and the executor's (docs/CAMERAS.md), not the parser's
 REJECT_REASONS = (
     "not_bytes", "too_large", "not_utf8", "not_json", "not_object", "missing_stamp", "bad_stamp",
     "missing_position", "bad_position", "bad_frame", "bad_confidence", "bad_seq", "bad_covariance",
+    "bad_camera", "unknown_camera", "inconsistent_camera",
 )  # fmt: skip
+CAMERA_ID = re.compile(r"[A-Za-z0-9_.-]{1,64}")  # a camera id: 1-64 letters, digits, _ . -
 FRAMES = ("camera", "base")
 
 
@@ -75,6 +81,7 @@ class Detection(NamedTuple):
         confidence: detector confidence in [0, 1], or None if not sent.
         seq: sender's sequence number, or None.
         covariance: position covariance [m^2], shape (3, 3), read-only, in ``frame``, or None.
+        camera: id of the camera that measured it, or None (the default camera).
     """
 
     stamp: float
@@ -83,6 +90,7 @@ class Detection(NamedTuple):
     confidence: float | None = None
     seq: int | None = None
     covariance: np.ndarray | None = None
+    camera: str | None = None
 
 
 class Rejection(NamedTuple):
@@ -187,7 +195,10 @@ def parse_detection(
         cov = _covariance(cov, limits.covariance_tol, limits.max_abs_covariance)
         if cov is None:
             return Rejection("bad_covariance", repr(obj["covariance"])[:80])
-    return Detection(stamp, _frozen(np.array(pos)), frame, conf, seq, cov)
+    camera = obj.get("camera")
+    if camera is not None and not (isinstance(camera, str) and CAMERA_ID.fullmatch(camera)):
+        return Rejection("bad_camera", repr(camera)[:80])
+    return Detection(stamp, _frozen(np.array(pos)), frame, conf, seq, cov, camera)
 
 
 class DetectionCounters:
@@ -221,10 +232,12 @@ def encode_detection(
     confidence: float | None = None,
     seq: int | None = None,
     covariance=None,
+    camera: str | None = None,
 ) -> bytes:
     """One detection message as UTF-8 JSON: ``stamp`` [s since the Unix epoch], ball centre
     ``position`` [m] (3,) in ``frame`` (``camera`` or ``base``); the optional keys are left out
-    when None (``covariance``: (3, 3) [m^2] in ``frame``, sent row major)."""
+    when None (``covariance``: (3, 3) [m^2] in ``frame``, sent row major; ``camera``: the id of
+    the camera that measured it)."""
     obj: dict[str, Any] = {
         "stamp": float(stamp),
         "position": [float(x) for x in position],
@@ -236,4 +249,6 @@ def encode_detection(
         obj["seq"] = int(seq)
     if covariance is not None:
         obj["covariance"] = [float(x) for x in np.asarray(covariance).ravel()]
+    if camera is not None:
+        obj["camera"] = str(camera)
     return json.dumps(obj).encode("utf-8")

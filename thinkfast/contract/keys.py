@@ -20,14 +20,16 @@ def status(prefix: str = DEFAULT_PREFIX) -> str:
     return f"{prefix}/status"
 
 
-def camera_frame(prefix: str = DEFAULT_PREFIX) -> str:
-    """Camera frames for ``thinkfast-detect`` (docs/CAMERA_FRAMES.md)."""
-    return f"{prefix}/camera/frame"
+def camera_frame(prefix: str = DEFAULT_PREFIX, camera: str | None = None) -> str:
+    """Camera frames for ``thinkfast-detect`` (docs/CAMERA_FRAMES.md); another camera than the
+    default one (docs/CAMERAS.md) has its own, ``<prefix>/camera/<id>/frame``."""
+    return f"{prefix}/camera/frame" if camera is None else f"{prefix}/camera/{camera}/frame"
 
 
-def camera_boxes(prefix: str = DEFAULT_PREFIX) -> str:
-    """Boxes from an external detector (optional; docs/CAMERA_FRAMES.md)."""
-    return f"{prefix}/camera/boxes"
+def camera_boxes(prefix: str = DEFAULT_PREFIX, camera: str | None = None) -> str:
+    """Boxes from an external detector (optional; docs/CAMERA_FRAMES.md), per camera as
+    :func:`camera_frame`."""
+    return f"{prefix}/camera/boxes" if camera is None else f"{prefix}/camera/{camera}/boxes"
 
 
 def detector_status(prefix: str = DEFAULT_PREFIX) -> str:

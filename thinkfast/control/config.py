@@ -9,13 +9,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from thinkfast.config import from_dict, include_table, load_toml, spec, to_toml
-from thinkfast.contract.detection import DetectionLimits
+from thinkfast.contract.detection import CAMERA_ID, DetectionLimits
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.control.safety import SafetyConfig
 from thinkfast.decide.choice import ChoiceConfig
 from thinkfast.decide.path_value import PathValueConfig
 from thinkfast.decide.values import ValueConfig
+from thinkfast.errors import ConfigError
 from thinkfast.estimate.filter import FilterConfig
+from thinkfast.estimate.fusion import DEFAULT_CAMERA, CameraConfig, FusionConfig
 from thinkfast.estimate.launch import LaunchConfig
 
 
@@ -132,6 +134,12 @@ class RunConfig:
 
     robot: str = spec("", doc="robot.toml path (default: the robot the tree names, else default)")
     camera: CameraExtrinsic = spec(CameraExtrinsic())
+    cameras: tuple[CameraConfig, ...] = spec(
+        (),
+        doc="more cameras, [[cameras]] tables (docs/CAMERAS.md); [camera] is the default one, "
+        "id base",
+    )
+    fusion: FusionConfig = spec(FusionConfig())
     detections: DetectionLimits = spec(DetectionLimits())
     filter: FilterConfig = spec(
         FilterConfig(
@@ -165,7 +173,33 @@ def load_run_config(path: str | Path | None) -> RunConfig:
     if path is None:
         return RunConfig()
     data = include_table(load_toml(path), path, "camera_file", "camera", CameraExtrinsic)
-    return from_dict(RunConfig, data, str(path))
+    return check_cameras(from_dict(RunConfig, data, str(path)), str(path))
+
+
+def check_cameras(cfg: RunConfig, source: str) -> RunConfig:
+    """``cfg`` once its camera ids are distinct, none is the default camera's and (with any)
+    the fusion reference is one of them.
+
+    Raises:
+        ConfigError: names the ``cameras[i].id`` or ``fusion.reference`` key.
+    """
+    seen = {DEFAULT_CAMERA}
+    for i, cam in enumerate(cfg.cameras):
+        if not CAMERA_ID.fullmatch(cam.id):
+            raise ConfigError(source, f"cameras[{i}].id", f"{cam.id!r}: 1-64 of A-Z a-z 0-9 _ . -")
+        if cam.id in seen:
+            what = "the default camera's ([camera])" if cam.id == DEFAULT_CAMERA else "taken"
+            raise ConfigError(source, f"cameras[{i}].id", f"{cam.id!r} is {what}")
+        seen.add(cam.id)
+    if cfg.fusion.check_fail > cfg.fusion.check_window:
+        raise ConfigError(
+            source, "fusion.check_fail", f"above fusion.check_window ({cfg.fusion.check_window})"
+        )
+    if cfg.cameras and cfg.fusion.reference not in seen:  # [fusion] is unused without them
+        raise ConfigError(
+            source, "fusion.reference", f"{cfg.fusion.reference!r} is not one of {sorted(seen)}"
+        )
+    return cfg
 
 
 RUN_CONFIG_TITLE = """thinkfast-run configuration (--config FILE): every key at its default.

@@ -164,7 +164,10 @@ class ControlCore:
             return None
         self._prepared = None  # the plan changes: prepare again
         try:
-            self.ex.on_detection(t_plan, det.stamp, det.position)
+            refused = self.ex.on_detection(t_plan, det.stamp, det.position, det.camera)
+            if refused is not None:
+                self.intake.reject_accepted(refused)
+                return None
         except Exception as exc:  # a planner bug must not stop the EGM loop: stop the arm
             self.planner_errors += 1
             self.last_error = exc

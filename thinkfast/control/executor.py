@@ -86,6 +86,7 @@ from thinkfast.decide.branches import BranchTable
 from thinkfast.decide.choice import BRANCH, DIRECT, BranchPoint, Chooser
 from thinkfast.decide.tree_view import Decision, RuntimeTree
 from thinkfast.estimate import filter as kf
+from thinkfast.estimate.fusion import DEFAULT_CAMERA, CameraCheck, camera_filter
 from thinkfast.estimate.launch import LaunchDetector
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering
@@ -159,6 +160,19 @@ class Executor:
         self.pending: tuple[int, float] | None = None  # (child node, wall time it starts)
         self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
         self.launch = LaunchDetector(cfg.launch, cfg.filter, self.sensor)
+        # several cameras (docs/CAMERAS.md): each one's origin and noise model, and the check
+        # that keeps a camera with a wrong extrinsic out; None with the default camera alone
+        self.sensors: dict[str | None, tuple[np.ndarray, kf.FilterConfig]] = {
+            None: (self.sensor, cfg.filter)
+        }
+        self.check: CameraCheck | None = None
+        if cfg.cameras:
+            for c in cfg.cameras:
+                self.sensors[c.id] = (np.array(c.xyz, dtype=float), camera_filter(cfg.filter, c))
+            ref = None if cfg.fusion.reference == DEFAULT_CAMERA else cfg.fusion.reference
+            self.reference = ref
+            origin, fcfg = self.sensors[ref]
+            self.check = CameraCheck(cfg.fusion, fcfg, origin, cfg.throw.detection_timeout)
         self.mode = IDLE
         self.belief = kf.empty(cfg.filter)
         self.decision: Decision | None = None
@@ -176,17 +190,29 @@ class Executor:
         self.away = False  # holding away from home, balls ignored, until go_home
 
     # ---------------------------------------------------------------- measurements
-    def on_detection(self, t_now: float, stamp: float, p_base: np.ndarray) -> None:
-        """Fuse a detection (ball centre in ``base`` [m], captured at ``stamp``) at ``t_now``."""
+    def on_detection(
+        self, t_now: float, stamp: float, p_base: np.ndarray, camera: str | None = None
+    ) -> str | None:
+        """Fuse a detection (ball centre in ``base`` [m], captured at ``stamp``) at ``t_now``;
+        ``camera`` is the id of the camera that took it (None: the default camera). Returns
+        ``"inconsistent_camera"`` when that camera's detections are refused (docs/CAMERAS.md),
+        else None."""
         if self.mode in (RETURNING, FAULT) or self.away:
-            return
+            return None
+        sensor, fcfg = self.sensors[camera]
+        if self.check is not None:
+            if camera == self.reference:
+                self.check.reference(stamp, p_base)
+            elif not self.check.admit(camera, stamp, p_base, kf.stereo_r(p_base, sensor, fcfg)):
+                return "inconsistent_camera" if self.check.state(camera).inconsistent else None
         if stamp - self.t_last_det > self.cfg.throw.detection_timeout:
             self.belief = kf.empty(self.cfg.filter)  # a new ball: start the filter afresh
             self.confirm = 0
             self.launch.reset()
-        self.belief, info = kf.update(self.belief, stamp, p_base, self.cfg.filter, self.sensor)
+        lag = self.cfg.fusion.max_lag if self.check is not None else 0.0
+        self.belief, info = kf.update(self.belief, stamp, p_base, fcfg, sensor, lag)
         if info.status == "late":
-            return
+            return None
         self.t_last_det = max(self.t_last_det, stamp)
         # updates absorbed since the filter last (re)started from two measurements: before 2,
         # one outlier among those two can fake any velocity
@@ -195,9 +221,11 @@ class Executor:
         launched = False
         paper = self.planner == "naive-paper"  # no launch gate: the filter alone
         if self.mode in (IDLE, TRACKING) and self.cfg.launch.enabled and not paper:
-            fit = self.launch.add(stamp, p_base)
+            several = self.check is not None
+            fit = self.launch.add(stamp, p_base, *((sensor, fcfg) if several else ()))
             if fit is not None:  # the launch fit replaces the filter's slower restart
-                self.belief = kf.restart(self.belief, fit.t, fit.mean, fit.cov, fit.z)
+                newest = None if fit.t != stamp or not several else sensor
+                self.belief = kf.restart(self.belief, fit.t, fit.mean, fit.cov, fit.z, newest)
                 self.settled = max(self.settled, self.cfg.throw.settle_updates)
                 launched = True
         if self.mode == IDLE:

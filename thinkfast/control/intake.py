@@ -17,36 +17,46 @@ from thinkfast.contract.detection import (
     parse_detection,
 )
 from thinkfast.contract.frames import CameraExtrinsic, to_base
+from thinkfast.estimate.fusion import DEFAULT_CAMERA
 
 ORDER_CLASSES = ("new", "duplicate", "out_of_order", "stale", "future")
 
 
 class Accepted(NamedTuple):
-    """A detection ready for the filter: capture stamp [s] and ball centre in base [m] (3,)."""
+    """A detection ready for the filter: capture stamp [s], ball centre in base [m] (3,), the
+    sender's seq, and the id of the camera that took it (None: the default camera)."""
 
     stamp: float
     position: np.ndarray
     seq: int | None
+    camera: str | None = None
 
 
 class Intake:
-    """Stateful intake of one detection stream.
+    """Stateful intake of the detection stream of one or more cameras.
 
-    ``last_stamp`` is the order watermark: only later stamps are new. It moves only with an
-    accepted detection, whose stamp is at most ``max_future`` after its receive time, so no
-    detection (nor a burst of them) can put it further ahead of the clock than that.
+    ``last_stamp`` is the order watermark of the default camera (``watermarks``: one per camera):
+    only later stamps of the same camera are new, so one camera's late detection is not dropped
+    because another camera's newer one came first (the filter puts it in its place). A watermark
+    moves only with an accepted detection, whose stamp is at most ``max_future`` after its
+    receive time, so no detection (nor a burst of them) can put it further ahead of the clock
+    than that. A detection naming a camera not configured is rejected (``unknown_camera``).
 
     Args:
-        camera: pose of the camera in ``base``.
+        camera: pose of the default camera (``camera`` key absent, or ``base``) in ``base``.
         limits: payload and clock limits.
+        cameras: the other cameras (``[[cameras]]`` of the run config).
     """
 
-    def __init__(self, camera: CameraExtrinsic, limits: DetectionLimits):
+    def __init__(self, camera: CameraExtrinsic, limits: DetectionLimits, cameras=()):
         self.R = camera.rotation()
         self.p = camera.translation()
+        poses = {c.id: c.extrinsic() for c in cameras}
+        self.poses = {k: (e.rotation(), e.translation()) for k, e in poses.items()}
         self.limits = limits
         self.counters = DetectionCounters()
         self.order = {"duplicate": 0, "out_of_order": 0, "stale": 0, "future": 0}
+        self.watermarks: dict[str | None, tuple[float, int | None]] = {}
         self.last_stamp: float | None = None
         self.last_seq: int | None = None
         self.last_drop: tuple[str, str] | None = None  # (reason, detail) of the last drop
@@ -61,15 +71,32 @@ class Intake:
             self.counters.count(det)
             self.last_drop = (det.reason, det.detail)
             return None
-        cls = classify_order(det.stamp, det.seq, self.last_stamp, self.last_seq, now, self.limits)
+        cam = None if det.camera == DEFAULT_CAMERA else det.camera
+        if cam is not None and cam not in self.poses:
+            det = Rejection("unknown_camera", cam)
+            self.counters.count(det)
+            self.last_drop = (det.reason, det.detail)
+            return None
+        last_stamp, last_seq = self.watermarks.get(cam, (None, None))
+        cls = classify_order(det.stamp, det.seq, last_stamp, last_seq, now, self.limits)
         if cls != "new":
             self.order[cls] += 1
             self.last_drop = (cls, f"stamp {det.stamp:.3f}")
             return None
         self.counters.count(det)
-        self.last_stamp, self.last_seq = det.stamp, det.seq
-        base = to_base(det, self.R, self.p)
-        return Accepted(det.stamp, np.asarray(base.position, dtype=float), det.seq)
+        self.watermarks[cam] = (det.stamp, det.seq)
+        if cam is None:
+            self.last_stamp, self.last_seq = det.stamp, det.seq
+            base = to_base(det, self.R, self.p)
+        else:
+            base = to_base(det, *self.poses[cam])
+        return Accepted(det.stamp, np.asarray(base.position, dtype=float), det.seq, cam)
+
+    def reject_accepted(self, reason: str) -> None:
+        """Count a detection :meth:`take` accepted as rejected for ``reason`` after all (the
+        executor found its camera inconsistent: ``inconsistent_camera``)."""
+        self.counters.accepted -= 1
+        self.counters.rejected[reason] += 1
 
     def as_dict(self) -> dict:
         """Counts for status messages."""

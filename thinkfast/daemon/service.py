@@ -129,7 +129,7 @@ class Daemon:
         self._away_logged: tuple | None = None
         self.limits = robot_limits(robot, cfg.safety.position_margin)
         self.supervisor = SafetySupervisor(self.limits, cfg.safety, robot.home)
-        self.intake = Intake(cfg.camera, cfg.detections)
+        self.intake = Intake(cfg.camera, cfg.detections, cfg.cameras)
         self.control = ControlCore(
             self.executor, self.supervisor, cfg.safety, self._event, modes.shadow, self.intake
         )

@@ -46,7 +46,15 @@ acceleration ``a`` brings it to ``t1``), covariance propagated from ``R0`` plus 
 
 Late and out-of-order policy: a measurement whose stamp is not later than the last accepted
 measurement, or earlier than the belief time, is rejected and counted (``n_late``); the belief is
-otherwise returned unchanged, so late data can never corrupt the state. ``predict`` to a time
+otherwise returned unchanged, so late data can never corrupt the state. With several cameras
+(``max_lag`` > 0, docs/CAMERAS.md) a measurement up to ``max_lag`` older than the belief (another
+camera's newer one came first) is fused out of sequence instead (status ``"past"``): it measures
+the current state through the backward transition, ``z = [I, -dt I] x + g dt^2 / 2 e_z + w``,
+whose noise adds the position part of the process noise over ``dt``, ``Q_pp(dt)`` (its
+correlation with the current state is neglected); the robust gate weighs it as any other, but it
+neither feeds the adaptation window nor counts towards a recovery, and the belief keeps its time
+and its newest measurement. Two measurements from different cameras start the filter with each
+one's own noise: the velocity variance is ``(R_0 + R_1) / dt^2``. ``predict`` to a time
 before the belief time is a no-op. Outliers in the two initialising measurements are not gated,
 but the recovery step replaces a bad start within ``reset_after`` frames.
 """
@@ -68,6 +76,7 @@ STATUS_FIRST = "first"
 STATUS_INIT = "init"
 STATUS_UPDATED = "updated"
 STATUS_LATE = "late"
+STATUS_PAST = "past"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,6 +182,7 @@ class Belief(NamedTuple):
         n_resets: axis re-initialisations by the recovery step.
         window_model: the measurement-noise model at each innovation of ``window`` [m^2],
             shape (window, 3).
+        s_meas: origin of the sensor that took ``z_meas`` [m] (3,), or None (no sensor given).
     """
 
     t: float
@@ -189,13 +199,15 @@ class Belief(NamedTuple):
     n_outliers: int
     n_resets: int
     window_model: np.ndarray
+    s_meas: np.ndarray | None = None
 
 
 class UpdateInfo(NamedTuple):
     """What one :func:`update` did.
 
     Attributes:
-        status: ``"first"``, ``"init"``, ``"updated"`` or ``"late"``.
+        status: ``"first"``, ``"init"``, ``"updated"``, ``"past"`` (out of sequence) or
+            ``"late"``.
         innovation: raw innovation z - x_pred [m], shape (3,) (zeros unless updated).
         weight: per-axis factor applied to the innovation (1 = inlier), shape (3,).
         nis: normalised innovation squared v^T S^-1 v of the raw innovation.
@@ -293,7 +305,12 @@ def stereo_r(z: np.ndarray, sensor: np.ndarray | None, cfg: FilterConfig) -> np.
 
 
 def update(
-    belief: Belief, t: float, z: np.ndarray, cfg: FilterConfig, sensor: np.ndarray | None = None
+    belief: Belief,
+    t: float,
+    z: np.ndarray,
+    cfg: FilterConfig,
+    sensor: np.ndarray | None = None,
+    max_lag: float = 0.0,
 ) -> tuple[Belief, UpdateInfo]:
     """Fuse the position measurement ``z`` [m], shape (3,), stamped ``t`` [s].
 
@@ -301,11 +318,19 @@ def update(
     measurement noise is the range-dependent stereo model plus the adapted R, which then
     estimates only what the model does not explain (eq. 5 minus the model's mean share).
 
+    ``max_lag`` [s] (several cameras): a measurement older than the belief by at most this is
+    fused out of sequence (module doc); 0 (one camera) rejects every one as late.
+
     Returns:
         The new belief (time ``t``) and an :class:`UpdateInfo`. A late, duplicated or
         out-of-order measurement returns the same belief with ``n_late`` incremented.
     """
     if t <= belief.t_meas or t < belief.t:
+        newest = max(belief.t, belief.t_meas)
+        if max_lag > 0.0 and belief.n_meas >= 1 and newest - max_lag <= t:
+            past = _update_past(belief, t, np.array(z, dtype=float), cfg, sensor)
+            if past is not None:
+                return past
         return belief._replace(n_late=belief.n_late + 1), UpdateInfo(
             STATUS_LATE, _ZERO3, _ZERO3, 0.0, _NO3
         )
@@ -314,14 +339,19 @@ def update(
     wm = belief.window_model
     if belief.n_meas == 0:
         first = belief._replace(
-            t=float(t), mean=np.concatenate([z, _ZERO3]), t_meas=float(t), z_meas=z, n_meas=1
-        )
+            t=float(t), mean=np.concatenate([z, _ZERO3]), t_meas=float(t), z_meas=z, n_meas=1,
+            s_meas=sensor,
+        )  # fmt: skip
         return first, UpdateInfo(STATUS_FIRST, _ZERO3, _ONE3, 0.0, _NO3)
+    r_prev = _prev_r(belief, sensor, cfg)
     if belief.n_meas == 1:
         r_init = belief.r + r_model
         mean, cov = two_point(belief.z_meas, z, t - belief.t_meas, r_init, cfg.gravity, cfg.drag)
+        _mixed_start(cov, r_prev, r_init, t - belief.t_meas)
         cov += np.diag(np.square(cfg.p0_std))
-        init = belief._replace(t=float(t), mean=mean, cov=cov, t_meas=float(t), z_meas=z, n_meas=2)
+        init = belief._replace(
+            t=float(t), mean=mean, cov=cov, t_meas=float(t), z_meas=z, n_meas=2, s_meas=sensor
+        )
         return init, UpdateInfo(STATUS_INIT, _ZERO3, _ONE3, 0.0, _NO3)
 
     prior_mean, p = belief.mean, belief.cov
@@ -359,8 +389,9 @@ def update(
         reset = np.ones(3, dtype=bool)
     if reset.any():
         mean, cov = _reinit_axes(
-            mean, cov, reset, belief.z_meas, z, t - belief.t_meas, r + r_model, cfg
-        )
+            mean, cov, reset, belief.z_meas, z, t - belief.t_meas, r + r_model, cfg,
+            None if r_prev is None else r + r_prev,
+        )  # fmt: skip
         gated = np.where(reset, 0, gated)
         # the gated innovations of a manoeuvre (a release) are not measurement noise: forget
         # them on the restarted axes, or R stays inflated for a whole window
@@ -381,12 +412,77 @@ def update(
         n_outliers=belief.n_outliers + int(np.count_nonzero(weight < 1.0)),
         n_resets=belief.n_resets + int(np.count_nonzero(reset)),
         window_model=wm,
+        s_meas=sensor,
     )
     return new, UpdateInfo(STATUS_UPDATED, innov, weight, nis, reset)
 
 
-def restart(belief: Belief, t: float, mean: np.ndarray, cov: np.ndarray, z: np.ndarray) -> Belief:
-    """Restart the belief from an outside state estimate at time ``t`` [s] (e.g. a launch fit).
+def _prev_r(belief: Belief, sensor: np.ndarray | None, cfg: FilterConfig) -> np.ndarray | None:
+    """Stereo noise [m^2] (3, 3) of the newest measurement when another sensor took it than
+    ``sensor``, else None (the same sensor: both share the current noise, as with one camera)."""
+    prev = belief.s_meas
+    if prev is None or sensor is None or np.array_equal(prev, sensor):
+        return None
+    return stereo_r(belief.z_meas, prev, cfg)
+
+
+def _mixed_start(cov: np.ndarray, r_prev: np.ndarray | None, r_new: np.ndarray, dt: float):
+    """Two-point start from two sensors: velocity variance ``(R_0 + R_1) / dt^2`` (in place;
+    ``r_prev`` the first one's total noise, None: the same sensor, nothing to change)."""
+    if r_prev is not None:
+        cov[3:, 3:] = (r_prev + r_new) / (dt * dt)
+
+
+def _update_past(
+    belief: Belief, t: float, z: np.ndarray, cfg: FilterConfig, sensor: np.ndarray | None
+) -> tuple[Belief, UpdateInfo] | None:
+    """Out-of-sequence update with a measurement ``z`` [m] stamped ``t`` [s] before the belief's
+    newest (module doc); None when it cannot be used (same stamp as the only measurement)."""
+    r_model = stereo_r(z, sensor, cfg)
+    if belief.n_meas == 1:  # the older of the first two: start from it and the newer one
+        dt = belief.t_meas - t
+        if not dt > 0.0:
+            return None
+        r_new = belief.r + _model_or(belief, cfg)
+        mean, cov = two_point(z, belief.z_meas, dt, r_new, cfg.gravity, cfg.drag)
+        _mixed_start(cov, belief.r + r_model, r_new, dt)
+        cov += np.diag(np.square(cfg.p0_std))
+        init = belief._replace(mean=mean, cov=cov, n_meas=2)
+        return init, UpdateInfo(STATUS_INIT, _ZERO3, _ONE3, 0.0, _NO3)
+    dt = belief.t - t
+    mean_b, f_b = transition(belief.mean, -dt, cfg.gravity, cfg.drag)
+    h = f_b[:3, :]  # the measurement of the current state through the backward transition
+    p = belief.cov
+    ph = p @ h.T
+    s = h @ ph + belief.r + r_model + process_noise(dt, cfg.accel_psd)[:3, :3]
+    innov = z - mean_b[:3]
+    s_inv = _inv_sym3(s)
+    nis = float(innov @ s_inv @ innov)
+    weight = _ONE3
+    if cfg.robust:
+        weight = _gate(innov, s, np.zeros(3, dtype=np.intp), cfg)[1]
+    gain = ph @ s_inv
+    mean = belief.mean + gain @ (weight * innov)
+    cov = p - gain @ ph.T
+    new = belief._replace(
+        mean=mean,
+        cov=0.5 * (cov + cov.T),
+        n_meas=belief.n_meas + 1,
+        n_outliers=belief.n_outliers + int(np.count_nonzero(weight < 1.0)),
+    )
+    return new, UpdateInfo(STATUS_PAST, innov, weight, nis, _NO3)
+
+
+def _model_or(belief: Belief, cfg: FilterConfig) -> np.ndarray:
+    """Stereo noise [m^2] (3, 3) of the newest measurement, from its own sensor."""
+    return stereo_r(belief.z_meas, belief.s_meas, cfg)
+
+
+def restart(
+    belief: Belief, t: float, mean: np.ndarray, cov: np.ndarray, z: np.ndarray, sensor=None
+) -> Belief:
+    """Restart the belief from an outside state estimate at time ``t`` [s] (e.g. a launch fit;
+    ``z`` [m] its newest measurement, taken from ``sensor`` (None: the newest one's sensor)).
 
     The adapted measurement noise R is kept; the innovations in the window are forgotten (they
     belong to the motion before the restart) and the outlier counters start afresh.
@@ -404,6 +500,7 @@ def restart(belief: Belief, t: float, mean: np.ndarray, cov: np.ndarray, z: np.n
         gated=np.zeros(3, dtype=np.intp),
         n_meas=max(belief.n_meas, 2),
         n_resets=belief.n_resets + 3,
+        s_meas=belief.s_meas if sensor is None else sensor,
     )
 
 
@@ -447,9 +544,11 @@ def _gate(innov, s, gated, cfg: FilterConfig) -> tuple[np.ndarray, np.ndarray, n
     return keep, weight, np.where(out, gated + 1, 0)
 
 
-def _reinit_axes(mean, cov, axes, z_prev, z, dt, r, cfg: FilterConfig):
-    """Restart the given axes (bool (3,)) from their last two measurements (see module doc)."""
+def _reinit_axes(mean, cov, axes, z_prev, z, dt, r, cfg: FilterConfig, r_prev=None):
+    """Restart the given axes (bool (3,)) from their last two measurements (see module doc;
+    ``r_prev``: the older one's noise when another sensor took it)."""
     fresh, block = two_point(z_prev, z, dt, r, cfg.gravity, cfg.drag)
+    _mixed_start(block, r_prev, r, dt)
     block += np.diag(np.square(cfg.p0_std))
     idx = np.flatnonzero(np.concatenate([axes, axes]))
     mean = mean.copy()

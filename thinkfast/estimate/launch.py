@@ -125,6 +125,10 @@ class FlightFit(NamedTuple):
 HOLD_POINTS = 10  # detections kept before the window to locate the hold
 
 
+def _stamp(point: tuple) -> float:
+    return point[0]
+
+
 @functools.lru_cache(maxsize=16)
 def _chi2_limit(alpha: float, dof: int) -> float:
     return float(chi2.isf(alpha, dof))
@@ -212,13 +216,25 @@ class LaunchDetector:
         self.points.clear()
         self.passed = 0
 
-    def add(self, t: float, z: np.ndarray) -> FlightFit | None:
-        """A detection stamped ``t`` [s] at ``z`` [m] (base); the fit if this declares a launch."""
+    def add(
+        self, t: float, z: np.ndarray, sensor=None, fcfg: FilterConfig | None = None
+    ) -> FlightFit | None:
+        """A detection stamped ``t`` [s] at ``z`` [m] (base); the fit if this declares a launch.
+
+        ``sensor`` (origin [m] (3,)) and ``fcfg`` (its stereo noise model) name the camera that
+        took it (None: the detector's own). With ``sensor`` given (several cameras), a detection
+        older than the newest one is put in its place in time (another camera's newer one came
+        first) and the window is fitted again; without, it is ignored (the filter rejected it).
+        """
         cfg = self.cfg
-        if self.points and t <= self.points[-1][0]:
-            return None  # late or duplicated: the filter has rejected it too
         z = np.asarray(z, dtype=float)
-        self.points.append((float(t), z, self._cov(z)))
+        if self.points and t <= self.points[-1][0]:
+            if sensor is None or t < self.points[0][0] or any(p[0] == t for p in self.points):
+                return None  # late or duplicated: the filter has rejected it too
+            pts = sorted([*self.points, (float(t), z, self._cov(z, sensor, fcfg))], key=_stamp)
+            self.points = deque(pts, maxlen=self.points.maxlen)
+        else:
+            self.points.append((float(t), z, self._cov(z, sensor, fcfg)))
         fit = self.fit()
         if fit is None or not self.passes(fit):
             self.passed = 0
@@ -243,10 +259,12 @@ class LaunchDetector:
         ``t_new``."""
         return [p for p in points if t_new - p[0] <= self.cfg.max_span][-self.cfg.window :]
 
-    def _cov(self, z: np.ndarray) -> np.ndarray:
-        """Noise covariance of a detection at ``z`` [m^2] (3, 3): scaled stereo model + floor."""
+    def _cov(self, z: np.ndarray, sensor=None, fcfg: FilterConfig | None = None) -> np.ndarray:
+        """Noise covariance of a detection at ``z`` [m^2] (3, 3) seen from ``sensor`` with the
+        model of ``fcfg`` (None: the detector's own): scaled stereo model + floor."""
         cfg = self.cfg
-        r = stereo_r(z, self.sensor, self.fcfg)
+        where = self.sensor if sensor is None else np.asarray(sensor, dtype=float)
+        r = stereo_r(z, where, self.fcfg if fcfg is None else fcfg)
         return cfg.noise_scale * cfg.noise_scale * r + cfg.floor_std * cfg.floor_std * np.eye(3)
 
     def _robust_fit(self, window: list) -> FlightFit | None:

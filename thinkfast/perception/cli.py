@@ -38,6 +38,12 @@ def run(
     source: str | None = typer.Option(
         None, "--source", help="colour, boxes or auto (default: the config's)"
     ),
+    camera: str | None = typer.Option(
+        None,
+        "--camera",
+        help="id of the camera this process serves (docs/CAMERAS.md; default: the config's "
+        "camera_id, else the default camera)",
+    ),
     threads: int = typer.Option(1, "--threads", help="OpenCV threads (1: one core)"),
     ros_domain: int | None = typer.Option(
         None,
@@ -72,6 +78,10 @@ def run(
         if source not in SOURCES:
             raise ConfigError("--source", None, f"{source!r} is not one of {', '.join(SOURCES)}")
         cfg = dataclasses.replace(cfg, source=source)
+    if camera is not None:
+        from thinkfast.perception.config import check
+
+        cfg = check(dataclasses.replace(cfg, camera_id=camera), "--camera")
     if threads < 1:
         raise ConfigError("--threads", None, f"must be >= 1, got {threads}")
     cv2.setNumThreads(threads)
@@ -87,7 +97,10 @@ def run(
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _f: stop.append(signum))
     print(
-        f"thinkfast-detect: {cfg.source} -> {key_prefix}/detections ({cfg.frame})", file=sys.stderr
+        f"thinkfast-detect: {cfg.source} -> {key_prefix}/detections ({cfg.frame}"
+        + (f", camera {cfg.camera_id}" if cfg.camera_id else "")
+        + ")",
+        file=sys.stderr,
     )
     try:
         while not stop:

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from thinkfast.config import from_dict, include_table, load_toml, spec, to_toml
+from thinkfast.contract.detection import CAMERA_ID
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.errors import ConfigError
 
@@ -111,6 +112,11 @@ class DetectConfig:
         choices=SOURCES,
     )  # fmt: skip
     camera: CameraExtrinsic = spec(CameraExtrinsic())
+    camera_id: str = spec(
+        "",
+        doc="id of the camera this process serves, stamped on every detection, whose frames "
+        "come on <prefix>/camera/<id>/frame (docs/CAMERAS.md); empty: the default camera",
+    )
     colour: ColourConfig = spec(ColourConfig())
     shrink: ShrinkConfig = spec(ShrinkConfig())
     cloud: CloudConfig = spec(CloudConfig())
@@ -130,6 +136,8 @@ def check(cfg: DetectConfig, source: str) -> DetectConfig:
         raise ConfigError(source, "cloud.size_ratio", f"low > high: {cfg.cloud.size_ratio}")
     if cfg.cloud.min_range >= cfg.cloud.max_range:
         raise ConfigError(source, "cloud.min_range", "must be below cloud.max_range")
+    if cfg.camera_id and not CAMERA_ID.fullmatch(cfg.camera_id):
+        raise ConfigError(source, "camera_id", f"{cfg.camera_id!r}: 1-64 of A-Z a-z 0-9 _ . -")
     return cfg
 
 

@@ -116,6 +116,7 @@ def detection_payload(
     frame: str = "camera",
     R_base_camera: np.ndarray | None = None,
     p_base_camera: np.ndarray | None = None,
+    camera: str | None = None,
 ) -> bytes:
     """The contract's detection (docs/INTERFACES.md, "Detections") as UTF-8 JSON.
 
@@ -125,8 +126,10 @@ def detection_payload(
         seq: the frame's counter, or None (then the key is left out).
         frame: ``"camera"``, or ``"base"`` with the extrinsic ``R_base_camera`` (3, 3) and
             ``p_base_camera`` [m] (3,).
+        camera: id of the camera (docs/CAMERAS.md), or None (the default camera: key left out).
     """
     pos = found.position
     if frame == "base":
         pos = R_base_camera @ pos + p_base_camera
-    return encode_detection(stamp, pos, frame, round(float(found.confidence), 4), seq)
+    conf = round(float(found.confidence), 4)
+    return encode_detection(stamp, pos, frame, conf, seq, camera=camera)

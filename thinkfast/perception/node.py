@@ -105,11 +105,15 @@ class DetectorNode:
         self.last_seq: int | None = None
         self.session = open_session(conf)
         ring = zenoh.handlers.RingChannel(FRAME_RING)
-        self.sub_frames = self.session.declare_subscriber(keys.camera_frame(prefix), ring)
+        self.sub_frames = self.session.declare_subscriber(
+            keys.camera_frame(prefix, cfg.camera_id or None), ring
+        )
         self.sub_boxes = None
         if cfg.source != "colour":
             fifo = zenoh.handlers.FifoChannel(BOX_QUEUE)
-            self.sub_boxes = self.session.declare_subscriber(keys.camera_boxes(prefix), fifo)
+            self.sub_boxes = self.session.declare_subscriber(
+                keys.camera_boxes(prefix, cfg.camera_id or None), fifo
+            )
         self.pub = self.session.declare_publisher(keys.detections(prefix))
         self.pub_status = self.session.declare_publisher(keys.detector_status(prefix))
         self.ros_node = self.ros_pub = None
@@ -214,8 +218,9 @@ class DetectorNode:
         elif isinstance(result, Found):
             c["detected"] += 1
             payload = detection_payload(
-                result, frame.stamp, frame.seq, self.cfg.frame, self.R, self.p
-            )
+                result, frame.stamp, frame.seq, self.cfg.frame, self.R, self.p,
+                self.cfg.camera_id or None,
+            )  # fmt: skip
             self.pub.put(payload)
             if self.ros_pub is not None:
                 from thinkfast.contract.ros import point_from_detection

@@ -97,6 +97,7 @@ class SimDetection(NamedTuple):
         is_outlier: a gross error was drawn.
         covariance: the inlier noise model's covariance in ``camera`` [m^2], shape (3, 3).
         confidence: detector confidence in [0, 1].
+        camera: id of the camera (None: the default camera; the payload leaves ``camera`` out).
     """
 
     capture_stamp: float
@@ -107,6 +108,7 @@ class SimDetection(NamedTuple):
     is_outlier: bool
     covariance: np.ndarray
     confidence: float
+    camera: str | None = None
 
 
 def depth_sigma(depth: np.ndarray, disparity_sigma: float, cfg: CameraModelConfig) -> np.ndarray:
@@ -198,6 +200,7 @@ def observe(
     t_release_wall: float = 0.0,
     until: float | None = None,
     seq0: int = 0,
+    camera: str | None = None,
 ) -> list[SimDetection]:
     """Detections of one throw, from the ball's appearance in the hand to just past the plane.
 
@@ -210,6 +213,7 @@ def observe(
         until: last capture time, after release [s]; None: ``cfg.after_crossing`` after the ball
             crosses ``throw.plane_x`` (a feint: the end of its rest).
         seq0: frame counter of the first frame (keep counting across throws).
+        camera: the camera's id, stamped on every detection (None: the default camera).
 
     Returns:
         Detections in capture order (frames not seen are absent; their ``seq`` is skipped).
@@ -255,9 +259,39 @@ def observe(
                 bool(outlier[i]),
                 cov[i].copy(),
                 float(conf[i]),
+                camera,
             )  # fmt: skip
         )
     return out
+
+
+class SimCamera(NamedTuple):
+    """One simulated camera: its id (None: the default camera), model and true pose in base
+    (the run config holds the pose the daemon believes; a test may make them differ)."""
+
+    id: str | None
+    model: CameraModelConfig
+    extrinsic: CameraExtrinsic
+
+
+def observe_cameras(
+    throw: Throw, cameras, seed: int, t_release_wall: float = 0.0
+) -> list[SimDetection]:
+    """Detections of one throw by every camera of ``cameras`` (a sequence of
+    :class:`SimCamera`, the default camera first), merged in delivery order.
+
+    Each camera draws from its own generator: the first from ``default_rng(seed)`` (so that
+    the default camera alone gives exactly :func:`observe`'s detections, in its order), camera
+    ``k`` from ``default_rng([seed, k])``: its own noise, frame phase, latency, dropouts and
+    outliers, the same whichever other cameras run.
+    """
+    out = []
+    for k, cam in enumerate(cameras):
+        rng = np.random.default_rng(seed if k == 0 else [seed, k])
+        out.append(observe(throw, cam.model, cam.extrinsic, rng, t_release_wall, camera=cam.id))
+    if len(out) == 1:
+        return out[0]
+    return sorted((d for dets in out for d in dets), key=lambda d: d.delivery_time)
 
 
 def detection_payload(sd: SimDetection, with_covariance: bool = False) -> bytes:
@@ -267,5 +301,5 @@ def detection_payload(sd: SimDetection, with_covariance: bool = False) -> bytes:
     """
     cov = sd.covariance if with_covariance else None
     return encode_detection(
-        sd.capture_stamp, sd.position_camera, "camera", sd.confidence, sd.seq, cov
+        sd.capture_stamp, sd.position_camera, "camera", sd.confidence, sd.seq, cov, sd.camera
     )

@@ -37,6 +37,33 @@ RERUN_HELP = (
 )
 
 
+CAMERAS_HELP = (
+    "cameras that see the throws, comma separated: base (the run config's [camera]) first, then "
+    "ids of its [[cameras]] or side (the default side camera, docs/CAMERAS.md); default: the "
+    "run config's. Compare two set-ups by running the same --seed with each"
+)
+
+
+def with_cameras(cfg, cameras: str | None):
+    """``cfg`` seeing with the cameras ``cameras`` names (None: unchanged); see CAMERAS_HELP."""
+    import dataclasses
+
+    from thinkfast.errors import ConfigError
+    from thinkfast.estimate.fusion import DEFAULT_CAMERA, SIDE_CAMERA
+
+    if cameras is None:
+        return cfg
+    names = [c.strip() for c in cameras.split(",") if c.strip()]
+    if not names or names[0] != DEFAULT_CAMERA or len(set(names)) != len(names):
+        raise ConfigError("--cameras", None, f"{cameras!r}: base first, each camera once")
+    known = {c.id: c for c in cfg.cameras}
+    known.setdefault(SIDE_CAMERA.id, SIDE_CAMERA)
+    bad = [n for n in names[1:] if n not in known]
+    if bad:
+        raise ConfigError("--cameras", None, f"{bad[0]!r} is not one of base, {', '.join(known)}")
+    return dataclasses.replace(cfg, cameras=tuple(known[n] for n in names[1:]))
+
+
 def _throw_config(mix: str | None):
     import dataclasses
 
@@ -206,6 +233,7 @@ def bench(
     png: Path | None = typer.Option(None, "--png", help="plot success by flight time"),
     scheduler: str | None = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),
     chunk: int = typer.Option(25, "--chunk", help="throws per task (with --scheduler)"),
+    cameras: str | None = typer.Option(None, "--cameras", help=CAMERAS_HELP),
 ) -> None:
     """Lockstep statistics: the daemon's kernels in simulated time, every planner, same throws.
 
@@ -226,7 +254,7 @@ def bench(
         raise ConfigError("--planners", None, f"{bad or names} not in {', '.join(PLANNERS)}")
     if reference is not None and reference not in names:
         raise ConfigError("--reference", None, f"{reference!r} is not one of --planners {names}")
-    cfg = load_run_config(config)
+    cfg = with_cameras(load_run_config(config), cameras)
     load_tree(tree)  # fail here, with the file's name, not in a worker
     if feints == -1:
         feints = 0 if throw_set is not None else n // 10
@@ -253,6 +281,8 @@ def bench(
     summary = summarize(out, names, reference)
     summary["seconds"] = round(time.perf_counter() - start, 1)
     summary["seed"] = seed
+    if cameras is not None:
+        summary["cameras"] = ["base", *(c.id for c in cfg.cameras)]
     if as_json:
         print(json.dumps(summary))
     else:

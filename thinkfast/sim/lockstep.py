@@ -10,8 +10,10 @@ decides from the controller's joint history.
 Planners: ``tree`` and ``naive`` (the daemon's executor) and ``oracle``: it knows the true crossing
 point at release and goes there as fast as the arm allows, so the throws it blocks are the ones
 this arm can block at all ("feasible"). ``oracle_seen`` knows the same but leaves only when the
-first detection of the flight is delivered: no planner that waits for evidence of the flight can
-start earlier, so it bounds what any of them can block with this camera's latency.
+first detection of the flight is delivered (by any camera): no planner that waits for evidence of
+the flight can start earlier, so it bounds what any of them can block with these cameras'
+latency. The cameras are the run config's (:func:`sim_cameras`: ``[camera]`` and
+``[[cameras]]``), or any given to the :class:`World`.
 
 A feint (``thinkfast/sim/thrower.py``) is flown until :data:`FEINT_WINDOW` after its ball stopped
 and judged by :func:`~thinkfast.sim.judge.judge_feint` (how far the shield left home, whether it
@@ -20,6 +22,7 @@ is home again); the oracles know it is a feint and stay home.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import NamedTuple
 
@@ -36,7 +39,7 @@ from thinkfast.robot.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering
-from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
+from thinkfast.sim.camera import CameraModelConfig, SimCamera, detection_payload, observe_cameras
 from thinkfast.sim.controller import ServoConfig, SimController
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.throws import Throw, plane_crossing
@@ -71,12 +74,29 @@ class World:
     """Everything shared by all throws of a run (built once per process)."""
 
     def __init__(
-        self, tree, robot: Robot, cfg: RunConfig, servo: ServoConfig, camera: CameraModelConfig
+        self,
+        tree,
+        robot: Robot,
+        cfg: RunConfig,
+        servo: ServoConfig,
+        camera: CameraModelConfig,
+        cameras: tuple[SimCamera, ...] | None = None,
     ):
         self.tree = runtime_tree(tree, robot, cfg)
         self.robot, self.cfg, self.servo, self.camera = robot, cfg, servo, camera
+        self.cameras = sim_cameras(cfg, camera) if cameras is None else tuple(cameras)
         self.kin = Kinematics(robot)
         self.limits = robot_limits(robot, cfg.safety.position_margin)
+
+
+def sim_cameras(cfg: RunConfig, model: CameraModelConfig) -> tuple[SimCamera, ...]:
+    """The simulated cameras of a run config: the default camera (``model``, ``[camera]``),
+    then every ``[[cameras]]`` one (``model`` with its latency), each where the config says."""
+    others = tuple(
+        SimCamera(c.id, dataclasses.replace(model, latency=c.latency), c.extrinsic())
+        for c in cfg.cameras
+    )
+    return (SimCamera(None, model, cfg.camera), *others)
 
 
 def simulate(
@@ -88,7 +108,7 @@ def simulate(
     For a feint, "release" is the moment its ball stops; ``blocked`` is False."""
     robot, cfg = world.robot, world.cfg
     t_rel = LEAD + throw.t_release  # simulated wall time of release
-    dets = observe(throw, world.camera, cfg.camera, np.random.default_rng(seed), t_rel)
+    dets = observe_cameras(throw, world.cameras, seed, t_rel)
     feint = throw.kind == "feint"
     if feint:
         cross, t_end = None, t_rel + FEINT_WINDOW + 0.2
@@ -106,7 +126,8 @@ def simulate(
         ex = None
     else:
         ex = Executor(world.tree, robot, cfg, planner)
-        core = ControlCore(ex, sup, cfg.safety, intake=Intake(cfg.camera, cfg.detections))
+        intake = Intake(cfg.camera, cfg.detections, cfg.cameras)
+        core = ControlCore(ex, sup, cfg.safety, intake=intake)
     k_det, t = 0, 0.0
     moved, t_move = False, math.nan
     while t <= t_end:
