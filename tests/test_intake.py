@@ -127,3 +127,17 @@ def test_readme_states_the_configured_future_limit():
     readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
     ms = f"{DetectionLimits().max_future * 1e3:g} ms"
     assert f"more than {ms} later than its receive time" in readme
+
+
+def test_dropped_counts_each_reason_as_the_status_does():
+    intake = Intake(CameraExtrinsic(), DetectionLimits())
+    ok = json.dumps({"stamp": 10.0, "position": [5.0, 0.0, 1.0]}).encode()
+    assert intake.take(ok, None) is not None
+    for _ in range(3):
+        assert intake.take(b"not json", None) is None
+    assert intake.take(ok, None) is None  # the same stamp again
+    assert intake.last_drop[0] == "duplicate"
+    assert (intake.dropped("not_json"), intake.dropped("duplicate")) == (3, 1)
+    counts = intake.as_dict()
+    assert counts["rejected"]["not_json"] == 3 and counts["dropped"]["duplicate"] == 1
+    assert intake.dropped("stale") == 0

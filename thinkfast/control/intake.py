@@ -98,6 +98,10 @@ class Intake:
         self.counters.accepted -= 1
         self.counters.rejected[reason] += 1
 
+    def dropped(self, reason: str) -> int:
+        """Payloads dropped so far for ``reason`` (a rejection reason or an order class)."""
+        return self.counters.rejected.get(reason, self.order.get(reason, 0))
+
     def as_dict(self) -> dict:
         """Counts for status messages."""
         return {**self.counters.as_dict(), "dropped": dict(self.order)}

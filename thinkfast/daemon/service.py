@@ -134,8 +134,8 @@ class Daemon:
             self.executor, self.supervisor, cfg.safety, self._event, modes.shadow, self.intake
         )
         self.controller_state: dict | None = None  # motors, MCI, RAPID as last reported
+        self._controller_key: tuple | None = None  # the same three, to compare per reply
         self.planned: tuple[np.ndarray, np.ndarray, str] | None = None  # shadow: virtual arm
-        self._drops: dict[str, int] = {}  # rejected detections by reason (log throttling)
         self._was_connected = False
         self._last_mode = IDLE
         self.egm = EgmServer(
@@ -173,13 +173,7 @@ class Daemon:
             self.control.brake("signal")
         errors = self.control.errors
         prev = None if before is None else (before.tm_ms, before.q_rad)
-        ctl = self.controller_state
-        if (
-            ctl is None
-            or ctl["motors_on"] != fb.motors_on
-            or ctl["mci_running"] != fb.mci_running
-            or ctl["rapid_running"] != fb.rapid_running
-        ):
+        if (fb.motors_on, fb.mci_running, fb.rapid_running) != self._controller_key:
             self._controller_changed(fb)
         r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, ready=fb.ready)
         if self.control.errors != errors:
@@ -197,6 +191,7 @@ class Daemon:
 
     def _controller_changed(self, fb) -> None:
         """The controller reports another motor, MCI or RAPID state: status and a log line."""
+        self._controller_key = (fb.motors_on, fb.mci_running, fb.rapid_running)
         self.controller_state = {
             "motors_on": fb.motors_on,
             "mci_running": fb.mci_running,
@@ -448,7 +443,7 @@ class Daemon:
         reason = self.intake.last_drop
         if reason is None:
             return
-        n = self._drops[reason[0]] = self._drops.get(reason[0], 0) + 1
+        n = self.intake.dropped(reason[0])
         if n == 1 or math.log10(n).is_integer():
             log.warning("detection dropped (%s: %s), %d so far for this reason", *reason, n)
 
