@@ -127,9 +127,9 @@ def test_motors_off_holds_the_measured_position_and_motion_resumes_when_on(
     assert len(ends) == 2 and ends[-1]["executed"] and 0.2 < ends[-1]["cross_after_start"] < 0.8
 
 
-def test_away_from_home_holds_without_go_home(tree_file, tmp_path, robot):
+def test_away_from_home_holds_with_hold_away(tree_file, tmp_path, robot):
     q0 = robot.home + np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
-    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=q0)
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=q0, extra=("--hold-away",))
     try:
         time.sleep(0.8)
         _throw(run)  # ignored: the arm is not where the planner starts from
@@ -140,13 +140,14 @@ def test_away_from_home_holds_without_go_home(tree_file, tmp_path, robot):
         code, err = run.stop()
     assert code == 0, err
     assert np.max(np.abs(hist.q - q0)) < 1e-6
-    assert status["away_from_home"] and status["state"] == "idle" and status["throws"] == 0
-    assert "--go-home" in err
+    # not "idle": the contract's idle is at home and ready
+    assert status["away_from_home"] and status["state"] == "fault" and status["throws"] == 0
+    assert "--hold-away" in err
 
 
 def test_go_home_moves_home_once_the_way_is_clear(tree_file, tmp_path, robot):
     q0 = robot.home + np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
-    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=q0, extra=("--go-home",))
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=q0)  # --go-home is the default
     try:
         deadline = time.time() + 8.0
         while time.time() < deadline and run.status[-1].get("way_home") != "clear":

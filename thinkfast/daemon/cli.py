@@ -84,10 +84,11 @@ def run(
         "--planner tree-rest, whose compiled edges use the full limits)",
     ),
     go_home: bool = typer.Option(
-        False,
-        "--go-home",
+        True,
+        "--go-home/--hold-away",
         help="arm away from home at start-up: move it home (return speed) once the way is "
-        "checked against the cell; without it the arm holds where it stands",
+        "checked against the cell (a blocked way holds it), or hold it where it stands "
+        "(status state fault, balls ignored)",
     ),
     busy_poll: bool = typer.Option(
         False,

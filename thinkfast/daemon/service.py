@@ -80,13 +80,14 @@ class Modes:
     Attributes:
         shadow: plan and publish everything, command the position measured at the start.
         go_home: away from home at start-up, move home once the way is checked against the cell
-            (without it the arm holds where it stands and balls are ignored).
+            (without it, or when the way is blocked, the arm holds where it stands, balls are
+            ignored and the status says ``fault``: the cell needs an operator).
         speed_scale: the robot's velocity, acceleration and jerk limits are scaled by this
             (already applied to the robot the daemon is given; reported here).
     """
 
     shadow: bool = False
-    go_home: bool = False
+    go_home: bool = True
     speed_scale: float = 1.0
 
 
@@ -322,7 +323,7 @@ class Daemon:
                     "q": np.round(q0, 4).tolist(),
                     "furthest": f"joint_{joint + 1} {far[joint]:.3f} rad",
                     "action": "checking the way home" if self.modes.go_home else "holding here "
-                    "(balls ignored): jog the arm home, or restart with --go-home",
+                    "(balls ignored): jog the arm home, or restart without --hold-away",
                 },
             )  # fmt: skip
             self.way_home = None
@@ -455,7 +456,7 @@ class Daemon:
         fault = ctl.latched or (sup.braking and sup.brake_reason in FAULT_REASONS)
         return {
             "stamp": now,
-            "state": FAULT if fault else ex.mode,
+            "state": FAULT if fault or self._held_away() else ex.mode,
             "planner": self.planner,
             "throws": ex.episodes,
             "node": ex.node,
@@ -488,6 +489,15 @@ class Daemon:
             "shadow": None if not self.modes.shadow else _planned(self.planned),
             "speed_scale": self.modes.speed_scale,
         }
+
+    def _held_away(self) -> bool:
+        """Held away from home for good (``--hold-away``, or the way home is blocked): not idle,
+        which the contract defines as at home and ready."""
+        if not self.executor.away:
+            return False
+        return not self.modes.go_home or (
+            self.way_home is not None and self.way_home.result is not None
+        )
 
     def summary(self) -> dict:
         """What the daemon runs with (logged at start-up)."""
