@@ -110,7 +110,11 @@ def test_udp_loop_on_loopback_exchanges_every_cycle_and_moves_the_arm(rate_hz, n
     st = runner.stats
     assert st.sent == n and st.malformed == 0
     assert st.replies + st.missed == n and st.replies >= 0.95 * n  # CI machines are shared
-    assert server.counters.replied == server.counters.received >= st.replies
+    c = server.counters
+    # Every request is answered, except one the server found already out of date because the
+    # controller (timed out on a loaded machine) had sent a newer one: that one is a miss too.
+    assert c.received == n and c.replied + c.superseded == c.received >= st.replies
+    assert c.superseded <= st.missed and c.deferred == c.reply_errors == 0
     assert len(st.rtt_s) == st.replies and np.median(st.rtt_s) < 0.004
     h = sim.history()
     assert len(h.t) == n + 1 and h.t[-1] == pytest.approx(n * DT)
