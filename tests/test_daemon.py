@@ -220,8 +220,8 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
     tree_file, robot, monkeypatch
 ):
     """_prepare() computes the setpoint for the next controller cycle and the supervisor's filter
-    of it; the reply to that cycle's EgmRobot sends exactly that, without asking the executor
-    again. A detection voids it."""
+    of it, once per cycle; the reply to that cycle's EgmRobot sends exactly that, without asking
+    the executor again. A detection voids it."""
     from thinkfast.contract.egm import decode_sensor, encode_robot
     from thinkfast.control.safety import filter_step
 
@@ -233,8 +233,10 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
             d.egm.poll()
             decode_sensor(s.recv(1024))
             d._prepare()
-            t_due, q_req, qd_req = d.control._prepared
-            assert t_due == d.control.clock.t + d.cfg.safety.dt
+            prepared = d.control._prepared
+            q_req, qd_req = prepared.ahead.q_req, prepared.ahead.qd_req
+            assert prepared.t == d.control.clock.t + d.cfg.safety.dt
+            assert not d.control.prepare()  # once per cycle
             calls = []
             monkeypatch.setattr(d.executor, "setpoint", lambda t: calls.append(t) or 1 / 0)
             q_prev, qd_prev = d.supervisor.q, d.supervisor.qd
@@ -247,8 +249,7 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
             np.testing.assert_allclose(reply.q_rad, want.q, rtol=1e-14, atol=1e-15)
             np.testing.assert_allclose(reply.qd_rad_s, want.qd, rtol=1e-14, atol=1e-15)
             monkeypatch.undo()
-            d._prepare()
-            assert d.control._prepared is not None
+            assert d.control.prepare() and d.control._prepared is not None
             det = {"stamp": time.time(), "position": [5.0, 0.1, 1.0], "frame": "camera"}
             d._take(json.dumps(det).encode(), time.time())
             assert d.control._prepared is None  # the plan may have changed: prepared again later

@@ -255,44 +255,45 @@ def test_kernels_are_pure_functions_of_their_arrays():
     assert (q == 0.3).all() and (v == 0.5).all()
 
 
-def test_a_prepared_step_gives_exactly_what_step_computes_and_counts_the_same():
-    """prepare() only moves the filter ahead: bit-identical commands and counts, random requests
-    (admissible ones and wild ones) along one trajectory."""
+def test_a_step_filtered_ahead_gives_exactly_what_step_computes_and_counts_the_same():
+    """filter_ahead() only moves the filter ahead: bit-identical commands and counts, random
+    requests (admissible ones and wild ones) along one trajectory."""
     rng = np.random.default_rng(7)
     a, b = SafetySupervisor(LIM, CFG, np.zeros(6)), SafetySupervisor(LIM, CFG, np.zeros(6))
     for k in range(400):
         q_req = a.q + a.qd * DT + rng.normal(0.0, 0.02 if k % 7 else 2.0, 6)
         qd_req = a.qd + rng.normal(0.0, 0.05 if k % 5 else 5.0, 6)
-        a.prepare(q_req, qd_req)
-        ca = a.step(q_req, qd_req, q_meas=a.q)
+        state = (a.q.copy(), a.qd.copy(), dict(a.counts), a.state)
+        ahead = a.filter_ahead(q_req, qd_req)
+        assert (a.q == state[0]).all() and (a.qd == state[1]).all()  # pure
+        assert a.counts == state[2] and a.state == state[3] == ahead.state
+        ca = a.step_ahead(ahead, q_meas=a.q)
         cb = b.step(q_req, qd_req, q_meas=b.q)
         assert ca.q.tobytes() == cb.q.tobytes() and ca.qd.tobytes() == cb.qd.tobytes()
         assert ca.kinds == cb.kinds and not ca.braking
     assert a.counts == b.counts and sum(a.counts.values()) > 0
 
 
-def test_a_prepared_step_is_not_used_for_another_request_state_or_a_brake():
+def test_a_step_filtered_ahead_is_not_used_after_the_state_changed_a_brake_or_another_tick():
     sup = SafetySupervisor(LIM, CFG, np.zeros(6))
     q_req, qd_req = np.full(6, 0.5), np.zeros(6)  # a jump: the filter limits it
-    sup.prepare(q_req, qd_req)
-    other = np.zeros(6)
-    cmd = sup.step(other, np.zeros(6))  # another request: computed afresh
-    assert np.all(cmd.q == 0.0) and not cmd.kinds
-    sup.prepare(q_req, qd_req)
-    sup.qd = np.full(6, 0.01)  # the state changed after prepare()
-    cmd = sup.step(q_req, qd_req)
+    ahead = sup.filter_ahead(q_req, qd_req)
+    sup.step(sup.q, np.zeros(6))  # a tick in between: the commanded state moved on
+    assert ahead.state != sup.state
+    sup.reset(np.zeros(6), np.full(6, 0.01))  # and now moves at 0.01 rad/s
+    cmd = sup.step_ahead(ahead)
     assert np.allclose(cmd.qd - 0.01, LIM.a_max * DT)  # from the new state: +a_max dt
-    sup.prepare(q_req, qd_req)
-    cmd = sup.step(q_req, qd_req, q_meas=np.full(6, 1.0))  # feedback deviates: brake wins
+    ahead = sup.filter_ahead(q_req, qd_req)
+    cmd = sup.step_ahead(ahead, q_meas=np.full(6, 1.0))  # feedback deviates: brake wins
     assert cmd.braking and sup.brake_reason == "deviation" and not cmd.kinds
     sup.release()
-    sup.prepare(q_req, qd_req)
+    ahead = sup.filter_ahead(q_req, qd_req)
     v0 = sup.qd
-    cmd = sup.step(q_req, qd_req, dt=DT * 1.0001)  # another tick length: computed afresh
+    cmd = sup.step_ahead(ahead, dt=DT * 1.0001)  # another tick length: computed afresh
     assert np.any(np.abs(cmd.qd - v0) > LIM.a_max * DT * 1.00005)
-    sup.prepare([math.nan] * 6, qd_req)  # nothing to prepare: step brakes as always
-    sup.release()
-    assert sup.step([math.nan] * 6, qd_req).braking and sup.brake_reason == "nonfinite"
+    ahead = sup.filter_ahead([math.nan] * 6, qd_req)  # nothing to filter: it brakes as step
+    assert ahead.result is None
+    assert sup.step_ahead(ahead).braking and sup.brake_reason == "nonfinite"
 
 
 def _ramp(sup, v_target, n):

@@ -53,7 +53,7 @@ import numpy as np
 from thinkfast.control.egm_clock import ClockTick, ControllerClock
 from thinkfast.control.executor import FAULT, IDLE, Executor
 from thinkfast.control.intake import Accepted, Intake
-from thinkfast.control.safety import SafetyConfig, SafetySupervisor
+from thinkfast.control.safety import Ahead, SafetyConfig, SafetySupervisor
 
 FAULT_REASONS = ("deviation", "nonfinite")
 REST_SPEED = 1e-3  # rad/s: a measured joint slower than this is at rest
@@ -111,7 +111,7 @@ class ControlCore:
         self.latched = False
         self._fb: tuple[float, np.ndarray] | None = None  # (controller time, q) of last feedback
         self._rest_since = math.inf  # measured arm at rest since (controller time)
-        self._prepared: tuple | None = None  # (t, q_req, qd_req)
+        self._prepared: Prepared | None = None  # the next cycle's reply, computed ahead
         self.errors = 0  # executor.setpoint failures (each brakes)
         self.last_error: Exception | None = None
 
@@ -137,17 +137,24 @@ class ControlCore:
         return "brake" if self.sup.braking else self.ex.mode
 
     # ------------------------------------------------------------------ cycle
-    def prepare(self) -> None:
-        """Plan the next cycle's setpoint ahead (the supervisor filters it ahead too); a
-        failure leaves nothing prepared (the reply tries again, counts it and brakes)."""
+    def prepare(self) -> bool:
+        """Compute the next cycle's reply ahead: the executor's setpoint for the controller
+        time of the next cycle, filtered by the supervisor (:meth:`SafetySupervisor.
+        filter_ahead`). The reply to that cycle's packet then only checks the feedback and
+        commits it, bit for bit what it would have computed; anything else since (a detection,
+        a brake, a resync, a skipped cycle) voids it. Returns True when it computed one, False
+        when one is ready already or nothing is served yet. A failing setpoint prepares
+        nothing (the reply asks again, counts it and brakes)."""
         t = self.t_next
+        if self.last is None or (self._prepared is not None and self._prepared.t == t):
+            return False
         try:
             q_req, qd_req = self.ex.setpoint(t)
         except Exception:
-            self._prepared = None
-            return
-        self._prepared = (t, q_req, qd_req)
-        self.sup.prepare(q_req, qd_req)
+            self._prepared = Prepared(t, None)
+            return True
+        self._prepared = Prepared(t, self.sup.filter_ahead(q_req, qd_req))
+        return True
 
     def invalidate(self) -> None:
         """The plan changed: a prepared setpoint is void."""
@@ -229,12 +236,13 @@ class ControlCore:
         t0 = tick.t - tick.elapsed
         for i in range(1, steps):  # cycles the controller skipped: still admissible motion
             self.sup.step(*self._plan(t0 + i * h), dt=h)
-        if prepared is not None and steps == 1 and prepared[0] == tick.t:
-            q_req, qd_req = prepared[1], prepared[2]
-        else:
-            q_req, qd_req = self._plan(tick.t)
         was_braking = self.sup.braking
-        cmd = self.sup.step(q_req, qd_req, q_meas=None if self.shadow else q_meas, dt=h)
+        q_fb = None if self.shadow else q_meas
+        ahead = prepared.ahead if prepared is not None and prepared.t == tick.t else None
+        if ahead is not None and steps == 1:
+            cmd = self.sup.step_ahead(ahead, q_meas=q_fb, dt=h)
+        else:
+            cmd = self.sup.step(*self._plan(tick.t), q_meas=q_fb, dt=h)
         if cmd.braking and not was_braking:
             dev = self.sup.deviation(q_meas)
             self.on_event(
@@ -371,6 +379,19 @@ class ControlCore:
         self.ex.recover(np.array(self.sup.q), t)
         self._prepared = None
         self.on_event(t, "recover", {"reason": reason, "faults": len(self.faults)})
+
+
+class Prepared(NamedTuple):
+    """The reply to the next cycle, computed ahead (:meth:`ControlCore.prepare`).
+
+    Attributes:
+        t: the controller time [s] of the cycle it is for.
+        ahead: the executor's setpoint for ``t``, filtered by the supervisor; None when the
+            setpoint failed (the reply asks the executor again).
+    """
+
+    t: float
+    ahead: Ahead | None
 
 
 def _earlier(tick: ClockTick, tm_ms: int | None, before) -> tuple[float, np.ndarray] | None:

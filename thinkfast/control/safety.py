@@ -369,6 +369,23 @@ class SafeCommand(NamedTuple):
     kinds: tuple[str, ...]
 
 
+class Ahead(NamedTuple):
+    """A request filtered ahead of its tick (:meth:`SafetySupervisor.filter_ahead`).
+
+    Attributes:
+        q_req: the request [rad], as it was given.
+        qd_req: the request [rad/s], as it was given.
+        state: the supervisor's state it was filtered from (:attr:`SafetySupervisor.state`).
+        result: ``(q, qd, kinds)`` of :func:`filter_step`, or None (a request that is not
+            finite: :meth:`SafetySupervisor.step_ahead` brakes as :meth:`SafetySupervisor.step`).
+    """
+
+    q_req: object
+    qd_req: object
+    state: int
+    result: tuple | None
+
+
 class SafetySupervisor:
     """Stateful wrapper of :func:`filter_step` and :func:`brake_velocity`, one call per tick.
 
@@ -389,6 +406,7 @@ class SafetySupervisor:
         self.config = config
         self.counts = dict.fromkeys(KINDS, 0)
         self.ticks = 0  # ticks stepped
+        self.state = 0  # counts changes of the commanded state (steps, resets): see Ahead
         self.intervened = 0  # ticks whose request was changed (clamped) or braked
         self._k = _TickConstants.of(limits, config.dt)
         self._window = max(1, math.ceil(config.tracking_lag / config.dt - 1e-9)) + 1
@@ -415,7 +433,7 @@ class SafetySupervisor:
         self._qdd_prev = self.qdd
         self.brake_reason: str | None = None
         self._stop: JerkLimitedStop | None = None
-        self._prepared: tuple | None = None
+        self.state += 1
         self._recent = np.tile(q, (self._window, 1))  # ring of recent commands (envelope)
         self._recent_v = np.tile(v, (self._window, 1))
         self._head = 0
@@ -470,24 +488,33 @@ class SafetySupervisor:
         overshoot = self.config.servo_time_constant * np.abs(self._recent_v).max(axis=0)
         return np.maximum(outside - overshoot, 0.0)
 
-    def prepare(self, q_req, qd_req) -> None:
-        """Filter the next tick's request ahead of time, to take work out of :meth:`step`.
+    def filter_ahead(self, q_req, qd_req) -> Ahead:
+        """Filter the next tick's request ahead of time, to take work out of the tick.
 
-        Pure until :meth:`step`: no state changes. The next :meth:`step` called with these same
-        request objects, from the same commanded state, with the nominal tick and with no brake
-        latched by then, uses the result, which is exactly what it would have computed (the same
-        :func:`filter_step` from the same previous command); any other call computes afresh. The
-        request is copied here: modifying it in between would send the filtered copy, still
-        admissible.
+        Pure: no state changes. :meth:`step_ahead` uses the result when the commanded state is
+        still the one it was filtered from, the tick is nominal and no brake is latched by then:
+        exactly what :meth:`step` would compute (the same :func:`filter_step` from the same
+        previous command); otherwise it steps afresh.
         """
-        self._prepared = None
         n = self.q.size
         q_r, v_r = _vector(q_req, n), _vector(qd_req, n)
         if q_r is None or v_r is None:
-            return  # step brakes: nothing to prepare
+            return Ahead(q_req, qd_req, self.state, None)
         with np.errstate(over="ignore", invalid="ignore"):  # as in filter_step
             res = _filter_step(self.q, self.qd, q_r, v_r, self.limits, self.config.dt, self._k)
-        self._prepared = (q_req, qd_req, self.q, self.qd, res)
+        return Ahead(q_req, qd_req, self.state, res)
+
+    def step_ahead(self, ahead: Ahead, q_meas=None, dt: float | None = None) -> SafeCommand:
+        """:meth:`step` on the request of ``ahead``, using its filter result when it still
+        applies (see :meth:`filter_ahead`). Never raises."""
+        usable = ahead.result is not None and ahead.state == self.state
+        if not usable or (dt is not None and dt != self.config.dt):
+            return self.step(ahead.q_req, ahead.qd_req, q_meas, dt)
+        self._check_feedback(q_meas)
+        if self.braking:
+            return self.step(ahead.q_req, ahead.qd_req)
+        q, v, kinds = ahead.result
+        return self._commit(q, v, kinds, self.config.dt)
 
     def step(self, q_req, qd_req, q_meas=None, dt: float | None = None) -> SafeCommand:
         """Advance one tick. Never raises; whatever the inputs the output is admissible.
@@ -505,25 +532,10 @@ class SafetySupervisor:
         """
         cfg, lim, n = self.config, self.limits, self.q.size
         kinds: tuple[str, ...] = ()
-        prep, self._prepared = self._prepared, None
-        if q_meas is not None:
-            dev = self.deviation(q_meas)
-            if dev is None or _any(dev > cfg.max_deviation):
-                self.request_brake("deviation")
+        self._check_feedback(q_meas)
         nominal = dt is None or dt == cfg.dt
         k = self._k if nominal else _TickConstants.of(lim, dt)
         h = cfg.dt if nominal else dt
-        if (
-            prep is not None
-            and nominal
-            and not self.braking
-            and prep[0] is q_req
-            and prep[1] is qd_req
-            and prep[2] is self.q
-            and prep[3] is self.qd
-        ):
-            q, v, kinds = prep[4]
-            return self._commit(q, v, kinds, h)
         q_r, v_r = _vector(q_req, n), _vector(qd_req, n)
         if not self.braking and (q_r is None or v_r is None):
             kinds = ("nonfinite",)
@@ -542,6 +554,13 @@ class SafetySupervisor:
                 q, v, kinds = _filter_step(self.q, self.qd, q_r, v_r, lim, h, k)
         return self._commit(q, v, kinds, h)
 
+    def _check_feedback(self, q_meas) -> None:
+        """Brake on feedback outside the envelope of recent commands (None: no feedback)."""
+        if q_meas is not None:
+            dev = self.deviation(q_meas)
+            if dev is None or _any(dev > self.config.max_deviation):
+                self.request_brake("deviation")
+
     def _commit(
         self, q: np.ndarray, v: np.ndarray, kinds: tuple[str, ...], h: float
     ) -> SafeCommand:
@@ -555,6 +574,7 @@ class SafetySupervisor:
         q.setflags(write=False)  # fresh arrays each tick: safe to hand out read-only
         v.setflags(write=False)
         self.q, self.qd = q, v
+        self.state += 1
         self._head = (self._head + 1) % self._window
         self._recent[self._head] = q
         self._recent_v[self._head] = v

@@ -159,7 +159,6 @@ class Daemon:
         self.planner_errors = 0
         self.pending: collections.deque[bytes] = collections.deque()  # drained, not yet taken
         self.detection_cost = 0.001  # s, decaying maximum of recent detection handling times
-        self.prepared_for = -math.inf  # last_rx of the cycle _prepare ran in
         self.last_throw: dict | None = None  # supervisor interventions in the last throw
         self._throw_mark: tuple[int, int] | None = None  # (ticks, intervened) at its start
         self._peer = None
@@ -253,7 +252,7 @@ class Daemon:
             self._event(time.time(), "start", self.summary())
             while True:
                 since = time.time() - self.last_rx
-                if self.prepared_for != self.last_rx and cycle.in_window(since):
+                if cycle.in_window(since):
                     self._prepare()
                 wait_ms = cycle.wait_ms(since)
                 replied = bool(poller.poll(wait_ms)) and self.egm.poll() > 0  # replies at once
@@ -348,7 +347,6 @@ class Daemon:
         if r.clear:
             ex.go_home(self._plan_time(time.time()))
             self.control.invalidate()
-            self.prepared_for = -math.inf
             self._event(self.control.clock.t, "way_home", detail)
         else:
             log.error("the way home collides (%s): holding; jog the arm home", r.detail)
@@ -360,16 +358,11 @@ class Daemon:
         self.outbox.clear()
 
     def _prepare(self) -> None:
-        """Compute the next reply's setpoint ahead, for the controller time of the next cycle,
-        and filter it through the supervisor (:meth:`ControlCore.prepare`): the reply then has
-        only the supervisor's feedback check left to run. Taking a detection voids it. Then
-        warm the EGM codec (:meth:`EgmServer.warm`): spinning, the reply path stays in the
-        caches until the packet comes."""
-        self.prepared_for = self.last_rx
-        if self.control.last is None:
-            return
-        self.control.prepare()
-        self.egm.warm()
+        """Compute the next reply ahead (:meth:`ControlCore.prepare`: once per cycle, again
+        after a detection changed the plan), then warm the EGM codec (:meth:`EgmServer.warm`):
+        spinning, the reply path stays in the caches until the packet comes."""
+        if self.control.prepare():
+            self.egm.warm()
 
     def _time_left(self, now: float) -> float:
         """Seconds of work that still end before the next EgmRobot's window opens."""
@@ -418,7 +411,6 @@ class Daemon:
         if det is None:
             self._log_drop()
             return
-        self.prepared_for = -math.inf
         self.recorder.detection(now, det.stamp, det.position, det.seq)
         if ctl.planner_errors != errors:
             self._planner_error("planner", ctl.last_error)
