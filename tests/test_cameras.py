@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from tests.test_schemas import _validator
 from thinkfast.contract.detection import encode_detection, parse_detection
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.control.config import RunConfig, load_run_config
@@ -199,6 +200,10 @@ def test_a_camera_with_a_wrong_extrinsic_is_refused_and_counted(world):
         assert p_err < max(2.0 * alone, 0.05), (p_err, alone)
         wrong = _track(world, unchecked, cams, th, k)[3]
         assert wrong > 2.0 * p_err and wrong > 0.1, (wrong, p_err)
+    status = {"stamp": 0.0, "state": ex.mode, "cameras": ex.check.as_dict()}  # daemon's block
+    _validator("status").validate(status)
+    assert status["cameras"]["side"]["inconsistent"]
+    assert status["cameras"]["side"]["inconsistent_camera"] == side.rejected
 
 
 def test_an_out_of_sequence_update_agrees_with_the_in_order_one():

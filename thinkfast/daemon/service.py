@@ -455,6 +455,7 @@ class Daemon:
             "value": value,
             "decision_ms": round(self.decision_ms, 3),
             "detections": self.intake.as_dict(),
+            "cameras": {} if ex.check is None else ex.check.as_dict(),
             "egm": {**vars(self.egm.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},
             "egm_peer": _peer_text(self.egm.peer),
             "egm_foreign": dict(self.egm.foreign_sources),
