@@ -166,7 +166,7 @@ class Daemon:
     # -------------------------------------------------------------- EGM path
     def _reply(self, fb, before=None) -> tuple[np.ndarray, np.ndarray] | None:
         """The setpoint answering ``fb``, or None to leave it unanswered (after a silence in
-        motion, until three packets measure the velocity; see ``egm_control``)."""
+        motion, until three packets measure the velocity; see :mod:`thinkfast.control.core`)."""
         now = time.time()
         self.last_rx = now
         if self.stop_reason is not None:
