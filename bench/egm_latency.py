@@ -169,11 +169,15 @@ def measure(
         on_start: called between the warm-up and the counted exchanges.
     """
     sim = SimController(q0=q0)
+    bind = ("127.0.0.1", 0)
     if warmup:
-        ControllerRunner(sim, target, rate_hz=rate, n=warmup, spin=spin, lead=lead).run()
+        warm = ControllerRunner(sim, target, rate_hz=rate, n=warmup, spin=spin, lead=lead)
+        warm.run()
+        bind = warm.address  # a controller sends from one port: the sensor keeps its peer
+        warm.join()
     if on_start is not None:
         on_start()
-    runner = ControllerRunner(sim, target, rate_hz=rate, n=n, spin=spin, lead=lead)
+    runner = ControllerRunner(sim, target, rate_hz=rate, n=n, spin=spin, lead=lead, bind=bind)
     gc.collect()
     gc.disable()
     try:

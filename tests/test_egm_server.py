@@ -314,19 +314,3 @@ def test_serve_thread_replies_as_packets_arrive_and_stops_on_event(client):
         assert server.counters.replied == 200
         assert server.last_rx_time is not None and server.peer == c.getsockname()
     assert np.median(rtts) < 0.005  # loose: CI machines are shared
-
-
-def test_warm_sends_nothing_and_changes_nothing(client):
-    c = client()
-    with EgmServer(f"{LOOPBACK}:0", _hold) as server:
-        server.warm()  # nothing served yet: a no-op
-        c.sendto(egm.encode_robot(1, 1, np.zeros(6)), server.address)
-        _poll_until(server, 1)
-        egm.decode_sensor(c.recv(65535))
-        before = (vars(server.counters).copy(), server.seqno, server.peer)
-        for _ in range(3):
-            server.warm()
-        assert (vars(server.counters), server.seqno, server.peer) == before
-        c.settimeout(0.05)
-        with pytest.raises(TimeoutError):
-            c.recv(65535)

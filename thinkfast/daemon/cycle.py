@@ -4,8 +4,8 @@ reply and do other work. Pure: times in, decisions out (the daemon reads the clo
 The controller sends an ``EgmRobot`` every ``dt`` (4 ms), so the next one is due ``dt`` after the
 last. The *window* opens ``ahead`` before that and closes ``SPIN_LATE`` after it:
 
-* at its opening the daemon prepares the next reply (setpoint and supervisor filter ahead, EGM
-  codec warmed up), so that little work is left when the packet comes;
+* at its opening the daemon prepares the next reply (setpoint and supervisor filter ahead), so
+  that little work is left when the packet comes;
 * with ``spin_ahead`` the loop spins on the socket inside the window instead of sleeping: on a
   virtual machine Python runs several times slower right after a sleep. ``spin_ahead >= dt``
   (busy polling) spins all the time and costs a whole core;

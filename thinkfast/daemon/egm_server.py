@@ -198,7 +198,6 @@ class EgmServer:
         self.peer: tuple[str, int] | None = None
         self.foreign_sources: dict[str, int] = {}
         self.last_rx_time: float | None = None
-        self._last_exchange: tuple | None = None  # (request bytes, q, qd) for warm()
         self._clock = clock
         self._t0 = clock()
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
@@ -348,27 +347,10 @@ class EgmServer:
             c.socket_errors += 1
             return 0
         self.seqno = (self.seqno + 1) & UINT32
-        self._last_exchange = (data, q, qd)
         c.replied += 1
         if self.timing is not None:
             self.timing.add(wait, work)
         return 1
-
-    def warm(self) -> None:
-        """Decode the last request and encode the last reply again, discarding both.
-
-        Keeps the reply path's code and data in the CPU caches: on a virtual machine Python runs
-        several times slower when it wakes up cold. A loop that spins before the next request is
-        due calls it there. No state changes; nothing is sent.
-        """
-        if self._last_exchange is None:
-            return
-        data, q, qd = self._last_exchange
-        try:
-            decode_robot(data)
-            encode_sensor(self.seqno, 0, q, qd, mtype=MSGTYPE_CORRECTION)
-        except Exception:  # it was served once: cannot fail, but warming must never raise
-            pass
 
     def serve(self, stop: threading.Event, wait_s: float = 0.05) -> None:
         """Reply to packets as they arrive until ``stop`` is set (body of a dedicated thread).

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import collections
 import math
+import time
 from typing import NamedTuple
 
 import numpy as np
@@ -33,6 +34,8 @@ DEFAULT_CONNECT = "rerun+http://127.0.0.1:9876/proxy"
 ELLIPSOID_SIGMAS = 2.0  # half-axes of the belief and crossing ellipsoids, in standard deviations
 TRAIL = 240  # detections kept in the raw and accepted trails (about 4 s at 60 Hz)
 PATH_SAMPLES = 24  # shield positions drawn along the chosen motion
+INITIAL_COST = 0.0015  # s: expected duration of a job before one of its kind was measured
+WAIT_DECAY = 0.9995  # factor on a job kind's cost each time it waits for time
 SINKS = ("spawn", "connect", "save")
 
 # Entity paths and what each shows (docs/LIVE_VIEW.md has the same table; a test checks both).
@@ -341,6 +344,10 @@ class DaemonView:
         self.jobs: collections.deque = collections.deque()
         self.max_jobs = queue
         self.dropped = 0
+        self.steps: collections.deque = collections.deque()  # (kind, callable) of the job
+        self.done = 0  # steps run
+        self.waited = 0  # times a step waited: its cost exceeded the time left in the cycle
+        self.cost: dict[str, float] = {}  # s per kind of step, decaying maxima
         self.next_joints = -math.inf
         self._parse, self._to_base = parse_detection, to_base
         self._R, self._p = cfg.camera.rotation(), cfg.camera.translation()
@@ -358,40 +365,69 @@ class DaemonView:
             self.dropped += 1
         self.jobs.append(seen)
 
-    def service(self, now: float, t_joints: float, control) -> None:
-        """One bounded job: the joints when due (``t_joints``: time of the last EGM packet [s]),
-        else the oldest queued detection."""
-        if now >= self.next_joints and control.last is not None:
-            self.next_joints = now + self.period
-            self._joints(t_joints, control)
-        elif self.jobs:
-            self._detection(self.jobs.popleft())
+    def service(self, now: float, t_joints: float, control, budget: float = math.inf) -> None:
+        """One step of the view that is expected to end within ``budget`` [s].
+
+        A job (the joints when due, ``t_joints`` being the time of the last EGM packet [s],
+        else the oldest queued detection) is cut into steps of one or two log calls each. Each
+        kind of step keeps the decaying maximum of its measured durations (``cost``); a step
+        whose cost exceeds the budget waits, and its cost decays while it waits
+        (``WAIT_DECAY``: halved after about 1400 waits, a second or two), so that one slow run
+        (a cold start) does not keep it waiting for good; an unbounded budget (the controller
+        silent) runs every step."""
+        if not self.steps:
+            if now >= self.next_joints and control.last is not None:
+                self.next_joints = now + self.period
+                self._joints(t_joints, control)
+            elif self.jobs:
+                self._detection(self.jobs.popleft())
+            else:
+                return
+        kind, fn = self.steps[0]
+        cost = self.cost.get(kind, INITIAL_COST)
+        if cost > budget:
+            self.cost[kind] = cost * WAIT_DECAY
+            self.waited += 1
+            return
+        self.steps.popleft()
+        t0 = time.perf_counter()
+        fn()
+        self.cost[kind] = max(time.perf_counter() - t0, 0.99 * cost)
+        self.done += 1
 
     def _joints(self, t: float, control) -> None:
         p, last = self.painter, control.last
         meas = control.measured
         q_meas = None if meas is None else meas[1]
-        p.joints(t, last.q, last.qd, q_meas)
-        p.arm(t, "commanded", last.q)
+        q, qd = last.q, last.qd
+        steps = self.steps
+        steps.append(("timelines", lambda: p.joints(t, q, qd, q_meas)))
+        steps.append(("arm", lambda: p.arm(t, "commanded", q)))
         if q_meas is not None:
-            p.arm(t, "measured", q_meas)
+            steps.append(("arm", lambda: p.arm(t, "measured", q_meas)))
 
     def _detection(self, s: _Seen) -> None:
+        self.steps.append(("points", lambda: self._points(s)))
+        b = s.belief
+        if s.accepted is None or b.n_meas < 2:
+            return
+        self.steps.append(("belief", lambda: self.painter.belief(s.t, b.mean, b.cov)))
+        self.steps.append(("crossing", lambda: self._crossing(s)))
+        self.steps.append(("motion", lambda: self._motion(s)))
+
+    def _points(self, s: _Seen) -> None:
         p = self.painter
         det = self._parse(s.payload, self.cfg.detections)
         if hasattr(det, "position"):
             p.raw(s.t, self._to_base(det, self._R, self._p).position)
-        if s.accepted is None:
-            return
-        p.accepted(s.t, s.accepted.position)
+        if s.accepted is not None:
+            p.accepted(s.t, s.accepted.position)
+
+    def _crossing(self, s: _Seen) -> None:
         b = s.belief
-        if b.n_meas < 2:
-            return
-        p.belief(s.t, b.mean, b.cov)
         c = self.tree.crossing(b.mean, b.cov, self.cfg.filter.gravity)
         if c.ok:
-            p.crossing(s.t, c.mean, c.cov)
-        self._motion(s)
+            self.painter.crossing(s.t, c.mean, c.cov)
 
     def _motion(self, s: _Seen) -> None:
         """The chosen motion, logged when it (or its value) changed."""
@@ -413,17 +449,28 @@ class DaemonView:
         text = f"{s.mode}: {motion_text(seg.kind, seg.ref, goal, value)}"
         self.painter.decision(s.t, text, value, goal, path)
 
+    def as_dict(self) -> dict:
+        """Status block: steps run, waited for time, jobs dropped and queued, cost of each
+        kind of step [ms]."""
+        return {
+            "done": self.done,
+            "waited": self.waited,
+            "dropped": self.dropped,
+            "queued": len(self.jobs) + len(self.steps),
+            "cost_ms": {k: round(1e3 * v, 3) for k, v in self.cost.items()},
+        }
+
     def close(self) -> None:
         """Log what is still queued, then flush and close the stream."""
         while self.jobs:
             self._detection(self.jobs.popleft())
+        while self.steps:
+            self.steps.popleft()[1]()
         self.painter.close()
 
 
 def daemon_view(text: str, robot, tree_view, cfg, joint_rate: float = 50.0) -> DaemonView:
     """The daemon's view for the ``--rerun`` option ``text`` (:func:`parse_sink`)."""
-    import time
-
     sink = parse_sink(text)
     rec = open_stream(sink, f"thinkfast-run {time.strftime('%Y-%m-%d %H:%M:%S')}")
     painter = Painter(rec, robot, tree_view.plane_x, tree_view.goal_yz)

@@ -15,10 +15,10 @@ mirrored setpoints and the status go out in the same place, and so do garbage co
 (automatic collection is off while serving; the interpreter's own thresholds decide).
 
 When the window opens, shortly before the next ``EgmRobot`` is due, the reply is prepared: the
-executor's setpoint for the time the packet is due, filtered by the supervisor ahead, and the
-EGM codec warmed up; the reply itself then only decodes, runs the supervisor's checks on the
-feedback, and encodes. By default the loop sleeps in ``poll`` (1 ms at a time)
-until a packet comes; with ``spin_ahead`` it spins on the socket inside the window (on a
+executor's setpoint for the time the packet is due, filtered by the supervisor ahead
+(:class:`thinkfast.control.core.Prepared`); the reply itself then only decodes, runs the
+supervisor's checks on the feedback, and encodes. By default the loop sleeps in ``poll`` (1 ms at
+a time) until a packet comes; with ``spin_ahead`` it spins on the socket inside the window (on a
 virtual machine Python runs several times slower right after a sleep), and with ``spin_ahead
 >= dt`` (busy polling) all the time, at the cost of a whole core. ``cpu`` pins the loop's thread
 to one core (and zenoh's threads to the others), ``fifo`` puts it under SCHED_FIFO
@@ -58,7 +58,6 @@ from thinkfast.tree.action_tree import ActionTree
 
 log = logging.getLogger("thinkfast.run")
 STATUS_COST = 0.001  # s set aside for a status message (JSON, timing percentiles)
-VIEW_COST = 0.0015  # s set aside for one live-view job (daemon/live_view.py)
 
 
 @dataclass(frozen=True)
@@ -264,8 +263,8 @@ class Daemon:
                 if now >= next_status and self._time_left(now) > STATUS_COST:
                     self.zio.publish_status(self.status(now))
                     next_status = now + status_period
-                if self.view is not None and self._time_left(now) > VIEW_COST:
-                    self.view.service(now, self.last_rx, self.control)
+                if self.view is not None:  # a job only when its measured cost fits
+                    self.view.service(now, self.last_rx, self.control, self._time_left(now))
                 self._collect_garbage(now)
                 if self._time_left(now) > 0.0005:
                     self.recorder.service()  # hands a batch of rows to the writer process
@@ -359,10 +358,9 @@ class Daemon:
 
     def _prepare(self) -> None:
         """Compute the next reply ahead (:meth:`ControlCore.prepare`: once per cycle, again
-        after a detection changed the plan), then warm the EGM codec (:meth:`EgmServer.warm`):
-        spinning, the reply path stays in the caches until the packet comes."""
-        if self.control.prepare():
-            self.egm.warm()
+        after a detection changed the plan). Warming the EGM codec up here too was measured
+        within noise and dropped (docs/BENCHMARKS.md)."""
+        self.control.prepare()
 
     def _time_left(self, now: float) -> float:
         """Seconds of work that still end before the next EgmRobot's window opens."""
@@ -456,6 +454,7 @@ class Daemon:
             "decision_ms": round(self.decision_ms, 3),
             "detections": self.intake.as_dict(),
             "cameras": {} if ex.check is None else ex.check.as_dict(),
+            **({} if self.view is None else {"view": self.view.as_dict()}),
             "egm": {**vars(self.egm.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},
             "egm_peer": _peer_text(self.egm.peer),
             "egm_foreign": dict(self.egm.foreign_sources),
