@@ -300,3 +300,19 @@ def test_the_detector_stamps_its_camera_id():
     assert parse_detection(detector_payload(found, 3.0, 1)).camera is None
     assert keys.camera_frame("tf", "side") == "tf/camera/side/frame"
     assert keys.camera_frame("tf") == "tf/camera/frame"
+
+
+def test_a_feint_that_passed_for_a_launch_with_two_cameras_leaves_the_arm_at_home(world):
+    """Feint 9 of the bench's seed 1 (``thinkfast-sim bench --throws 1000 --seed 1 --cameras
+    base,side`` flew it as s1-f9): with the side camera, six detections of the two cameras span
+    only 60 ms, and the hand's forward swing fitted a free flight towards the plane; the arm left
+    home 3 ms before the ball stopped and moved the shield 1.17 m. With several cameras the launch
+    fit takes ``[fusion] launch_window`` (8) detections."""
+    from thinkfast.sim.bench import throw_seed
+    from thinkfast.sim.lockstep import simulate
+    from thinkfast.sim.throws import sample_throws
+
+    th = sample_throws(ThrowConfig(), 0, 1, 10)[9]  # a feint depends on (config, seed, j) only
+    assert th.id == "s1-f9" and th.kind == "feint"
+    out = simulate(world, th, "tree", throw_seed(1, 1009))
+    assert not out.moved and out.displacement < 1e-6, (out.start, out.displacement)

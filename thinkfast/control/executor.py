@@ -159,7 +159,9 @@ class Executor:
             self.branches = branch_table(tree, self.chooser.geom, cfg.choice.branch_per_goal)
         self.pending: tuple[int, float] | None = None  # (child node, wall time it starts)
         self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
-        self.launch = LaunchDetector(cfg.launch, cfg.filter, self.sensor)
+        n_cam = 1 + len(cfg.cameras)
+        window = cfg.fusion.launch_window if cfg.cameras else None
+        self.launch = LaunchDetector(cfg.launch, cfg.filter, self.sensor, n_cam, window)
         # several cameras (docs/CAMERAS.md): each one's origin and noise model, and the check
         # that keeps a camera with a wrong extrinsic out; None with the default camera alone
         self.sensors: dict[str | None, tuple[np.ndarray, kf.FilterConfig]] = {

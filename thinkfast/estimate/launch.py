@@ -197,15 +197,22 @@ class LaunchDetector:
         cfg: launch parameters.
         fcfg: filter parameters (stereo noise model, gravity).
         sensor: camera origin in base [m], shape (3,).
+        cameras: how many cameras feed it: the detections kept before the window to locate
+            the hold are ``HOLD_POINTS`` per camera (the same time span as one camera's).
+        window: detections per fit (default ``cfg.window``; several cameras: ``[fusion]
+            launch_window``).
     """
 
-    def __init__(self, cfg: LaunchConfig, fcfg: FilterConfig, sensor):
+    def __init__(
+        self, cfg: LaunchConfig, fcfg: FilterConfig, sensor, cameras: int = 1, window=None
+    ):
         self.cfg, self.fcfg = cfg, fcfg
+        self.window = cfg.window if window is None else int(window)
         self.sensor = np.asarray(sensor, dtype=float)
         # the window, and before it the detections that show where the ball was held
         # (stamp, position, noise covariance) of each detection
         self.points: deque[tuple[float, np.ndarray, np.ndarray]] = deque(
-            maxlen=cfg.window + HOLD_POINTS
+            maxlen=self.window + HOLD_POINTS * max(1, cameras)
         )
         self.passed = 0
         self.fits = 0
@@ -257,7 +264,7 @@ class LaunchDetector:
     def _window(self, points: list, t_new: float) -> list:
         """The newest of ``points`` (up to ``window``) no older than ``max_span`` before
         ``t_new``."""
-        return [p for p in points if t_new - p[0] <= self.cfg.max_span][-self.cfg.window :]
+        return [p for p in points if t_new - p[0] <= self.cfg.max_span][-self.window :]
 
     def _cov(self, z: np.ndarray, sensor=None, fcfg: FilterConfig | None = None) -> np.ndarray:
         """Noise covariance of a detection at ``z`` [m^2] (3, 3) seen from ``sensor`` with the
