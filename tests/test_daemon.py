@@ -219,9 +219,9 @@ def _in_process_daemon(tree_file, robot):
 def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervisor(
     tree_file, robot, monkeypatch
 ):
-    """_prepare() computes the setpoint for the next controller cycle and the supervisor's filter
-    of it, once per cycle; the reply to that cycle's EgmRobot sends exactly that, without asking
-    the executor again. A detection voids it."""
+    """ControlCore.prepare() computes the setpoint for the next controller cycle and the
+    supervisor's filter of it, once per cycle; the reply to that cycle's EgmRobot sends exactly
+    that, without asking the executor again. A detection voids it."""
     from thinkfast.contract.egm import decode_sensor, encode_robot
     from thinkfast.control.safety import filter_step
 
@@ -232,11 +232,12 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
             s.sendto(encode_robot(1, 1000, robot.home), d.egm.address)
             d.egm.poll()
             decode_sensor(s.recv(1024))
-            d._prepare()
+            d.control.prepare()
             prepared = d.control._prepared
             q_req, qd_req = prepared.ahead.q_req, prepared.ahead.qd_req
             assert prepared.t == d.control.clock.t + d.cfg.safety.dt
-            assert not d.control.prepare()  # once per cycle
+            d.control.prepare()
+            assert d.control._prepared is prepared  # once per cycle
             calls = []
             monkeypatch.setattr(d.executor, "setpoint", lambda t: calls.append(t) or 1 / 0)
             q_prev, qd_prev = d.supervisor.q, d.supervisor.qd
@@ -249,7 +250,8 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
             np.testing.assert_allclose(reply.q_rad, want.q, rtol=1e-14, atol=1e-15)
             np.testing.assert_allclose(reply.qd_rad_s, want.qd, rtol=1e-14, atol=1e-15)
             monkeypatch.undo()
-            assert d.control.prepare() and d.control._prepared is not None
+            d.control.prepare()
+            assert d.control._prepared is not None
             det = {"stamp": time.time(), "position": [5.0, 0.1, 1.0], "frame": "camera"}
             d._take(json.dumps(det).encode(), time.time())
             assert d.control._prepared is None  # the plan may have changed: prepared again later

@@ -249,25 +249,18 @@ ROWS = [
         fed=True,
         enter=(TRACKING, 0.5 + LATENCY, 0.5 + LATENCY + DT),
     ),
-    Row(
-        "tracking:held ball never confirms",
-        "tree",
-        TRACKING_HELD,
-        (feed(HELD, 2.5),),
-        (TRACKING,),
-        kind=HOLD,
-        t_start=False,
-        at_home=True,
-    ),
-    Row(
-        "tracking:held ball never confirms[naive-paper]",
-        "naive-paper",
-        TRACKING_HELD,
-        (feed(HELD, 2.5),),
-        (TRACKING,),
-        kind=HOLD,
-        t_start=False,
-        at_home=True,
+    *(
+        Row(
+            f"tracking:held ball never confirms{suffix}",
+            planner,
+            TRACKING_HELD,
+            (feed(HELD, 2.5),),
+            (TRACKING,),
+            kind=HOLD,
+            t_start=False,
+            at_home=True,
+        )
+        for planner, suffix in (("tree", ""), ("naive-paper", "[naive-paper]"))
     ),
     Row(
         "tracking->idle:silence after a held ball",

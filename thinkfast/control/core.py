@@ -137,24 +137,23 @@ class ControlCore:
         return "brake" if self.sup.braking else self.ex.mode
 
     # ------------------------------------------------------------------ cycle
-    def prepare(self) -> bool:
+    def prepare(self) -> None:
         """Compute the next cycle's reply ahead: the executor's setpoint for the controller
         time of the next cycle, filtered by the supervisor (:meth:`SafetySupervisor.
         filter_ahead`). The reply to that cycle's packet then only checks the feedback and
         commits it, bit for bit what it would have computed; anything else since (a detection,
-        a brake, a resync, a skipped cycle) voids it. Returns True when it computed one, False
-        when one is ready already or nothing is served yet. A failing setpoint prepares
+        a brake, a resync, a skipped cycle) voids it. Nothing is computed when the reply for
+        that cycle is ready already, or before the first packet. A failing setpoint prepares
         nothing (the reply asks again, counts it and brakes)."""
         t = self.t_next
         if self.last is None or (self._prepared is not None and self._prepared.t == t):
-            return False
+            return
         try:
             q_req, qd_req = self.ex.setpoint(t)
         except Exception:
             self._prepared = Prepared(t, None)
-            return True
+            return
         self._prepared = Prepared(t, self.sup.filter_ahead(q_req, qd_req))
-        return True
 
     def invalidate(self) -> None:
         """The plan changed: a prepared setpoint is void."""

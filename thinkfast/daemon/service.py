@@ -251,8 +251,8 @@ class Daemon:
             self._event(time.time(), "start", self.summary())
             while True:
                 since = time.time() - self.last_rx
-                if cycle.in_window(since):
-                    self._prepare()
+                if cycle.in_window(since):  # the next reply ahead, once per cycle
+                    self.control.prepare()  # (an EGM codec warm-up here: within noise, dropped)
                 wait_ms = cycle.wait_ms(since)
                 replied = bool(poller.poll(wait_ms)) and self.egm.poll() > 0  # replies at once
                 self._flush_outbox()
@@ -355,12 +355,6 @@ class Daemon:
         for stamp, q, qd, mode, q_meas in self.outbox:
             self.zio.publish_setpoint(stamp, q, qd, mode, q_meas)
         self.outbox.clear()
-
-    def _prepare(self) -> None:
-        """Compute the next reply ahead (:meth:`ControlCore.prepare`: once per cycle, again
-        after a detection changed the plan). Warming the EGM codec up here too was measured
-        within noise and dropped (docs/BENCHMARKS.md)."""
-        self.control.prepare()
 
     def _time_left(self, now: float) -> float:
         """Seconds of work that still end before the next EgmRobot's window opens."""
