@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -134,6 +135,14 @@ def test_fuzzed_detections_and_egm_packets_are_counted_and_move_nothing(tree_fil
     assert sum(d["rejected"].values()) > 0.7 * n and d["dropped"]["duplicate"] > 0
     assert d["dropped"]["out_of_order"] > 0
     assert last["egm"]["foreign"] >= 500  # another port than the controller's: never served
+    # the log names the first payload dropped for each reason, then only the 10th, 100th, ...
+    logged: dict[str, list[int]] = {}
+    for m in re.finditer(r"detection dropped \((\w+): .*\), (\d+) so far for this reason", err):
+        logged.setdefault(m.group(1), []).append(int(m.group(2)))
+    counts = {k: v for k, v in {**d["rejected"], **d["dropped"]}.items() if v > 0}
+    assert set(logged) == set(counts), (sorted(logged), sorted(counts))
+    for reason, n in counts.items():
+        assert logged[reason] == [10**k for k in range(len(str(n)))], (reason, n, logged[reason])
     rows = run.egm_rows()
     assert np.allclose(rows[:, 8:14], robot.home, atol=1e-9)  # the arm never moved
     assert np.all(rows[:, 14:20] == 0.0)

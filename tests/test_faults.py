@@ -205,6 +205,34 @@ def test_checker_excuses_two_unanswered_cycles_after_a_silence_and_counts_a_thir
     assert checker.failures() == []
 
 
+@pytest.mark.parametrize("late", [False, True])
+def test_a_restart_answering_the_packet_before_is_excused_only_after_a_missed_cycle(robot, late):
+    """An arm coasting at 0.3 rad/s after a silence; the restart commands the state measured in
+    one packet. On time (the third packet's cycle) it must be that cycle's state: one cycle
+    behind is 1.2 mrad off and fails. Arrived a cycle late (a host stall, the third cycle
+    missed) the same command answers the packet before: counted in ``resyncs_late``, passed."""
+    n, speed = 40, 0.3
+    k = np.r_[np.arange(20), 100 + np.arange(20)]  # 320 ms of silence after cycle 19
+    q_true = np.tile(robot.home, (n, 1))
+    q_true[20:, 0] += 0.05 + speed * DT * np.arange(20)  # coasting, measured
+    qd_true = np.zeros((n, 6))
+    qd_true[20:, 0] = speed
+    first = 23 if late else 22  # the first answered cycle after the silence
+    q = q_true.copy()
+    q[first] = q_true[first - 1]  # the command: the state of the packet before
+    replied = np.ones(n, dtype=int)
+    replied[20:first] = 0
+    checker = ReplyChecker(robot)
+    checker.feed(_rows(q, k=k, q_true=q_true, qd=qd_true, qd_true=qd_true, replied=replied))
+    assert checker.n["resyncs_checked"] == 2
+    if late:
+        assert checker.n["resyncs_late"] == 1 and not checker.resync_fail
+        assert checker.n["missed"] == 1  # the late cycle itself still counts as missed
+    else:
+        assert checker.n["resyncs_late"] == 0
+        assert checker.resync_fail and checker.f["resync_pos_err_mrad"] == pytest.approx(1.2)
+
+
 def test_stalls_near_attributes_events_to_overlapping_stalls():
     stalls = np.array([[10.0, 0.005], [20.0, 0.1]])
     got = stalls_near(np.array([9.997, 10.02, 20.05, 30.0]), stalls, 0.006, 0.004)

@@ -14,6 +14,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -115,6 +116,10 @@ def local_run(sweep_dir):
         report = run_sweep(spec, store, client)
     write_results(spec, store, report.docs)
     return spec, store, report
+
+
+def _worker_dirs() -> set[Path]:
+    return set(Path(tempfile.gettempdir()).glob("thinkfast-worker-*"))
 
 
 def test_a_sweep_on_a_two_worker_local_cluster_equals_serial_benches(local_run, reference):
@@ -245,6 +250,7 @@ def test_a_separate_cluster_runs_bench_and_a_sweep_that_survives_a_killed_worker
 ):
     addr, workers = loopback_cluster
     _, store, _ = local_run
+    dirs_before = _worker_dirs()
     _, summary0, tree0 = reference[0]
     proc = run_cli(
         "thinkfast-sim", "bench", "--tree", str(tree0), "--throws", str(THROWS), "--seed",
@@ -289,6 +295,9 @@ def test_a_separate_cluster_runs_bench_and_a_sweep_that_survives_a_killed_worker
     assert len(results["points"]) == 4
     for doc in results["points"]:
         assert without_seconds(doc["summary"]) == reference[doc["index"]][1], doc["params"]
+    # no tree file stays on disk (one killed with SIGKILL could remove nothing): each exists only
+    # while it is read
+    assert _worker_dirs() - dirs_before == set()
 
 
 def test_sweep_files_are_checked_key_by_key(tmp_path):

@@ -433,7 +433,7 @@ class Daemon:
             log.warning("detection dropped (%s: %s), %d so far for this reason", *reason, n)
 
     def status(self, now: float) -> dict:
-        """The status message (INTERFACES.md: at least stamp and state)."""
+        """The status message (docs/INTERFACES.md: at least stamp and state)."""
         ex, ctl, sup = self.executor, self.control, self.supervisor
         vg = ex.current_value()
         value = None if vg is None else vg[0]

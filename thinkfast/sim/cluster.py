@@ -18,11 +18,9 @@ unfinished tasks elsewhere, and a rerun after any interruption recomputes only w
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import hashlib
 import logging
-import shutil
 import sys
 import tempfile
 import threading
@@ -51,16 +49,6 @@ class NeedsDask(ThinkfastError):
 _CACHE: dict[str, Any] = {}
 WORLDS_KEPT = 3  # lockstep worlds a worker process keeps (the most recently used)
 _LOCK = threading.Lock()
-
-
-def _workdir() -> Path:
-    """A directory of this process for tree files (removed at exit)."""
-    with _LOCK:
-        if "dir" not in _CACHE:
-            d = Path(tempfile.mkdtemp(prefix="thinkfast-worker-"))
-            atexit.register(shutil.rmtree, d, True)
-            _CACHE["dir"] = d
-        return _CACHE["dir"]
 
 
 def _check_robot(robot_path: str | None, hashes: tuple[str, str] | None):
@@ -118,12 +106,13 @@ def _world(tree_bytes: bytes, run_cfg, robot_path: str | None, hashes):
             worlds[key] = worlds.pop(key)  # most recently used last
             return worlds[key]
     robot = _check_robot(robot_path, hashes)
-    path = _workdir() / f"{digest[:16]}.h5"
-    if not path.exists():
-        tmp = path.with_suffix(f".{threading.get_ident()}.tmp")
-        tmp.write_bytes(tree_bytes)
-        tmp.replace(path)
-    world = World(load_tree(path), robot, run_cfg, ServoConfig(), CameraModelConfig())
+    # The file lives only while it is read (load_tree reads every array into memory): a worker
+    # process ends with os._exit, so nothing left on disk would ever be removed.
+    with tempfile.TemporaryDirectory(prefix="thinkfast-worker-") as d:
+        path = Path(d) / f"{digest[:16]}.h5"
+        path.write_bytes(tree_bytes)
+        tree = load_tree(path)
+    world = World(tree, robot, run_cfg, ServoConfig(), CameraModelConfig())
     with _LOCK:  # a few: a sweep's chunks arrive point by point
         worlds[key] = world
         while len(worlds) > WORLDS_KEPT:

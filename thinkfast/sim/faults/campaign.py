@@ -30,8 +30,9 @@ _LINE = ("answered_pct", "missed_unexplained", "v_ratio", "a_ratio", "jerk_ratio
          "resync_pos_err_mrad", "resync_vel_ratio")  # fmt: skip
 _COMMON = set(_LINE) | {
     "cycles", "missed", "missed_host_stall", "host_stall_max_ms", "a_ratio_all", "speedref_ratio",
-    "speedref_jerk_ratio_brake", "jerk_ratio_normal", "resyncs_checked", "gaps", "brake_cycles",
-    "extra_replies", "nonfinite", "outside_urdf", "bad_replies", "resync_failures",
+    "speedref_jerk_ratio_brake", "jerk_ratio_normal", "resyncs_checked", "resyncs_late", "gaps",
+    "brake_cycles", "extra_replies", "nonfinite", "outside_urdf", "bad_replies",
+    "resync_failures",
 }  # fmt: skip
 
 

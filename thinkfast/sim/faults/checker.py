@@ -26,7 +26,9 @@ Checks (relative tolerance ``rtol``; ratios are value / limit, per joint, the ma
   measured velocity (what one cycle at the acceleration limit can change). The first
   :data:`RESYNC_WAIT` cycles after a silence may go unanswered by design (the daemon waits for
   three packets to measure the velocity): counted in ``missed_after_silence``, not in
-  ``missed`` nor in the cycles of ``answered_pct``; a further miss counts as usual;
+  ``missed`` nor in the cycles of ``answered_pct``; a further miss counts as usual, and the
+  reply after it may answer the packet before it (arrived a cycle late): it is then checked
+  against that packet's measured state (``resyncs_late``);
 * every reply finite and inside the URDF limits.
 
 :meth:`ReplyChecker.feed` takes rows in batches (the soak feeds it every few seconds).
@@ -40,6 +42,7 @@ from thinkfast.sim.faults import rows as R
 
 SETTLE = 4  # cycles after a missed one whose replies may be stale
 RESYNC_WAIT = 2  # cycles after a silence that may go unanswered by design
+MAX_LATE = 25  # missed cycles after those whose packets a late first reply may answer
 
 
 class ReplyChecker:
@@ -69,8 +72,8 @@ class ReplyChecker:
         )  # fmt: skip
         self.n = dict.fromkeys(
             ("cycles", "replied", "missed", "bad_replies", "nonfinite", "outside_urdf",
-             "extra_replies", "gaps", "silences", "resyncs_checked", "resync_unanswered",
-             "missed_after_silence",
+             "extra_replies", "gaps", "silences", "resyncs_checked", "resyncs_late",
+             "resync_unanswered", "missed_after_silence",
              "brake_cycles", "v_violations", "a_violations", "jerk_violations", "restarts"), 0,
         )  # fmt: skip
         self.missed_times: list[float] = []  # t_send of cycles without a reply
@@ -82,6 +85,8 @@ class ReplyChecker:
         self._seen_reply = False
         self._waited = 0
         self._replies = self._copies = 0
+        self._since: list[np.ndarray] = []  # rows since the last silence, while unanswered
+        self._offsets = np.zeros(0)  # send time - reply header time [s], on-time replies
 
     def feed(self, rows: np.ndarray, braking=None) -> None:
         """Check a batch of rows (in cycle order); ``braking(rows)`` -> bool (N,) (None: never)."""
@@ -166,19 +171,35 @@ class ReplyChecker:
         silence = np.nan_to_num(dk, nan=0.0) * self.dt > self.silence + 1e-9
         self.n["gaps"] += int((np.nan_to_num(dk, nan=1.0) > 1).sum())
         self.n["silences"] += int(silence.sum())
+        self._tm_offsets(rows)
         pending, seen, waited = self._pending_resync, self._seen_reply, self._waited
+        since = self._since
         for i in range(len(rows)):
             if silence[i]:
                 if pending and seen and waited >= 5:  # 5 cycles sent after a silence, no reply
                     self.n["resync_unanswered"] += 1
                 pending, waited = True, 0
+                since.clear()
             if pending and seen and waited < RESYNC_WAIT and rows[i, R.N_VALID] == 0:
                 self._excuse(rows[i], i >= counted_from)
             if pending and rows[i, R.N_VALID] > 0:
+                # after missed cycles the reply may answer one of their packets (a late reply)
                 pending, seen = False, True
-                self._check_resync(rows[i])
+                self._check_resync(rows[i], since[RESYNC_WAIT:])
+                since.clear()
+            elif pending and len(since) < MAX_LATE + RESYNC_WAIT:
+                since.append(rows[i].copy())
             waited += 1
         self._pending_resync, self._seen_reply, self._waited = pending, seen, waited
+
+    def _tm_offsets(self, rows: np.ndarray) -> None:
+        """Keep samples of send time minus the reply's header time (the daemon stamps a reply
+        with the time it received the packet, in ms of its own clock) from cycles answered on
+        time, to tell which packet a late reply answered (diagnostics only)."""
+        ok = (rows[:, R.N_VALID] == 1) & np.isfinite(rows[:, R.R_TM])
+        if ok.any():
+            d = rows[ok, R.T_SEND] - rows[ok, R.R_TM] / 1000.0
+            self._offsets = np.r_[self._offsets, d][-200:]
 
     def _excuse(self, row: np.ndarray, counted: bool) -> None:
         """A cycle right after a silence went unanswered by design: not a missed reply."""
@@ -195,14 +216,32 @@ class ReplyChecker:
         if int(row[R.FLAGS]) & R.LATE:
             self.missed_late -= 1
 
-    def _check_resync(self, row: np.ndarray) -> None:
-        q_meas, qd_meas = row[R.Q_TRUE], row[R.QD_TRUE]
+    def _resync_error(self, row: np.ndarray, state: np.ndarray) -> tuple[float, float]:
+        """(position error [rad], speedRef error / (a_max dt)) of ``row``'s command against the
+        measured state of ``state`` (a row)."""
+        q_meas, qd_meas = state[R.Q_TRUE], state[R.QD_TRUE]
         q, qd = row[R.CMD_Q], row[R.CMD_QD]
         # distance to the segment q_meas + s qd_meas, 0 <= s <= dt (per joint)
         step = qd_meas * self.dt
         s = np.clip(np.where(step != 0, (q - q_meas) / np.where(step != 0, step, 1), 0), 0, 1)
         pos_err = float(np.max(np.abs(q - (q_meas + s * step))))
         vel_ratio = float(np.max(np.abs(qd - qd_meas) / (self.lim.a_max * self.dt)))
+        return pos_err, vel_ratio
+
+    def _check_resync(self, row: np.ndarray, before=()) -> None:
+        """The first command after a silence against the state measured in its cycle, or in one
+        of the cycles before it that went unanswered beyond :data:`RESYNC_WAIT` (``before``:
+        their rows, at most :data:`MAX_LATE`): the reply may answer one of those packets and
+        have arrived late (a stall of the host), as after any missed reply. Counted in
+        ``resyncs_late``."""
+        pos_err, vel_ratio = self._resync_error(row, row)
+        late = 0
+        for j, state in enumerate(before):
+            e = self._resync_error(row, state)
+            if max(e[0] / self.pos_tol, e[1]) < max(pos_err / self.pos_tol, vel_ratio):
+                (pos_err, vel_ratio), late = e, len(before) - j
+        self.n["resyncs_late"] += late > 0
+        qd_meas = row[R.QD_TRUE]
         self.n["resyncs_checked"] += 1
         f = self.f
         f["resync_pos_err_mrad"] = max(f["resync_pos_err_mrad"], 1e3 * pos_err)
@@ -212,12 +251,37 @@ class ReplyChecker:
             "pos_err_mrad": round(1e3 * pos_err, 3),
             "vel_ratio": round(vel_ratio, 3),
             "speed": round(float(np.abs(qd_meas).max()), 3),
+            "late": late,  # cycles between the packet it matches best and its own
         }
         if len(self.resyncs) < 1000:
             self.resyncs.append(rec)
         if pos_err > self.pos_tol * (1 + self.rtol) or vel_ratio > 1 + self.rtol:
             if len(self.resync_fail) < 20:
-                self.resync_fail.append(rec)
+                self.resync_fail.append({**rec, **self._context(row, list(before))})
+
+    def _context(self, row: np.ndarray, before: list) -> dict:
+        """Diagnostics of a failed resync: the cycles it could answer and the one its header
+        time points to (offset from on-time replies), positions of the joint most off."""
+        j = int(np.argmax(np.abs(row[R.CMD_Q] - row[R.Q_TRUE])))
+        cycles = [*before, row]
+        out = {
+            "joint": j + 1,
+            "cmd_q": round(float(row[R.CMD_Q][j]), 5),
+            "cmd_qd": round(float(row[R.CMD_QD][j]), 4),
+            "cycles": [
+                {
+                    "k": int(r[R.K]),
+                    "q": round(float(r[R.Q_TRUE][j]), 5),
+                    "qd": round(float(r[R.QD_TRUE][j]), 4),
+                    "flags": int(r[R.FLAGS]),
+                }
+                for r in cycles
+            ],  # fmt: skip
+        }
+        if len(self._offsets) and np.isfinite(row[R.R_TM]):
+            rx = row[R.R_TM] / 1000.0 + float(np.median(self._offsets))  # on the sender's clock
+            out["received_ms_after_send"] = [round(1e3 * (rx - r[R.T_SEND]), 1) for r in cycles]
+        return out
 
     @staticmethod
     def _applied(allr: np.ndarray, src: np.ndarray):

@@ -108,9 +108,9 @@ def blocked_summary(outcomes) -> dict:
 _KEEP = ("answered_pct", "cycles", "missed", "missed_host_stall", "missed_unexplained",
          "host_stall_max_ms", "v_ratio", "a_ratio", "a_ratio_all", "speedref_ratio",
          "jerk_ratio_brake", "speedref_jerk_ratio_brake", "jerk_ratio_normal",
-         "resyncs_checked", "missed_after_silence", "resync_pos_err_mrad", "resync_vel_ratio",
-         "gaps", "brake_cycles", "extra_replies", "nonfinite", "outside_urdf",
-         "bad_replies")  # fmt: skip
+         "resyncs_checked", "resyncs_late", "missed_after_silence", "resync_pos_err_mrad",
+         "resync_vel_ratio", "gaps", "brake_cycles", "extra_replies", "nonfinite",
+         "outside_urdf", "bad_replies")  # fmt: skip
 
 
 def finish(name: str, cell: Cell, t_start: float, figures: dict, failures: list[str], *,
