@@ -360,9 +360,12 @@ def test_the_detector_publishes_each_detection_as_a_point_stamped_too():
         js, _s1 = _collect(peer, keys.detections("thinkfast"))
         pts, _s2 = _collect(peer, DETECTIONS_KEY)
         time.sleep(0.3)
-        peer.put(
-            keys.camera_frame("thinkfast"), encode_frame(1e9, (F, F, 639.5, 359.5), img, xyz, seq=7)
-        )
+        frame = encode_frame(1e9, (F, F, 639.5, 359.5), img, xyz, seq=7)
+        for _ in range(10):  # until the node has it (a route may take a moment to settle)
+            peer.put(keys.camera_frame("thinkfast"), frame)
+            if _wait(lambda: (node.step(), node.counters.frames["received"])[1], timeout=0.5):
+                break
+        assert node.counters.frames["received"] == 1, "the detector never got the frame"
         assert _wait(lambda: node.step() is not None and js and pts), (js, pts)
     finally:
         peer.close()
