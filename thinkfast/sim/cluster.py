@@ -26,6 +26,7 @@ import tempfile
 import threading
 import time
 import uuid
+import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -198,8 +199,12 @@ class DaskClient:
         self.client, self.cluster, self.description = client, cluster, description
 
     def submit(self, fn: Callable, *args, key: str, priority: int = 0, retries: int = 0):
-        return self.client.submit(fn, *args, key=key, priority=priority, retries=retries,
-                                  pure=False)  # fmt: skip
+        with warnings.catch_warnings():
+            # a tree's bytes ride in its task on purpose (module doc): Dask's hint to scatter
+            # them instead would give up recomputing a copy lost with a worker
+            warnings.filterwarnings("ignore", "Sending large graph", UserWarning)
+            return self.client.submit(fn, *args, key=key, priority=priority, retries=retries,
+                                      pure=False)  # fmt: skip
 
     @staticmethod
     def as_completed(futures) -> Iterator:
