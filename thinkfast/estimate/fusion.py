@@ -124,7 +124,8 @@ class FusionConfig:
         hi=12,
         doc="TUNED: detections per launch fit (for [launch] window) when several cameras are "
         "fused; chosen on 1000 throws + 100 feints with the side camera (seed 1): 6 moved the "
-        "arm for 1 feint, 8 for none, 12 blocked 1.8 points fewer; seeds 2-3 do not confirm it "
+        "arm for 1 feint, 8 for none, 12 blocked 1.8 points fewer; not confirmed on seeds 2-3: "
+        "8 blocked 2.2 points fewer than 6 on 1000 paired throws, moved for no fewer feints "
         "(docs/RESULTS.md)",
     )
     check_alpha: float = spec(
