@@ -23,6 +23,7 @@ from thinkfast.tree.file import (
     load_tree,
     save_tree,
     tree_fingerprint,
+    tree_from_bytes,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -70,6 +71,19 @@ def test_round_trip_gives_identical_arrays_dtypes_and_meta(tmp_path, seed, depth
     assert_same_tree(tree, back)
     assert tree_fingerprint(back) == tree_fingerprint(tree)
     assert all(not a.flags.writeable for a in back.arrays().values())
+
+
+def test_a_tree_read_from_its_bytes_is_the_tree_read_from_its_file(tree_file):
+    data = tree_file.read_bytes()
+    assert_same_tree(load_tree(tree_file), tree_from_bytes(data))
+    for bad, needle in ((b"", "not an HDF5 file"), (data[: len(data) // 2], "tree X: ")):
+        with pytest.raises(TreeFileError) as info:
+            tree_from_bytes(bad, "tree X")
+        assert str(info.value).startswith("tree X: ") and needle in str(info.value)
+    flipped = bytearray(data)  # a dataset's byte changed: the checksum refuses it
+    flipped[-200] ^= 0xFF
+    with pytest.raises(TreeFileError):
+        tree_from_bytes(bytes(flipped), "tree X")
 
 
 def test_tree_without_terminals_round_trips(tmp_path):

@@ -97,7 +97,7 @@ def _world(tree_bytes: bytes, run_cfg, robot_path: str | None, hashes):
     from thinkfast.sim.camera import CameraModelConfig
     from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.lockstep import World
-    from thinkfast.tree.file import load_tree
+    from thinkfast.tree.file import tree_from_bytes
 
     digest = hashlib.sha256(tree_bytes).hexdigest()
     key = f"{digest}:{robot_path}:{hashlib.sha256(repr(to_dict(run_cfg)).encode()).hexdigest()}"
@@ -107,12 +107,8 @@ def _world(tree_bytes: bytes, run_cfg, robot_path: str | None, hashes):
             worlds[key] = worlds.pop(key)  # most recently used last
             return worlds[key]
     robot = _check_robot(robot_path, hashes)
-    # The file lives only while it is read (load_tree reads every array into memory): a worker
-    # process ends with os._exit, so nothing left on disk would ever be removed.
-    with tempfile.TemporaryDirectory(prefix="thinkfast-worker-") as d:
-        path = Path(d) / f"{digest[:16]}.h5"
-        path.write_bytes(tree_bytes)
-        tree = load_tree(path)
+    # read in memory: a worker may be killed at any moment, and a file would stay behind
+    tree = tree_from_bytes(tree_bytes, f"tree {digest[:16]}")
     world = World(tree, robot, run_cfg, ServoConfig(), CameraModelConfig())
     with _LOCK:  # a few: a sweep's chunks arrive point by point
         worlds[key] = world

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import io
 import json
 import os
 import secrets
@@ -311,7 +312,20 @@ def load_tree(path: str | os.PathLike) -> ActionTree:
             schema version, lacks a dataset, has a wrong dtype or shape, fails a checksum or
             violates the layout (see :func:`layout_problem`).
     """
-    with _open(path) as f:
+    return _load(_open(path), path)
+
+
+def tree_from_bytes(data: bytes, name: str = "<tree bytes>") -> ActionTree:
+    """:func:`load_tree` of a tree file's bytes, read in memory (nothing touches the disk);
+    ``name`` stands for the path in error messages."""
+    if not data.startswith(_SIGNATURE):
+        raise TreeFileError(f"{name}: not an HDF5 file")
+    return _load(_open_bytes(data, name), name)
+
+
+def _load(opened, path) -> ActionTree:
+    """Read and verify a tree from an opened file (context manager of :func:`_open`)."""
+    with opened as f:
         meta = _read_meta(f, path)
         read = {name: _read_dataset(f, p, DTYPES[name], path) for name, p, _ in LAYOUT}
         derived = {p: _read_dataset(f, p, np.dtype(np.int32), path)[0] for p, _, _ in DERIVED}
@@ -360,6 +374,20 @@ def _open(path: str | os.PathLike) -> Iterator[h5py.File]:
             yield f
     except (OSError, KeyError, ValueError, RuntimeError, TypeError) as exc:
         raise _unreadable(path, exc) from None
+
+
+@contextlib.contextmanager
+def _open_bytes(data: bytes, name: str) -> Iterator[h5py.File]:
+    """:func:`_open` of a file's bytes held in memory."""
+    try:
+        f = h5py.File(io.BytesIO(data), "r")
+    except (OSError, ValueError, RuntimeError) as exc:
+        raise _unreadable(name, exc) from None
+    try:
+        with f:
+            yield f
+    except (OSError, KeyError, ValueError, RuntimeError, TypeError) as exc:
+        raise _unreadable(name, exc) from None
 
 
 _SIGNATURE = b"\x89HDF\r\n\x1a\n"
