@@ -365,22 +365,22 @@ def _open(path: str | os.PathLike) -> Iterator[h5py.File]:
         raise TreeFileError(f"{path}: file not found") from None
     except OSError as exc:
         raise TreeFileError(f"{path}: cannot read file ({exc.strerror or exc})") from None
-    try:
-        f = h5py.File(path, "r")
-    except (OSError, ValueError, RuntimeError) as exc:
-        raise _unreadable(path, exc) from None
-    try:
-        with f:
-            yield f
-    except (OSError, KeyError, ValueError, RuntimeError, TypeError) as exc:
-        raise _unreadable(path, exc) from None
+    with _h5(path, path) as f:
+        yield f
 
 
 @contextlib.contextmanager
 def _open_bytes(data: bytes, name: str) -> Iterator[h5py.File]:
     """:func:`_open` of a file's bytes held in memory."""
+    with _h5(io.BytesIO(data), name) as f:
+        yield f
+
+
+@contextlib.contextmanager
+def _h5(source, name) -> Iterator[h5py.File]:
+    """``h5py.File(source)`` read-only; failures become a TreeFileError naming ``name``."""
     try:
-        f = h5py.File(io.BytesIO(data), "r")
+        f = h5py.File(source, "r")
     except (OSError, ValueError, RuntimeError) as exc:
         raise _unreadable(name, exc) from None
     try:
