@@ -318,13 +318,14 @@ def load_tree(path: str | os.PathLike) -> ActionTree:
 def tree_from_bytes(data: bytes, name: str = "<tree bytes>") -> ActionTree:
     """:func:`load_tree` of a tree file's bytes, read in memory (nothing touches the disk);
     ``name`` stands for the path in error messages."""
-    if not data.startswith(_SIGNATURE):
+    if not _has_signature(io.BytesIO(data)):
         raise TreeFileError(f"{name}: not an HDF5 file")
-    return _load(_open_bytes(data, name), name)
+    return _load(_h5(io.BytesIO(data), name), name)
 
 
 def _load(opened, path) -> ActionTree:
-    """Read and verify a tree from an opened file (context manager of :func:`_open`)."""
+    """Read and verify a tree from an opened file (context manager of :func:`_open` or
+    :func:`_h5`)."""
     with opened as f:
         meta = _read_meta(f, path)
         read = {name: _read_dataset(f, p, DTYPES[name], path) for name, p, _ in LAYOUT}
@@ -370,13 +371,6 @@ def _open(path: str | os.PathLike) -> Iterator[h5py.File]:
 
 
 @contextlib.contextmanager
-def _open_bytes(data: bytes, name: str) -> Iterator[h5py.File]:
-    """:func:`_open` of a file's bytes held in memory."""
-    with _h5(io.BytesIO(data), name) as f:
-        yield f
-
-
-@contextlib.contextmanager
 def _h5(source, name) -> Iterator[h5py.File]:
     """``h5py.File(source)`` read-only; failures become a TreeFileError naming ``name``."""
     try:
@@ -396,13 +390,18 @@ _SIGNATURE = b"\x89HDF\r\n\x1a\n"
 def _has_hdf5_signature(path: str | os.PathLike) -> bool:
     """The HDF5 signature sits at byte 0, 512, 1024, 2048, ... (after a user block)."""
     with open(path, "rb") as fh:
-        size = os.fstat(fh.fileno()).st_size
-        offset = 0
-        while offset + len(_SIGNATURE) <= size:
-            fh.seek(offset)
-            if fh.read(len(_SIGNATURE)) == _SIGNATURE:
-                return True
-            offset = 512 if offset == 0 else 2 * offset
+        return _has_signature(fh)
+
+
+def _has_signature(fh) -> bool:
+    """:func:`_has_hdf5_signature` of an open binary file (or bytes in a ``BytesIO``)."""
+    size = fh.seek(0, os.SEEK_END)
+    offset = 0
+    while offset + len(_SIGNATURE) <= size:
+        fh.seek(offset)
+        if fh.read(len(_SIGNATURE)) == _SIGNATURE:
+            return True
+        offset = 512 if offset == 0 else 2 * offset
     return False
 
 

@@ -187,8 +187,10 @@ class ReplyChecker:
                 pending, seen = False, True
                 self._check_resync(rows[i], since[RESYNC_WAIT:])
                 since.clear()
-            elif pending and len(since) < MAX_LATE + RESYNC_WAIT:
+            elif pending:
                 since.append(rows[i].copy())
+                if len(since) > MAX_LATE + RESYNC_WAIT:  # keep the newest: a late reply
+                    del since[RESYNC_WAIT]  # answers a recent packet
             waited += 1
         self._pending_resync, self._seen_reply, self._waited = pending, seen, waited
 
