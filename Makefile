@@ -20,8 +20,14 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# Two steps: tests on simulated or no time in parallel (one worker per core, a module's tests
+# on one worker), then the ones whose outcome depends on the wall clock (marker `realtime`)
+# one at a time, so that no other test loads the machine under them.
+JOBS ?= auto
+
 test: $(STAMP)
-	$(PY) -m pytest -q --durations=15
+	$(PY) -m pytest -q -m "not realtime" -n $(JOBS) --dist loadscope --durations=10
+	$(PY) -m pytest -q -m realtime -p no:xdist --durations=10
 
 THROWS ?= 5
 

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -94,14 +98,48 @@ def small_tree_config(
     return path
 
 
+def _compiler_sources_digest() -> str:
+    """SHA-256 over everything a compiled tree depends on: the compiler's, robot's and tree
+    file's sources and the robot description (so a cached tree is never stale)."""
+    h = hashlib.sha256()
+    roots = [ROOT / "thinkfast" / d for d in ("compile", "robot", "tree")]
+    files = [f for r in roots for f in sorted(r.rglob("*.py"))]
+    files += sorted((ROOT / "robots").rglob("*"))
+    files += [ROOT / "thinkfast" / "config.py", ROOT / "thinkfast" / "errors.py"]
+    for f in files:
+        if f.is_file():
+            h.update(str(f.relative_to(ROOT)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+TREE_CACHE = Path(tempfile.gettempdir()) / "tftest-trees"
+
+
 def compile_small_tree(directory: Path, **kwargs) -> Path:
-    """Compile :func:`small_tree_config` into ``directory/small_tree.h5``; returns its path."""
+    """Compile :func:`small_tree_config` into ``directory/small_tree.h5``; returns its path.
+
+    The same config always gives the same tree, so each one is compiled once per machine and
+    source state: test processes (parallel workers, the real-time step) share a cache keyed by
+    the config text and :func:`_compiler_sources_digest`, filled under a file lock; every caller
+    gets its own copy (tests may damage theirs).
+    """
     from thinkfast.compile.build import compile_tree
     from thinkfast.compile.config import load_compile_config
     from thinkfast.tree.file import save_tree
 
+    config = small_tree_config(directory, **kwargs)
+    key = hashlib.sha256((config.read_text() + _compiler_sources_digest()).encode()).hexdigest()[
+        :24
+    ]
+    TREE_CACHE.mkdir(exist_ok=True)
+    cached = TREE_CACHE / f"{key}.h5"
     path = directory / "small_tree.h5"
-    save_tree(
-        compile_tree(load_compile_config(small_tree_config(directory, **kwargs)), jobs=2), path
-    )
+    with open(TREE_CACHE / f"{key}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not cached.exists():
+            part = TREE_CACHE / f"{key}.{os.getpid()}.part"
+            save_tree(compile_tree(load_compile_config(config), jobs=2), part)
+            os.replace(part, cached)
+    shutil.copyfile(cached, path)
     return path

@@ -44,6 +44,7 @@ def _check_limits(rows: np.ndarray, robot, margin: float = 0.005) -> None:
 DEPLOY = ("--spin-ahead-ms", "1", "--cpu", str(max(os.sched_getaffinity(0))))
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize(
     "planner, extra",
     [("tree", ()), ("naive", ()), ("tree", DEPLOY)],
@@ -104,6 +105,7 @@ def _fuzz_payloads(rng: np.random.Generator, n: int, stamp0: float) -> list[byte
     return out
 
 
+@pytest.mark.realtime
 def test_fuzzed_detections_and_egm_packets_are_counted_and_move_nothing(tree_file, tmp_path, robot):
     run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home)
     n = 10_000
@@ -148,6 +150,7 @@ def test_fuzzed_detections_and_egm_packets_are_counted_and_move_nothing(tree_fil
     assert np.all(rows[:, 14:20] == 0.0)
 
 
+@pytest.mark.realtime
 def test_sigint_during_motion_brakes_within_limits_then_exits_0(tree_file, tmp_path, robot):
     run = DaemonRun(tree_file, tmp_path / "rec.h5", "naive", q0=robot.home)
     t_release = time.time() + 0.8
@@ -181,6 +184,7 @@ def test_sigint_during_motion_brakes_within_limits_then_exits_0(tree_file, tmp_p
     assert np.all(np.diff(speed[turn:], axis=0) <= 1e-9)
 
 
+@pytest.mark.realtime
 def test_a_failing_planner_still_answers_every_packet_and_brakes(tree_file, robot, monkeypatch):
     """Executor.setpoint raising: one EgmSensor per EgmRobot all the same, braking, no crash."""
     from thinkfast.contract.egm import decode_sensor, encode_robot
@@ -225,6 +229,7 @@ def _in_process_daemon(tree_file, robot):
     )
 
 
+@pytest.mark.realtime
 def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervisor(
     tree_file, robot, monkeypatch
 ):

@@ -89,6 +89,7 @@ def test_bad_controller_and_busy_port_are_clear_errors():
             EgmServer(a.address, _hold)
 
 
+@pytest.mark.realtime
 def test_one_reply_per_request_with_seqno_plus_one_to_the_one_peer(client):
     a = client()
     seen = []
@@ -124,6 +125,7 @@ def _no_reply(sock, wait=0.05):
         sock.recv(65535)
 
 
+@pytest.mark.realtime
 def test_a_second_sender_is_never_answered_and_counted_by_source(client):
     a, b = client(), client()
     with EgmServer(f"{LOOPBACK}:0", _hold, handover=10.0) as server:
@@ -137,6 +139,7 @@ def test_a_second_sender_is_never_answered_and_counted_by_source(client):
         _no_reply(b)
 
 
+@pytest.mark.realtime
 def test_the_peer_is_handed_over_only_after_it_was_silent(client):
     a, b = client(), client()
     with EgmServer(f"{LOOPBACK}:0", _hold, handover=0.2) as server:
@@ -154,6 +157,7 @@ def test_the_peer_is_handed_over_only_after_it_was_silent(client):
         assert server.peer == b.getsockname() and server.counters.foreign == 2
 
 
+@pytest.mark.realtime
 def test_a_named_controller_port_is_the_only_one_served(client):
     a, b = client(), client()
     port = a.getsockname()[1]
@@ -170,6 +174,7 @@ def test_a_named_controller_port_is_the_only_one_served(client):
         assert (server.counters.foreign, server.counters.replied) == (1, 0)
 
 
+@pytest.mark.realtime
 def test_a_backlog_is_answered_once_with_the_newest_packet(client):
     a, flood = client(), client()
     flood.setblocking(False)
@@ -224,6 +229,7 @@ def _fuzz_packets(rng, n):
     return out
 
 
+@pytest.mark.realtime
 def test_ten_thousand_fuzzed_packets_are_counted_and_never_crash(client):
     c = client()
     c.setblocking(False)
@@ -252,6 +258,7 @@ def test_ten_thousand_fuzzed_packets_are_counted_and_never_crash(client):
     assert k.reply_errors == k.socket_errors == k.foreign == 0
 
 
+@pytest.mark.realtime
 def test_a_failing_setpoint_source_is_counted_and_the_next_request_served(client):
     c = client()
     answers = iter([RuntimeError("boom"), (np.full(6, np.nan), np.zeros(6)), (np.zeros(5), 0)])
@@ -272,6 +279,7 @@ def test_a_failing_setpoint_source_is_counted_and_the_next_request_served(client
         assert egm.decode_sensor(c.recv(65535)).seqno == 1  # no seqno spent on unsent replies
 
 
+@pytest.mark.realtime
 def test_a_deferred_request_sends_nothing_spends_no_seqno_and_is_counted(client):
     """``reply_fn`` returning None leaves the request unanswered by design (the daemon does so
     after a silence, to measure the velocity from the next packet)."""
@@ -296,6 +304,7 @@ def test_a_deferred_request_sends_nothing_spends_no_seqno_and_is_counted(client)
         assert first.seqno == 1 and calls == [7, 8]
 
 
+@pytest.mark.realtime
 def test_serve_thread_replies_as_packets_arrive_and_stops_on_event(client):
     c = client()
     with EgmServer(f"{LOOPBACK}:0", _hold) as server:
@@ -313,4 +322,4 @@ def test_serve_thread_replies_as_packets_arrive_and_stops_on_event(client):
         assert not th.is_alive()
         assert server.counters.replied == 200
         assert server.last_rx_time is not None and server.peer == c.getsockname()
-    assert np.median(rtts) < 0.005  # loose: CI machines are shared
+    assert len(rtts) == 200 and min(rtts) > 0.0  # latency figures: bench/egm_latency.py

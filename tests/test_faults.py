@@ -97,6 +97,7 @@ class _EchoSensor:
         self.sock.close()
 
 
+@pytest.mark.realtime
 def test_fault_controller_keeps_its_clock_through_gaps_duplicates_resets_and_freezes():
     sensor = _EchoSensor(offset=np.full(6, 0.05))  # the command always runs 0.05 rad ahead
     ctl = FaultController(sensor.sock.getsockname(), seed=3).start()
@@ -249,6 +250,7 @@ def campaign_ctx(tmp_path_factory):
     return make_context(tree, seed=1, log=lambda m: None)
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize(
     "name",
     ["malformed", "duplicated", "second_sender", "sigterm", "silence_rest", "record_missing"],

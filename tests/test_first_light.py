@@ -31,6 +31,7 @@ def _throw(run, aim=(0.25, 1.25), flight=0.8):
     return t_release + flight
 
 
+@pytest.mark.realtime
 def test_shadow_plans_the_throw_and_commands_the_measured_position(tree_file, tmp_path, robot):
     run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=("--shadow",))
     try:
@@ -56,6 +57,7 @@ def test_shadow_plans_the_throw_and_commands_the_measured_position(tree_file, tm
     assert all(s["mode"] == "shadow" for s in run.setpoints)
 
 
+@pytest.mark.realtime
 def test_speed_scale_keeps_every_reply_within_the_scaled_limits(tree_file, tmp_path, robot):
     scale = 0.2
     run = DaemonRun(
@@ -97,6 +99,7 @@ def test_speed_scale_is_checked(tree_file, tmp_path):
     assert exc.value.code == 1
 
 
+@pytest.mark.realtime
 def test_motors_off_holds_the_measured_position_and_motion_resumes_when_on(
     tree_file, tmp_path, robot
 ):
@@ -130,6 +133,7 @@ def test_motors_off_holds_the_measured_position_and_motion_resumes_when_on(
     assert len(ends) == 2 and ends[-1]["executed"] and 0.2 < ends[-1]["cross_after_start"] < 0.8
 
 
+@pytest.mark.realtime
 def test_away_from_home_holds_with_hold_away(tree_file, tmp_path, robot):
     q0 = robot.home + np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
     run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=q0, extra=("--hold-away",))
@@ -148,6 +152,7 @@ def test_away_from_home_holds_with_hold_away(tree_file, tmp_path, robot):
     assert "--hold-away" in err
 
 
+@pytest.mark.realtime
 def test_go_home_moves_home_once_the_way_is_clear(tree_file, tmp_path, robot):
     q0 = robot.home + np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
     run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=q0)  # --go-home is the default
@@ -211,6 +216,7 @@ def test_way_home_is_checked_against_the_cell(robot, kin, tmp_path, small_tree_0
     assert sliced.result == blocked and steps > 3
 
 
+@pytest.mark.realtime
 def test_log_format_json_gives_one_object_per_line(tree_file, tmp_path, robot):
     run = DaemonRun(
         tree_file, tmp_path / "rec.h5", "naive", q0=robot.home, extra=("--log-format", "json")

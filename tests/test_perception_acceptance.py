@@ -1,6 +1,7 @@
 """Issue 7's acceptance on rendered frames: balls 1-9 m detected >= 95 %, 3-D errors inside the
-noise model's 3 sigma, no detection without a ball (1000 frames each at HD720), and the same
-figures for what ``thinkfast-sim run --frames`` sends (float16 XYZ at half resolution) and VGA.
+noise model's 3 sigma, no detection without a ball (400 frames with a ball and 200 without at
+HD720 here; the full 1000 + 1000 is `python bench/detect.py`), and the same figures for what
+``thinkfast-sim run --frames`` sends (float16 XYZ at half resolution) and VGA.
 """
 
 import dataclasses
@@ -51,9 +52,9 @@ def _assert_acceptance(res, rate=0.95, inside=0.98):
     return s
 
 
-def test_hd720_full_resolution_cloud_1000_ball_frames_and_1000_without():
-    res = run_check(_scenes(), DetectConfig(), 1000, 1000, seed=11)
-    assert len(res.truth) == 1000 and res.empty_frames == 1000
+def test_hd720_full_resolution_cloud_400_ball_frames_and_200_without():
+    res = run_check(_scenes(), DetectConfig(), 400, 200, seed=11)
+    assert len(res.truth) == 400 and res.empty_frames == 200
     assert res.truth[:, 0].min() >= 1.0 and res.truth[:, 0].max() <= 9.0
     _assert_acceptance(res)
 

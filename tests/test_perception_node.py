@@ -108,6 +108,7 @@ def _renderer(**kw):
     return FrameRenderer(FrameRenderConfig(**kw), CAM, seed=4)
 
 
+@pytest.mark.realtime
 def test_frames_become_contract_detections_in_base_with_the_frame_stamps(tmp_path):
     ext = CameraExtrinsic(xyz=(0.46, 0.1, 0.3), rpy=(0.0, 0.05, -0.1))
     cfg = 'frame = "base"\n[camera]\nxyz = [0.46, 0.1, 0.3]\nrpy = [0.0, 0.05, -0.1]\n'
@@ -135,6 +136,7 @@ def test_frames_become_contract_detections_in_base_with_the_frame_stamps(tmp_pat
         assert 0.0 < d.confidence <= 1.0
 
 
+@pytest.mark.realtime
 def test_malformed_frames_are_counted_by_reason_and_dropped_without_a_crash(tmp_path):
     det = Detector(tmp_path)
     r = _renderer()
@@ -172,6 +174,7 @@ def test_malformed_frames_are_counted_by_reason_and_dropped_without_a_crash(tmp_
     assert det.status[-1]["frames"]["rejected"]["bad_magic"] == 5  # status says it too
 
 
+@pytest.mark.realtime
 def test_external_boxes_locate_a_ball_the_colour_filter_cannot_see(tmp_path):
     det = Detector(tmp_path, "--source", "boxes")
     r = _renderer(ball_bgr=(128, 128, 128))  # a grey ball: no colour to find
@@ -209,6 +212,7 @@ def test_external_boxes_locate_a_ball_the_colour_filter_cannot_see(tmp_path):
         assert np.linalg.norm(d.position - p) < 0.03 and d.seq in (1, 2)
 
 
+@pytest.mark.realtime
 def test_a_slow_consumer_keeps_the_newest_frames_and_counts_the_skipped_ones(tmp_path):
     det = Detector(tmp_path)
     r = _renderer()
@@ -259,6 +263,7 @@ def test_sigterm_also_ends_it_with_exit_0(tmp_path):
     assert det.proc.returncode == 0 and json.loads(out)["frames"]["received"] == 0
 
 
+@pytest.mark.realtime
 def test_auto_source_falls_back_to_the_colour_filter_when_no_boxes_come(tmp_path):
     det = Detector(tmp_path, "--source", "auto")
     r = _renderer()

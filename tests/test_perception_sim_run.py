@@ -2,11 +2,13 @@
 
 import json
 
+import pytest
 from conftest import assert_one_line_error, compile_small_tree, run_cli
 
 
+@pytest.mark.realtime
 def test_sim_run_with_frames_blocks_through_the_detector(tmp_path):
-    tree = compile_small_tree(tmp_path, spacing=0.15)
+    tree = compile_small_tree(tmp_path, spacing=0.15)  # shared with small_tree_015
     proc = run_cli(
         "thinkfast-sim", "run", "--tree", str(tree), "--throws", "1", "--seed", "3", "--frames",
         "--planner", "naive", timeout=300,

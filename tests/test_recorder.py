@@ -98,6 +98,7 @@ def test_every_stream_round_trips_exactly(tmp_path):
     assert read_detections(path)[1] == payloads
 
 
+@pytest.mark.realtime
 def test_the_file_is_a_readable_record_while_recording(tmp_path):
     """Before close, h5py and the reader open the file and see the rows of the last commit."""
     path = tmp_path / "rec.h5"

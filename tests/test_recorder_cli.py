@@ -29,6 +29,7 @@ def _sysfs_refuses_files() -> bool:
     return False
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("case", ["missing_directory", "read_only_directory"])
 def test_an_unusable_record_path_stops_the_daemon_before_any_egm_reply(tree_file, tmp_path, case):
     """The real daemon, with a controller sending real EgmRobot messages from its start: it

@@ -230,6 +230,7 @@ def _wait(cond, timeout=5.0):
     ],
     ids=["JointState", "PointStamped", "DiagnosticArray"],
 )  # fmt: skip
+@pytest.mark.realtime
 def test_each_message_round_trips_through_zenoh_with_attachment(
     two_peers, topic, msgtype, key, cdr, check
 ):
@@ -272,6 +273,7 @@ class _RosSender:
         self.sent += 1
 
 
+@pytest.mark.realtime
 def test_a_throw_of_point_stamped_detections_is_blocked_like_a_json_one(
     small_tree_015, tmp_path, robot, kin
 ):
@@ -337,6 +339,7 @@ def test_a_throw_of_point_stamped_detections_is_blocked_like_a_json_one(
     assert diags[-1].level == ros.LEVEL_STALE  # the exiting status
 
 
+@pytest.mark.realtime
 def test_the_detector_publishes_each_detection_as_a_point_stamped_too():
     from tests.test_perception_detector import F, H, W, _ball_depth, _disc_image
     from thinkfast.contract import keys

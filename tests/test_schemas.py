@@ -109,6 +109,7 @@ def test_what_the_schema_accepts_the_daemon_accepts(sim_detections):
         assert isinstance(parse_detection(json.dumps(obj).encode()), Detection)
 
 
+@pytest.mark.realtime
 def test_the_detector_status_validates(tmp_path):
     from thinkfast.contract import keys
     from thinkfast.contract.zenoh_session import free_tcp_port, session_config
@@ -152,6 +153,7 @@ def daemon_messages(small_tree_015, robot, tmp_path_factory):
     return list(run.status), list(run.setpoints)
 
 
+@pytest.mark.realtime
 def test_the_daemons_status_validates_in_every_state_it_passed(daemon_messages):
     status, _ = daemon_messages
     v = _validator("status")
@@ -160,6 +162,7 @@ def test_the_daemons_status_validates_in_every_state_it_passed(daemon_messages):
     assert {"idle", "executing"} <= {s["state"] for s in status}
 
 
+@pytest.mark.realtime
 def test_the_daemons_setpoints_validate(daemon_messages):
     _, setpoints = daemon_messages
     v = _validator("setpoint")
@@ -168,6 +171,7 @@ def test_the_daemons_setpoints_validate(daemon_messages):
     assert len(setpoints) > 100
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize(
     "breaks",
     [
@@ -185,6 +189,7 @@ def test_malformed_status_fails(daemon_messages, breaks):
     assert not _valid("status", obj)
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize(
     "breaks",
     [

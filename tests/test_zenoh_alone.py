@@ -6,6 +6,7 @@ import logging
 import time
 from pathlib import Path
 
+import pytest
 import zenoh
 
 from tests.conftest import run_cli
@@ -32,6 +33,7 @@ def _warnings(caplog) -> list[str]:
     return [r.getMessage() for r in caplog.records if r.name == "thinkfast.zenoh"]
 
 
+@pytest.mark.realtime
 def test_a_session_without_peers_is_warned_once(caplog):
     caplog.set_level(logging.WARNING, logger="thinkfast.zenoh")
     session = zenoh.open(session_config(multicast=False))  # no endpoints, no scouting: alone
@@ -45,6 +47,7 @@ def test_a_session_without_peers_is_warned_once(caplog):
         session.close()
 
 
+@pytest.mark.realtime
 def test_a_connected_session_is_not_warned(caplog):
     caplog.set_level(logging.WARNING, logger="thinkfast.zenoh")
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
@@ -60,6 +63,7 @@ def test_a_connected_session_is_not_warned(caplog):
         a.close()
 
 
+@pytest.mark.realtime
 def test_replay_to_no_one_warns_and_to_a_subscriber_does_not():
     proc = run_cli("thinkfast-sim", "replay", str(GOLDEN_RECORD), "--speed", "50", timeout=120)
     assert proc.returncode == 0 and proc.stdout.startswith("replayed ")
