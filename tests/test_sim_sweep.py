@@ -108,7 +108,9 @@ def reference(sweep_dir):
 def local_run(sweep_dir):
     """The sweep through an embedded Dask cluster of 2 worker processes."""
     from thinkfast.sim.cluster import open_client, run_sweep
-    from thinkfast.sim.sweep import SweepStore, load_sweep, write_results
+    from thinkfast.sim.sweep import load_sweep
+    from thinkfast.sim.sweep_report import write_results
+    from thinkfast.sim.sweep_store import SweepStore
 
     spec = load_sweep(sweep_dir / "sweep.toml")
     store = SweepStore(sweep_dir / "local")
@@ -157,7 +159,7 @@ def test_the_bench_command_gives_the_sweep_points_result(reference):
 
 def test_a_rerun_computes_only_what_is_missing(local_run, reference, tmp_path):
     from thinkfast.sim.cluster import open_client, run_sweep
-    from thinkfast.sim.sweep import SweepStore
+    from thinkfast.sim.sweep_store import SweepStore
 
     spec, store, _ = local_run
     copy = SweepStore(tmp_path / "copy")
@@ -260,7 +262,8 @@ def test_a_separate_cluster_runs_bench_and_a_sweep_that_survives_a_killed_worker
     assert proc.returncode == 0, proc.stderr
     assert without_seconds(json.loads(proc.stdout)) == summary0
 
-    from thinkfast.sim.sweep import SweepStore, load_sweep
+    from thinkfast.sim.sweep import load_sweep
+    from thinkfast.sim.sweep_store import SweepStore
 
     directory = tmp_path / "s"
     directory.mkdir()

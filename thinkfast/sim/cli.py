@@ -338,7 +338,9 @@ def sweep(
     from thinkfast.compile.grow import default_jobs
     from thinkfast.errors import ConfigError, ThinkfastError
     from thinkfast.sim.cluster import SweepProgress, open_client, run_sweep
-    from thinkfast.sim.sweep import SweepStore, format_table, load_sweep, plot_sweep, write_results
+    from thinkfast.sim.sweep import load_sweep
+    from thinkfast.sim.sweep_report import format_table, plot_sweep, write_results
+    from thinkfast.sim.sweep_store import SweepStore
 
     if workers < 0:
         raise ConfigError("--workers", None, f"must be >= 0, got {workers}")

@@ -12,7 +12,7 @@ worker builds its lockstep world once per (tree, runtime config), exactly as a `
 process does: results are identical for any number of workers or chunk size.
 
 The client (:func:`run_sweep`) writes every finished chunk and point to the results directory
-as it arrives (:class:`~thinkfast.sim.sweep.SweepStore`); when a worker dies, Dask runs its
+as it arrives (:class:`~thinkfast.sim.sweep_store.SweepStore`); when a worker dies, Dask runs its
 unfinished tasks elsewhere, and a rerun after any interruption recomputes only what is missing.
 """
 
@@ -309,7 +309,8 @@ def run_sweep(sweep, store, client, progress: Callable | None = None) -> SweepRe
 
     A compile that fails fails its points (named in ``report.failures``); the others go on.
     """
-    from thinkfast.sim.sweep import compile_text, point_doc
+    from thinkfast.sim.sweep import compile_text
+    from thinkfast.sim.sweep_store import point_doc
 
     t0 = time.perf_counter()
     rep = SweepReport(points=len(sweep.points))
