@@ -107,9 +107,10 @@ def reference(sweep_dir):
 @pytest.fixture(scope="module")
 def local_run(sweep_dir):
     """The sweep through an embedded Dask cluster of 2 worker processes."""
-    from thinkfast.sim.cluster import open_client, run_sweep
+    from thinkfast.sim.cluster import open_client
     from thinkfast.sim.sweep import load_sweep
     from thinkfast.sim.sweep_report import write_results
+    from thinkfast.sim.sweep_run import run_sweep
     from thinkfast.sim.sweep_store import SweepStore
 
     spec = load_sweep(sweep_dir / "sweep.toml")
@@ -158,7 +159,8 @@ def test_the_bench_command_gives_the_sweep_points_result(reference):
 
 
 def test_a_rerun_computes_only_what_is_missing(local_run, reference, tmp_path):
-    from thinkfast.sim.cluster import open_client, run_sweep
+    from thinkfast.sim.cluster import open_client
+    from thinkfast.sim.sweep_run import run_sweep
     from thinkfast.sim.sweep_store import SweepStore
 
     spec, store, _ = local_run

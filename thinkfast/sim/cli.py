@@ -337,9 +337,10 @@ def sweep(
     """
     from thinkfast.compile.grow import default_jobs
     from thinkfast.errors import ConfigError, ThinkfastError
-    from thinkfast.sim.cluster import SweepProgress, open_client, run_sweep
+    from thinkfast.sim.cluster import open_client
     from thinkfast.sim.sweep import load_sweep
     from thinkfast.sim.sweep_report import format_table, plot_sweep, write_results
+    from thinkfast.sim.sweep_run import SweepProgress, run_sweep
     from thinkfast.sim.sweep_store import SweepStore
 
     if workers < 0:
