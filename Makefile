@@ -40,6 +40,7 @@ demo: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check thinkfast tests bench
 	$(VENV)/bin/ruff format --check thinkfast tests bench
+	$(VENV)/bin/lint-imports
 
 bench: $(STAMP) $(TREE)
 	$(PY) bench/compile.py

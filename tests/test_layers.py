@@ -51,3 +51,17 @@ def test_no_runtime_grab_bag_is_left():
     assert not (ROOT / "runtime").exists()
     for pkg in ALLOWED:
         assert (ROOT / pkg / "__init__.py").read_text(encoding="utf-8").strip(), pkg
+
+
+def test_import_linter_contracts_hold():
+    """pyproject.toml's [tool.importlinter] contracts (layers from calib/cell and sim down to
+    contract; pure kernels free of sockets, zenoh, HDF5 and processes) hold for the package."""
+    import subprocess
+    import sys
+
+    exe = Path(sys.executable).parent / "lint-imports"
+    proc = subprocess.run(
+        [str(exe), "--no-cache"], capture_output=True, text=True, cwd=ROOT.parent, timeout=120
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:]
+    assert "2 kept, 0 broken" in proc.stdout
