@@ -10,8 +10,8 @@ and deg/s. Header fields that ABB declares ``required`` are declared ``optional`
 wire-identical and lets the decoders report a missing field as a clear :class:`EgmDecodeError`.
 
 :func:`encode_sensor`, on the reply path of every EGM exchange, writes its bytes with ``struct``
-(a few microseconds less than the protobuf runtime): the same bytes as the protobuf runtime
-writes for the same message (the tests compare them).
+(cheaper than the protobuf runtime: docs/BENCHMARKS.md, "EGM latency"): the same bytes as the
+protobuf runtime writes for the same message (the tests compare them).
 """
 
 from __future__ import annotations
