@@ -37,8 +37,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from thinkfast.contract.record_format import read_record
-from thinkfast.daemon.recorder import Recorder
+from thinkfast.record.format import read_record
+from thinkfast.record.recorder import Recorder
 
 sys.path.insert(0, str(Path(__file__).parent))
 from recorder_v1 import V1Recorder  # noqa: E402 - the schema-1 recorder, for --v1

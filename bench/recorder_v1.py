@@ -2,7 +2,7 @@
 
 Its row methods keep every row as a tuple in a list for the whole run; ``close`` writes the
 file at once (temporary file, then rename) in the calling process. Same API as
-:class:`thinkfast.daemon.recorder.Recorder` as far as the bench uses it. Not for use.
+:class:`thinkfast.record.recorder.Recorder` as far as the bench uses it. Not for use.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from thinkfast.contract.record_format import MODES, STREAMS
+from thinkfast.record.format import MODES, STREAMS
 
 NAMES = {"raw": "raw", "detection": "detections", "belief": "beliefs", "decision": "decisions"}
 

@@ -17,9 +17,9 @@ from thinkfast.calib.dynamics_sim import servo_lag, simulate_dynamics_record
 from thinkfast.config import from_dict
 from thinkfast.contract.frames import CameraExtrinsic, rotation_from_rpy
 from thinkfast.control.config import ExecutionConfig, load_run_config
-from thinkfast.daemon.recorder import Recorder
 from thinkfast.errors import CalibRecordError, ConfigError, RecordFileError
 from thinkfast.perception.config import load_detect_config
+from thinkfast.record.recorder import Recorder
 from thinkfast.robot.model import load_robot
 from thinkfast.sim.controller import ServoConfig
 

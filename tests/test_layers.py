@@ -15,7 +15,8 @@ ALLOWED = {
     "estimate": BASE,
     "decide": BASE | {"estimate"},
     "control": BASE | {"estimate", "decide"},
-    "daemon": BASE | {"estimate", "decide", "control"},
+    "record": BASE | {"control"},
+    "daemon": BASE | {"estimate", "decide", "control", "record"},
     "compile": BASE,
     "perception": BASE,
 }

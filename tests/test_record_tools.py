@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import compile_small_tree
-from thinkfast.contract.record_format import read_record
-from thinkfast.daemon.record_mcap import SCHEMAS, TOPICS, cdr_joint_state, cdr_point_stamped
+from thinkfast.record.format import read_record
+from thinkfast.record.mcap import SCHEMAS, TOPICS, cdr_joint_state, cdr_point_stamped
 from thinkfast.sim.cli import main as sim_main
 
 
@@ -144,7 +144,7 @@ def test_a_bad_record_is_one_error_naming_the_file(tmp_path):
 
 
 def test_json_of_decisions_is_valid(recorded):
-    from thinkfast.daemon.record_mcap import record_messages
+    from thinkfast.record.mcap import record_messages
 
     _, record = recorded
     msgs = record_messages(read_record(record), [f"joint_{i}" for i in range(1, 7)])

@@ -22,10 +22,10 @@ import pytest
 from tests.conftest import ROOT, assert_one_line_error, run_cli
 from tests.data.make_golden_record import ATTRS as GOLDEN_ATTRS
 from tests.data.make_golden_record import golden_rows
-from thinkfast.contract.record_format import MODES, read_detections, read_record
-from thinkfast.daemon import recorder as recorder_mod
-from thinkfast.daemon.recorder import Recorder
 from thinkfast.errors import RecorderError, RecordFileError
+from thinkfast.record import recorder as recorder_mod
+from thinkfast.record.format import MODES, read_detections, read_record
+from thinkfast.record.recorder import Recorder
 
 GOLDEN_V1 = ROOT / "tests" / "data" / "record_v1_golden.h5"
 

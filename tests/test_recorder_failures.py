@@ -17,8 +17,8 @@ import h5py
 import numpy as np
 import pytest
 
-from thinkfast.contract.record_format import read_record
-from thinkfast.daemon.recorder import CLOSE_TIMEOUT, Recorder
+from thinkfast.record.format import read_record
+from thinkfast.record.recorder import CLOSE_TIMEOUT, Recorder
 
 # Records egm rows (seqno = 0, 1, 2, ...) and a raw payload every 10th, at ~2000 rows/s, calling
 # service() as a daemon would, until recording fails, then goes on for 0.3 s; prints a summary.
@@ -29,7 +29,7 @@ limit = int(sys.argv[2])
 if limit:  # writes past the limit fail with EFBIG instead of killing the process
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
-from thinkfast.daemon.recorder import Recorder
+from thinkfast.record.recorder import Recorder
 errors = []
 class Count(logging.Handler):
     def emit(self, record):

@@ -1,6 +1,6 @@
 """Write the golden flight record of schema version 1 (``tests/data/record_v1_golden.h5``).
 
-It was written once with the v1 writer (``thinkfast.daemon.recorder`` before schema 2, which kept
+It was written once with the v1 writer (``thinkfast.record.recorder`` before schema 2, which kept
 rows in memory and wrote the file at close) and committed; never regenerate it: it is what old
 files look like. ``tests/test_recorder.py`` checks that today's reader reads its known values.
 The rows are those of :func:`golden_rows`, so the test compares against the same numbers.
@@ -41,7 +41,7 @@ def golden_rows() -> dict:
 
 
 def main() -> None:
-    from thinkfast.daemon import recorder
+    from thinkfast.record import recorder
 
     if recorder.SCHEMA_VERSION != 1:
         sys.exit("this script needs the schema-1 writer (git history before schema 2)")

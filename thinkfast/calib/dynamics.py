@@ -29,8 +29,8 @@ from scipy.ndimage import minimum_filter1d
 from scipy.optimize import minimize_scalar
 from scipy.signal import savgol_filter
 
-from thinkfast.contract.record_format import read_record
 from thinkfast.errors import RecordFileError
+from thinkfast.record.format import read_record
 
 
 class DynamicsOptions(NamedTuple):

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 from ruckig import InputParameter, OutputParameter, Result, Ruckig, Synchronization
 
-from thinkfast.daemon.recorder import Recorder
 from thinkfast.errors import RecorderError
+from thinkfast.record.recorder import Recorder
 from thinkfast.robot.model import Robot
 from thinkfast.sim.controller import ServoConfig, SimController
 

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from thinkfast.contract.record_format import MODES, Record
 from thinkfast.daemon.live_view import Painter, ViewSink, open_stream
-from thinkfast.daemon.record_tables import (
+from thinkfast.record.format import MODES, Record
+from thinkfast.record.tables import (
     columns,
     event_times,
     plane_x,

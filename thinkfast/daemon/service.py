@@ -49,10 +49,10 @@ from thinkfast.control.safety import SafetySupervisor, robot_limits
 from thinkfast.control.way_home import WayHome
 from thinkfast.daemon.cycle import Cycle
 from thinkfast.daemon.egm_server import EgmServer
-from thinkfast.daemon.recorder import Recorder
 from thinkfast.daemon.rt_thread import pin_thread, set_fifo
 from thinkfast.daemon.zenoh_edge import ZenohIO
 from thinkfast.decide.tree_view import runtime_tree
+from thinkfast.record.recorder import Recorder
 from thinkfast.robot.model import Robot
 from thinkfast.tree.action_tree import ActionTree
 

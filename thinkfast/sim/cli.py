@@ -398,9 +398,9 @@ def replay(
     With --rerun or --mcap the record is converted instead (docs/LIVE_VIEW.md), and its
     detections are re-published only when --zenoh-connect is given as well.
     """
-    from thinkfast.contract.record_format import read_detections
     from thinkfast.contract.zenoh_session import open_peer
     from thinkfast.errors import ConfigError
+    from thinkfast.record.format import read_detections
 
     if speed <= 0:
         raise ConfigError("--speed", None, "must be > 0")
@@ -431,7 +431,7 @@ def replay(
 
 def _convert(record: Path, rerun: str | None, mcap: Path | None, tree: Path | None) -> None:
     """``--rerun`` and ``--mcap`` of replay and the record commands."""
-    from thinkfast.contract.record_format import read_record
+    from thinkfast.record.format import read_record
 
     sink = None
     if rerun is not None:
@@ -440,8 +440,8 @@ def _convert(record: Path, rerun: str | None, mcap: Path | None, tree: Path | No
         sink = parse_sink(rerun)  # before reading: a bad option fails at once
     rec = read_record(record)
     if mcap is not None:
-        from thinkfast.daemon.record_mcap import write_mcap
-        from thinkfast.daemon.record_tables import run_config
+        from thinkfast.record.mcap import write_mcap
+        from thinkfast.record.tables import run_config
         from thinkfast.robot.model import load_robot
 
         cfg = run_config(rec)
@@ -469,8 +469,8 @@ def record_info_cmd(
     record: Path = typer.Argument(..., help="flight record (HDF5)"),
 ) -> None:
     """Attributes, streams, span, EGM rate and events of a flight record."""
-    from thinkfast.contract.record_format import read_record
-    from thinkfast.daemon.record_plot import record_info
+    from thinkfast.record.format import read_record
+    from thinkfast.record.plot import record_info
 
     print("\n".join(record_info(read_record(record))))
 
@@ -481,8 +481,8 @@ def record_plot_cmd(
     output: Path = typer.Option(..., "-o", "--output", help="PNG to write"),
 ) -> None:
     """Joints, ball track against the belief, crossing prediction and decisions, as PNG."""
-    from thinkfast.contract.record_format import read_record
-    from thinkfast.daemon.record_plot import plot_record
+    from thinkfast.record.format import read_record
+    from thinkfast.record.plot import plot_record
 
     plot_record(read_record(record), output)
     print(f"wrote {output}", flush=True)

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from thinkfast.contract.record_format import MODES, Record
-from thinkfast.daemon.record_tables import columns, event_times
+from thinkfast.record.format import MODES, Record
+from thinkfast.record.tables import columns, event_times
 
 CROSS_SD = 0.5  # m: crossing predictions with a larger standard deviation are not drawn
 

@@ -29,15 +29,15 @@ from pathlib import Path
 
 import numpy as np
 
-from thinkfast.contract.record_format import MODES, Record
-from thinkfast.daemon.record_tables import (
+from thinkfast.errors import ConfigError
+from thinkfast.record.format import MODES, Record
+from thinkfast.record.tables import (
     columns,
     event_times,
     plane_x,
     raw_positions,
     run_config,
 )
-from thinkfast.errors import ConfigError
 
 FRAME = "base"
 SEP = "=" * 80 + "\n"

@@ -1,5 +1,5 @@
 """The recorder's end of its writer process: start it, send frames without ever blocking, read
-its news, and finish it within a deadline (see :mod:`~thinkfast.daemon.record_writer`)."""
+its news, and finish it within a deadline (see :mod:`~thinkfast.record.writer`)."""
 
 from __future__ import annotations
 
@@ -14,10 +14,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from thinkfast.daemon.record_wire import open_frame
 from thinkfast.errors import RecorderError
+from thinkfast.record.wire import open_frame
 
-WRITER = "thinkfast.daemon.record_writer"
+WRITER = "thinkfast.record.writer"
 log = logging.getLogger("thinkfast.run")
 
 

@@ -1,8 +1,8 @@
 """The flight recorder's row methods, called on the daemon's real-time EGM thread.
 
-Each copies its row into a preallocated batch (:mod:`~thinkfast.daemon.record_wire`) and
+Each copies its row into a preallocated batch (:mod:`~thinkfast.record.wire`) and
 returns; it never raises (a row it cannot take is dropped and counted, one warning per stream).
-Shipping the batches is :class:`~thinkfast.daemon.recorder.Recorder`'s: a row method calls
+Shipping the batches is :class:`~thinkfast.record.recorder.Recorder`'s: a row method calls
 ``_ship`` only when its batch is full, or (except ``egm``) when the batches are MAX_AGE old.
 """
 
@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from thinkfast.contract.record_format import MODES
-from thinkfast.daemon.record_wire import STREAM_ID, TableBatch, VarBatch
+from thinkfast.record.format import MODES
+from thinkfast.record.wire import STREAM_ID, TableBatch, VarBatch
 
 log = logging.getLogger("thinkfast.run")
 TABLE_ROWS = 256  # rows per table batch

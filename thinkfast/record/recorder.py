@@ -1,10 +1,10 @@
 """Flight recorder: every detection (raw and accepted), belief, decision, EGM exchange and event.
 
-The daemon's real-time thread calls the row methods (:mod:`~thinkfast.daemon.record_rows`;
+The daemon's real-time thread calls the row methods (:mod:`~thinkfast.record.rows`;
 :meth:`Recorder.egm` on every reply): each copies its row into a preallocated batch (2-4 us
 warm, no system call). Batches
-go as frames (:mod:`~thinkfast.daemon.record_wire`) through a non-blocking pipe to a writer
-process (:mod:`~thinkfast.daemon.record_writer`) that appends them to chunked HDF5 datasets and
+go as frames (:mod:`~thinkfast.record.wire`) through a non-blocking pipe to a writer
+process (:mod:`~thinkfast.record.writer`) that appends them to chunked HDF5 datasets and
 commits the file every half second: the file on disk is a complete record at any moment
 (docs/RECORD_FORMAT.md). Shipping costs a system call (docs/BENCHMARKS.md, bench/recorder.py),
 so the daemon should call :meth:`Recorder.service` in idle time, which
@@ -25,10 +25,10 @@ import os
 import time
 from pathlib import Path
 
-from thinkfast.contract.record_format import FORMAT, SCHEMA_VERSION, STREAMS, read_detections
-from thinkfast.daemon.record_pipe import WriterGone, WriterPipe, check_target
-from thinkfast.daemon.record_rows import TABLE_ROWS, VAR_BYTES, RowMethods
 from thinkfast.errors import RecorderError
+from thinkfast.record.format import FORMAT, SCHEMA_VERSION, STREAMS, read_detections
+from thinkfast.record.pipe import WriterGone, WriterPipe, check_target
+from thinkfast.record.rows import TABLE_ROWS, VAR_BYTES, RowMethods
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "STREAMS", "Recorder", "RecorderError", "read_detections"]
 
@@ -92,7 +92,7 @@ class Recorder(RowMethods):
     @property
     def in_flight_bytes(self) -> int:
         """Most bytes of rows between the row methods and the writer: batches and pipe (the
-        writer adds at most ``record_writer.COMMIT_BYTES`` of uncommitted changes)."""
+        writer adds at most ``writer.COMMIT_BYTES`` of uncommitted changes)."""
         pipe = self._pipe.capacity if self._pipe else 0
         return pipe + 8 * TABLE_ROWS * (6 + 57 + 5 + 21) + 2 * VAR_BYTES
 

@@ -9,7 +9,7 @@ complete HDF5 file (committed right after ``H5Fflush``). HDF5 itself never sees 
 its state never breaks (a failed ``H5Fclose`` followed by freeing its objects is what crashed
 the schema-1 writer on a full disk, see docs/RECORD_FORMAT.md).
 
-:class:`RecordFile` lays out the streams of :mod:`~thinkfast.contract.record_format` as chunked
+:class:`RecordFile` lays out the streams of :mod:`~thinkfast.record.format` as chunked
 resizable datasets and appends the rows of each frame.
 """
 
@@ -21,8 +21,8 @@ import os
 import h5py
 import numpy as np
 
-from thinkfast.contract.record_format import FORMAT, RESERVED_ATTRS, SCHEMA_VERSION, STREAMS
-from thinkfast.daemon.record_wire import FIELDS, decode_table, decode_varlen
+from thinkfast.record.format import FORMAT, RESERVED_ATTRS, SCHEMA_VERSION, STREAMS
+from thinkfast.record.wire import FIELDS, decode_table, decode_varlen
 
 PAGE = 4096
 CHUNK_BYTES = 64 * 1024  # target size of one HDF5 chunk of a table

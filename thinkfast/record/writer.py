@@ -1,8 +1,8 @@
-"""The recorder's writer process: ``python -m thinkfast.daemon.record_writer PATH``.
+"""The recorder's writer process: ``python -m thinkfast.record.writer PATH``.
 
-Started by :class:`~thinkfast.daemon.recorder.Recorder`; reads frames
-(:mod:`~thinkfast.daemon.record_wire`) on stdin, appends them to PATH
-(:class:`~thinkfast.daemon.record_file.RecordFile`) and commits every ``COMMIT_PERIOD`` or
+Started by :class:`~thinkfast.record.recorder.Recorder`; reads frames
+(:mod:`~thinkfast.record.wire`) on stdin, appends them to PATH
+(:class:`~thinkfast.record.file.RecordFile`) and commits every ``COMMIT_PERIOD`` or
 ``COMMIT_BYTES``. It polls its input (every POLL when empty) rather than waiting in ``read``:
 a write into a pipe with a reader waiting wakes that reader, which costs the writing thread tens
 of microseconds to milliseconds on a virtual machine, and that thread is the daemon's EGM loop.
@@ -48,8 +48,8 @@ def say(out: int, msg: dict, patience: float = 0.0) -> bool:
 
 def serve(path: str, inp: int = 0, out: int = 1) -> int:
     """Write the record at ``path`` from the frames on ``inp``; returns the exit status."""
-    from thinkfast.daemon.record_file import RecordFile
-    from thinkfast.daemon.record_wire import OPEN_ID, FrameSplitter, read_frame
+    from thinkfast.record.file import RecordFile
+    from thinkfast.record.wire import OPEN_ID, FrameSplitter, read_frame
 
     os.set_blocking(out, False)
     first = read_frame(inp)

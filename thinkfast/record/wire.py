@@ -1,7 +1,7 @@
 """Frames from the recorder (daemon process) to its writer process, over a pipe.
 
 A frame is a 12-byte header (stream id u8, 3 pad bytes, rows u32, body bytes u32, little
-endian) and a body. Stream ids index :data:`~thinkfast.contract.record_format.STREAMS`; id 255 is
+endian) and a body. Stream ids index :data:`~thinkfast.record.format.STREAMS`; id 255 is
 the opening frame (JSON: the file's attributes). Bodies:
 
 - a table (``width`` > 0): ``rows x width`` float64, row-major;
@@ -18,7 +18,7 @@ import struct
 
 import numpy as np
 
-from thinkfast.contract.record_format import STREAMS
+from thinkfast.record.format import STREAMS
 
 HEADER = struct.Struct("<BxxxII")
 OPEN_ID = 255

@@ -1,8 +1,8 @@
 """Columns of a flight record read back as named arrays, for the record tools (view, MCAP, plot).
 
-:func:`~thinkfast.contract.record_format.read_record` gives the streams as float tables
+:func:`~thinkfast.record.format.read_record` gives the streams as float tables
 (docs/RECORD_FORMAT.md); :func:`columns` slices them by the column names of
-:data:`~thinkfast.contract.record_format.STREAMS`, and :func:`raw_positions` parses the raw
+:data:`~thinkfast.record.format.STREAMS`, and :func:`raw_positions` parses the raw
 payloads into ``base`` with the camera extrinsic of the run configuration the record holds.
 """
 
@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from thinkfast.contract.record_format import STREAM, Record
+from thinkfast.record.format import STREAM, Record
 
 
 def column_slices(stream: str) -> dict[str, slice]:

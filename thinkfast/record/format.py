@@ -1,6 +1,6 @@
 """Flight record files (``thinkfast-record``): the streams, and the reader of schema 1 and 2.
 
-docs/RECORD_FORMAT.md describes the file. The writer is :mod:`thinkfast.daemon.record_file`
+docs/RECORD_FORMAT.md describes the file. The writer is :mod:`thinkfast.record.file`
 (in the recorder's writer process); :func:`read_record` reads every stream of a file of either
 version, :func:`read_detections` only what ``thinkfast-sim replay`` needs. A partial file (the
 writer failed or was killed) reads like any other: it holds the rows of the writer's last commit.
