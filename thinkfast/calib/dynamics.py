@@ -48,6 +48,8 @@ class DynamicsOptions(NamedTuple):
     limited_ratio: float = 0.9  # achieved below this times commanded: the arm was limited
     min_seconds: float = 1.0  # shortest record accepted
     min_motion: float = 0.1  # s, shortest stretch of commanded motion that counts as a segment
+    break_tolerance: float = 2e-5  # rad, a commanded step this far off its velocities ...
+    break_slip: float = 0.001  # s, ... and off by more than this clock slip is a timing break
     approach: float = 0.8  # a limit is measured only where the command reached this x it
 
 
@@ -67,13 +69,16 @@ class JointDynamics(NamedTuple):
 
 class DynamicsEstimate(NamedTuple):
     """``lag`` [s] (median over segments and joints), ``joints`` (6), ``dt`` [s] grid,
-    ``seconds`` of record used, ``segments`` of motion found."""
+    ``seconds`` of record used, ``segments`` of motion found, timing ``breaks`` found
+    (:func:`timing_breaks`) and the ``excluded`` seconds around them."""
 
     lag: float
     joints: list[JointDynamics]
     dt: float
     seconds: float
     segments: int
+    breaks: int = 0
+    excluded: float = 0.0
 
 
 class EgmRows(NamedTuple):
@@ -210,7 +215,12 @@ def estimate_dynamics(
     cmd = CubicHermiteSpline(t, q_cmd, qd_cmd, axis=0)
     fb = np.column_stack([np.interp(grid, t, q_fb[:, j]) for j in range(6)])
     qc = cmd(grid)
-    segs = motion_segments(cmd(grid, 1), dt, opts)
+    brk = np.searchsorted(grid, t[timing_breaks(t, q_cmd, qd_cmd, opts)])
+    segs = split_at(motion_segments(cmd(grid, 1), dt, opts), brk, opts.min_motion / dt)
+    ignore = np.zeros(len(grid), dtype=bool)
+    reach = int(np.ceil((opts.jerk_window / 2 + opts.hold) / dt))
+    for i in brk:
+        ignore[max(i - reach, 0) : i + reach + 1] = True
     if not segs:
         raise RecordFileError(
             f"{source}: no commanded motion (speed above {opts.motion_speed} rad/s) to measure"
@@ -223,8 +233,8 @@ def estimate_dynamics(
             lags[j].append(best_shift(grid[a:b], fb[a:b, j], cmd, j, opts.max_lag))
     joints = []
     for j in range(6):
-        acc, acc_c = held_peak(fb[:, j], dt, 2, opts), held_peak(qc[:, j], dt, 2, opts)
-        jrk, jrk_c = held_peak(fb[:, j], dt, 3, opts), held_peak(qc[:, j], dt, 3, opts)
+        acc, acc_c = (held_peak(x[:, j], dt, 2, opts, ignore) for x in (fb, qc))
+        jrk, jrk_c = (held_peak(x[:, j], dt, 3, opts, ignore) for x in (fb, qc))
         joints.append(
             JointDynamics(
                 lag=float(np.median(lags[j])) if lags[j] else float("nan"),
@@ -242,7 +252,38 @@ def estimate_dynamics(
         raise RecordFileError(
             f"{source}: no joint moved more than {opts.min_travel} rad in a motion segment"
         )
-    return DynamicsEstimate(float(np.median(every)), joints, dt, grid[-1] - grid[0], len(segs))
+    return DynamicsEstimate(
+        float(np.median(every)), joints, dt, grid[-1] - grid[0], len(segs), len(brk),
+        float(ignore.sum() * dt),
+    )  # fmt: skip
+
+
+def timing_breaks(
+    t: np.ndarray, q_cmd: np.ndarray, qd_cmd: np.ndarray, opts: DynamicsOptions
+) -> np.ndarray:
+    """Rows (N,) bool whose commanded step from the row before disagrees with the commanded
+    velocities: ``|dq - (qd + qd_prev) dt / 2|`` above ``break_tolerance`` and above what a
+    clock slip of ``break_slip`` would leave. A smooth plan sampled on the controller's clock
+    agrees to within ``jerk dt^3 / 12`` (below 1e-6 rad at 4 ms); a disagreement means the
+    plan's time jumped against the controller's (the daemon resynchronised its clock after a
+    silence, a stalled simulated controller) or the supervisor changed the setpoint: the
+    acceleration there is the jump's, not a motion's."""
+    dt = np.diff(t)[:, None]
+    step = np.diff(q_cmd, axis=0)
+    err = np.abs(step - 0.5 * (qd_cmd[1:] + qd_cmd[:-1]) * dt)
+    speed = 0.5 * np.abs(qd_cmd[1:] + qd_cmd[:-1])
+    bad = ((err > opts.break_tolerance) & (err > speed * opts.break_slip)).any(axis=1)
+    return np.concatenate([[False], bad])
+
+
+def split_at(segs: list[tuple[int, int]], cuts: np.ndarray, shortest: float) -> list:
+    """``segs`` (index ranges ``[a, b)``) cut at the indices ``cuts``; pieces shorter than
+    ``shortest`` samples are left out."""
+    out = []
+    for a, b in segs:
+        edges = [a, *sorted(int(c) for c in cuts if a < c < b), b]
+        out += [(x, y) for x, y in zip(edges[:-1], edges[1:], strict=True) if y - x >= shortest]
+    return out
 
 
 def motion_segments(qd: np.ndarray, dt: float, opts: DynamicsOptions) -> list[tuple[int, int]]:
@@ -288,13 +329,18 @@ def best_shift(
     return float(res.x)
 
 
-def held_peak(q: np.ndarray, dt: float, order: int, opts: DynamicsOptions) -> float:
-    """Largest ``|d^order q / dt^order|`` held for ``opts.hold`` (Savitzky-Golay, cubic)."""
+def held_peak(
+    q: np.ndarray, dt: float, order: int, opts: DynamicsOptions, ignore: np.ndarray | None = None
+) -> float:
+    """Largest ``|d^order q / dt^order|`` held for ``opts.hold`` (Savitzky-Golay, cubic),
+    samples where ``ignore`` (bool, same length) is set not counting."""
     window = opts.accel_window if order == 2 else opts.jerk_window
     n = max(order + 2, int(round(window / dt)) | 1)
     if len(q) < n:
         return float("nan")
     d = np.abs(savgol_filter(q, n, 3 if order <= 3 else order, deriv=order, delta=dt))
+    if ignore is not None:
+        d[ignore] = 0.0
     held = minimum_filter1d(d, max(1, int(round(opts.hold / dt))), mode="nearest")
     return float(held.max())
 

@@ -70,6 +70,8 @@ def dynamics_report(est: DynamicsEstimate, source: str, verdicts: list[LimitVerd
         f"{source}: {est.seconds:.1f} s on the controller's clock at {1e3 * est.dt:.1f} ms, "
         f"{est.segments} motion segments",
         f"controller lag {1e3 * est.lag:.1f} ms (median over segments and joints)",
+        f"{est.breaks} timing breaks (commanded steps off their velocities: the plan's clock "
+        f"jumped, or the supervisor acted); {est.excluded:.2f} s around them not counted",
         "",
         "joint  lag_ms  segs  accel  accel_cmd  limited   jerk  jerk_cmd  limited",
     ]
