@@ -152,6 +152,7 @@ class Daemon:
 
             self.zio = RosIO(zenoh_conf, endpoints.key_prefix, endpoints.ros_domain)
         self.stop_reason: str | None = None
+        self._signal_braked = False  # the signal's brake was logged
         self.last_rx = -math.inf  # receive time of the last served EgmRobot (wall clock)
         self.outbox: list[tuple[float, np.ndarray, np.ndarray, str, np.ndarray]] = []
         self.decision_ms = 0.0
@@ -169,12 +170,12 @@ class Daemon:
         now = time.time()
         self.last_rx = now
         if self.stop_reason is not None:
-            self.control.brake("signal")
+            self._brake_on_signal()
         errors = self.control.errors
         prev = None if before is None else (before.tm_ms, before.q_rad)
-        if (fb.motors_on, fb.mci_running, fb.rapid_running) != self._controller_key:
-            self._controller_changed(fb)
         r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, ready=fb.ready)
+        if (fb.motors_on, fb.mci_running, fb.rapid_running) != self._controller_key:
+            self._controller_changed(fb, now)  # after the clock took this packet's time
         if self.control.errors != errors:
             self._planner_error("setpoint", self.control.last_error)
         if r is None:
@@ -188,8 +189,24 @@ class Daemon:
         self.recorder.egm(now, fb.seqno, fb.q_rad, q, qd, self.supervisor.braking)
         return q, qd
 
-    def _controller_changed(self, fb) -> None:
-        """The controller reports another motor, MCI or RAPID state: status and a log line."""
+    def _brake_on_signal(self) -> None:
+        """SIGINT/SIGTERM while the controller talks: brake smoothly; the first time, a log line
+        and a record event saying what was going on."""
+        if not self._signal_braked:
+            self._signal_braked = True
+            ex = self.executor
+            self._event(
+                self.control.clock.t,
+                "brake",
+                {"reason": "signal", "signal": self.stop_reason, "mode": ex.mode,
+                 "throws": ex.episodes},
+            )  # fmt: skip
+        self.control.brake("signal")
+
+    def _controller_changed(self, fb, now: float) -> None:
+        """The controller reports another motor, MCI or RAPID state: status and a log line,
+        stamped with this packet's controller time (its receive time ``now`` [s] before the
+        controller's clock has started)."""
         self._controller_key = (fb.motors_on, fb.mci_running, fb.rapid_running)
         self.controller_state = {
             "motors_on": fb.motors_on,
@@ -197,7 +214,8 @@ class Daemon:
             "rapid_running": fb.rapid_running,
             "ready": fb.ready,
         }
-        self._event(self.control.clock.t, "controller_state", self.controller_state)
+        t = self.control.clock.t
+        self._event(t if math.isfinite(t) else now, "controller_state", self.controller_state)
 
     def _planner_error(self, where: str, exc: BaseException | None) -> None:
         self.planner_errors += 1
