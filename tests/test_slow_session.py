@@ -8,9 +8,14 @@ from the simulated controller, zenoh on loopback, the recorder's HDF5 file.
 
 from __future__ import annotations
 
+import json
 import math
+import re
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -85,3 +90,15 @@ def test_dynamics_on_a_slow_daemon_record_changes_no_limit(session, robot, tmp_p
     assert "max_acceleration =" not in patch.read_text()
     gaps = np.diff(read_record(str(rec)).tables["egm"][:, 0])
     print(f"receive gaps {1e3 * gaps.min():.2f}..{1e3 * gaps.max():.1f} ms")
+
+
+def test_the_start_log_names_the_fingerprint_compile_diff_prints(session, small_tree_015):
+    _, log, _ = session
+    start = json.loads(log.split(" start ", 1)[1].splitlines()[0])
+    exe = Path(sys.executable).parent / "thinkfast-compile"
+    out = subprocess.run(
+        [str(exe), "diff", str(small_tree_015), str(small_tree_015)],
+        capture_output=True, text=True, timeout=120, check=True,
+    ).stdout  # fmt: skip
+    shown = re.search(r"fingerprint ([0-9a-f]{16})", out).group(1)
+    assert start["tree_fingerprint"] == shown

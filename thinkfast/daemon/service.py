@@ -55,6 +55,7 @@ from thinkfast.daemon.zenoh_edge import ZenohIO
 from thinkfast.decide.tree_view import runtime_tree
 from thinkfast.robot.model import Robot
 from thinkfast.tree.action_tree import ActionTree
+from thinkfast.tree.file import tree_fingerprint
 
 log = logging.getLogger("thinkfast.run")
 STATUS_COST = 0.001  # s set aside for a status message (JSON, timing percentiles)
@@ -110,12 +111,14 @@ class Daemon:
         self.cfg, self.robot, self.planner, self.modes = cfg, robot, planner, modes
         self.view = view  # live view (daemon/live_view.DaemonView) or None: off
         self.tree_meta = tree.meta
+        self.tree_fingerprint = tree_fingerprint(tree)  # `thinkfast-compile diff` prints it too
         self.cycle, self.cpu, self.fifo = Cycle(cfg.safety.dt, spin_ahead), cpu, fifo
         self.recorder = Recorder(
             endpoints.record,
             {
                 "planner": planner,
                 "tree_config_sha256": tree.meta.get("config_sha256", ""),
+                "tree_fingerprint": self.tree_fingerprint,
                 "run_config": json.dumps(_plain(cfg)),
                 "started": time.time(),
             },
@@ -507,6 +510,7 @@ class Daemon:
         """What the daemon runs with (logged at start-up)."""
         cfg, robot, meta = self.cfg, self.robot, self.tree_meta
         return {
+            "tree_fingerprint": self.tree_fingerprint[:16],
             "tree_config_sha256": str(meta.get("config_sha256", ""))[:16],
             "tree_urdf_sha256": str(meta.get("urdf_sha256", ""))[:16],
             "planner": self.planner,
