@@ -267,5 +267,11 @@ def _tree_robot(tree) -> Path | None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point."""
+    """Console entry point; ``thinkfast-run status ...`` watches daemons instead
+    (:mod:`thinkfast.daemon.status_cli`)."""
+    args = sys.argv[1:] if argv is None else argv
+    if args[:1] == ["status"]:
+        from thinkfast.daemon.status_cli import main as status_main
+
+        status_main(args[1:])
     sys.exit(run_app(app, "thinkfast-run", argv))
