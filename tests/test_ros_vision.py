@@ -61,6 +61,7 @@ def test_key_expression_and_type_hash_of_detection3darray():
     # rosbags' REP-2016 hash of vision_msgs 4.1.1's definitions, pinned: a change in the
     # registered definitions (which must stay the Jazzy release's) shows here. Not yet checked
     # against `ros2 topic info -v` on a ROS machine (docs/ROS2.md says so).
+    vision_typestore()  # registered before any key names the type (RosIO does the same)
     h = ros.type_hash(DETECTION_3D_ARRAY)
     assert h == "RIHS01_793f5eab9595ac1c0da07873cc859db42eae51f0ee76056db8562515d830e018"
     assert ros.topic_key(0, detections_3d_topic("thinkfast"), DETECTION_3D_ARRAY) == (
