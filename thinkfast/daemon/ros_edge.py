@@ -25,6 +25,7 @@ from __future__ import annotations
 import zenoh
 
 from thinkfast.contract import ros, ros_vision
+from thinkfast.contract.zenoh_session import drain_samples
 from thinkfast.daemon.zenoh_edge import QUEUE, ZenohIO
 
 
@@ -68,13 +69,7 @@ class RosIO(ZenohIO):
         out = super().drain(limit)
         for sub, convert in ((self.sub_ros, ros.detection_from_point),
                              (self.sub_vision, ros_vision.detection_from_array)):  # fmt: skip
-            for _ in range(limit):
-                try:
-                    sample = sub.try_recv()
-                except Exception:  # channel closed while shutting down
-                    break
-                if sample is None:
-                    break
+            for sample in drain_samples(sub, limit):
                 payload = self._convert(sample, convert)
                 if payload is not None:
                     out.append(payload)
