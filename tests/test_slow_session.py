@@ -46,7 +46,8 @@ def session(small_tree_015, robot, tmp_path_factory):
                 time.sleep(0.3)
                 break
             th.join()
-            time.sleep(3.0)  # 0.2x: the return home is slow
+            time.sleep(0.5)
+            assert run.wait_state("idle", 15.0)  # 0.2x: the return home is slow
     finally:
         code, log = run.stop()
         th.join()
