@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "thinkfast needs Python >= 3.11"'
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev,cell,sweep,ros,view]'
+	$(PY) -m pip install -q -e '.[dev,cell,sweep,ros,view,foxglove]'
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -93,7 +93,11 @@ def test_check_config_prints_ok_for_a_valid_file(tmp_path, capsys):
 @pytest.mark.parametrize(
     "body, key, problem",
     [
-        ("[camera]\nrpy = [0, 0, 90]\n", "camera.rpy[2]", "must be <= 6.28319 rad, got 90"),
+        (
+            "[camera]\nrpy = [0, 0, 90]\n",
+            "camera.rpy[2]",
+            "got 90 (degrees? 90 deg = 1.571 rad)",
+        ),
         ("[execution]\ncontroller_lag = 40\n", "execution.controller_lag", "must be <= 0.5 s"),
         ("[safety]\ntracking_lag = 200\n", "safety.tracking_lag", "must be <= 2 s"),
         ("[throw]\nmax_tau = 0\n", "throw.max_tau", "must be > 0 s"),
@@ -172,3 +176,39 @@ def test_version_as_a_real_process():
 
 def test_version_after_double_dash_is_an_argument():
     assert asks_version(["run", "--version"]) and not asks_version(["--", "--version"])
+
+
+@pytest.mark.parametrize(
+    "body, key, needle",
+    [
+        ("[camera]\nrpy = [0, 5, 0]\n", "camera.rpy[1]", "(degrees? 5 deg = 0.08727 rad)"),
+        ("[camera]\nxyz = [460, 0, 300]\n", "camera.xyz[0]", "(millimetres? 460 mm = 0.46 m)"),
+        (
+            "[execution]\ncontroller_lag = 0.05\n[safety]\ntracking_lag = 0.03\n",
+            "safety.tracking_lag",
+            "below execution.controller_lag (0.05 s)",
+        ),
+        ("[execution]\ntracking_lag = 0.3\n", "execution.tracking_lag", "is a key of [safety]"),
+        ("controller_lag = 0.03\n", "controller_lag", "is a key of [execution]"),
+    ],
+)
+def test_unit_slips_and_cross_key_mistakes_name_the_key_and_the_fix(tmp_path, body, key, needle):
+    from thinkfast.control.config import load_run_config
+
+    path = tmp_path / "run.toml"
+    path.write_text(body)
+    with pytest.raises(ConfigError) as err:
+        load_run_config(path)
+    assert err.value.key == key
+    assert needle in str(err.value) and str(path) in str(err.value)
+
+
+def test_a_missing_camera_file_names_the_config_and_the_key(tmp_path):
+    from thinkfast.control.config import load_run_config
+
+    path = tmp_path / "run.toml"
+    path.write_text('camera_file = "cam.toml"\n')
+    with pytest.raises(ConfigError) as err:
+        load_run_config(path)
+    assert err.value.source == str(path) and err.value.key == "camera_file"
+    assert str(tmp_path / "cam.toml") in str(err.value) and "file not found" in str(err.value)

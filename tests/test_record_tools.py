@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from tests.conftest import compile_small_tree
+from thinkfast.contract.ros import JOINT_NAMES, decode_joint_state, encode_joint_state
 from thinkfast.record.format import read_record
-from thinkfast.record.mcap import SCHEMAS, TOPICS, cdr_joint_state, cdr_point_stamped
+from thinkfast.record.mcap import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
 from thinkfast.sim.cli import main as sim_main
 
 
@@ -50,13 +51,13 @@ def test_the_mcap_opens_with_ros2_schemas_and_the_expected_channels(recorded, tm
         reader = make_reader(f)
         summary = reader.get_summary()
         assert reader.get_header().profile == "ros2"
-        schemas = {s.id: s for s in summary.schemas.values()}
+        by_id = {s.id: s for s in summary.schemas.values()}
         channels = {c.topic: c for c in summary.channels.values()}
         assert set(channels) == set(TOPICS)
         for topic, c in channels.items():
-            s = schemas[c.schema_id]
+            s = by_id[c.schema_id]
             assert (s.name, s.encoding, c.message_encoding) == (TOPICS[topic], "ros2msg", "cdr")
-            assert s.data.decode() == SCHEMAS[s.name]
+            assert s.data.decode() == schemas()[s.name]
         counts = summary.statistics.channel_message_counts
         n = {c.topic: counts.get(c.id, 0) for c in summary.channels.values()}
         rec = read_record(record)
@@ -87,20 +88,37 @@ def test_the_mcap_opens_with_ros2_schemas_and_the_expected_channels(recorded, tm
 def test_the_cdr_encoding_matches_rosbags():
     rosbags = pytest.importorskip("rosbags.typesys")
     ts = rosbags.get_typestore(rosbags.Stores.ROS2_HUMBLE)
-    for typ, text in SCHEMAS.items():
+    for typ, text in schemas().items():
         assert ts.generate_msgdef(typ, ros_version=2)[0] == text, typ
     T, H = ts.types["builtin_interfaces/msg/Time"], ts.types["std_msgs/msg/Header"]
     JS, PS = ts.types["sensor_msgs/msg/JointState"], ts.types["geometry_msgs/msg/PointStamped"]
     P = ts.types["geometry_msgs/msg/Point"]
     q, qd = np.arange(6) * 0.1, np.arange(6) * -0.5
     names = [f"joint_{i}" for i in range(1, 7)]
-    ref = JS(H(T(1700000000, 500000000), ""), names, q, qd, np.zeros(0))
+    ref = JS(H(T(1700000000, 500000000), "base_link"), names, q, qd, np.zeros(0))
     ours = cdr_joint_state(1700000000.5, names, q, qd)
     assert ours == bytes(ts.serialize_cdr(ref, "sensor_msgs/msg/JointState"))
     ref = PS(H(T(12, 250000000), "base"), P(1.0, -2.0, 3.5))
     assert cdr_point_stamped(12.25, (1.0, -2.0, 3.5)) == bytes(
         ts.serialize_cdr(ref, "geometry_msgs/msg/PointStamped")
     )
+
+
+def test_the_mcap_joint_states_are_the_live_topics_bytes(recorded, tmp_path):
+    """One encoder for MCAP and the live ROS topics: same frame_id (base_link), same bytes."""
+    from mcap.reader import make_reader
+
+    _, record = recorded
+    out = tmp_path / "run.mcap"
+    _sim("record", "mcap", str(record), "-o", str(out))
+    egm = read_record(record).tables["egm"]
+    with open(out, "rb") as f:
+        it = make_reader(f).iter_messages(topics=["/thinkfast/joints/commanded"])
+        _, _, first = next(it)
+    live = encode_joint_state(egm[0, 0], egm[0, 8:14], egm[0, 14:20], JOINT_NAMES)
+    assert decode_joint_state(first.data).frame_id == decode_joint_state(live).frame_id
+    assert decode_joint_state(first.data).frame_id == "base_link"
+    assert first.data == live
 
 
 def test_record_plot_writes_a_png_and_info_summarises(recorded, tmp_path, capsys):
@@ -152,3 +170,21 @@ def test_json_of_decisions_is_valid(recorded):
     obj = json.loads(texts[-1][8:-1].decode())  # CDR: header (4), length (4), text, NUL
     assert set(obj) == {"mode", "node", "value", "best_goal"}
     assert Path(record).exists()
+
+
+def test_plot_steps_and_lines_stop_at_idle_gaps():
+    """A decision holds until the next detection, not through a 5 s idle gap to the next throw;
+    belief and crossing lines are not drawn across the gap."""
+    from thinkfast.record.plot import decision_steps
+    from thinkfast.record.tables import break_at_gaps
+
+    executing = 2.0
+    dec = {"t": np.array([10.0, 10.02, 10.04, 15.04, 15.06]),
+           "value": np.array([0.5, 0.6, 0.7, 0.2, 0.3]),
+           "mode": np.array([executing, executing, executing, 1.0, 1.0])}  # fmt: skip
+    t, value, mode = decision_steps(dec, 10.0)
+    held = mode[np.searchsorted(t, 2.5, side="right") - 1]  # the step in force 2.5 s in
+    assert np.isnan(held)
+    assert np.nanmax(t) < 5.1 and list(mode[~np.isnan(mode)]) == list(dec["mode"])
+    tb, y = break_at_gaps(np.array([0.0, 0.02, 5.0, 5.02]), np.array([1.0, 1.0, 2.0, 2.0]), gap=0.5)
+    assert len(tb) == 5 and np.isnan(y[2]) and 0.02 < tb[2] < 5.0

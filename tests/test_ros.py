@@ -318,7 +318,7 @@ def test_a_throw_of_point_stamped_detections_is_blocked_like_a_json_one(
     assert np.allclose(rows[-1, 8:14], robot.home, atol=2e-3)
     # every PointStamped went through the intake, none through the JSON key
     last = [s for s in run.status if "ros" in s][-1]
-    assert last["ros"] == {"domain": 0, "received": sender.sent, "undecodable": 0}
+    assert last["ros"] == {"domain": 0, "received": sender.sent, "undecodable": 0, "empty": 0}
     det = last["detections"]
     assert det["accepted"] + sum(det["dropped"].values()) == sender.sent
     assert det["accepted"] >= sender.sent - 2 and not any(det["rejected"].values())

@@ -164,3 +164,17 @@ def test_paired_summary_pairs_released_throws_by_id_and_splits_by_kind_and_fligh
     assert "paired vs ref" in text and "naive-paper windup" in text
     with pytest.raises(ValueError):
         paired_summary(rows, ["naive-paper"], "ref", (0.4, 0.8))
+
+
+def test_wilson_interval_equals_scipys_at_the_exact_quantile():
+    """scipy.stats.binomtest(...).proportion_ci(method='wilson') uses the exact 97.5 % point;
+    the default z = 1.96 stays within 1e-4 of it."""
+    from statistics import NormalDist
+
+    z = NormalDist().inv_cdf(0.975)
+    for k, n in [(0, 1), (0, 10), (3, 10), (10, 10), (74, 100), (412, 1000), (999, 1000)]:
+        ref = binomtest(k, n).proportion_ci(0.95, method="wilson")
+        lo, hi = wilson(k, n, z)
+        assert lo == pytest.approx(ref.low, abs=1e-12) and hi == pytest.approx(ref.high, abs=1e-12)
+        lo, hi = wilson(k, n)
+        assert abs(lo - ref.low) < 1e-4 and abs(hi - ref.high) < 1e-4

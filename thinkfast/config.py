@@ -97,6 +97,8 @@ def include_table(
     path = Path(name)
     if not path.is_absolute():
         path = Path(source).parent / path
+    if not path.is_file():
+        raise ConfigError(str(source), file_key, f"{path}: file not found")
     included = load_toml(path)
     if not isinstance(included.get(table), dict):
         raise ConfigError(str(path), table, f"missing [{table}] table (named by {file_key})")
@@ -125,6 +127,15 @@ def from_dict(cls: type[T], data: Any, source: str, prefix: str = "", base: T | 
     """
     if not isinstance(data, dict):
         raise ConfigError(source, prefix or None, f"expected a table, got {_kind(data)}")
+    if not prefix and base is None:  # the whole file: a key in the wrong table gets a hint
+        try:
+            return _from_dict(cls, data, source, prefix, base)
+        except ConfigError as exc:
+            raise _with_table_hint(exc, cls) from None
+    return _from_dict(cls, data, source, prefix, base)
+
+
+def _from_dict(cls: type[T], data: dict, source: str, prefix: str, base: T | None) -> T:
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields))
@@ -141,6 +152,34 @@ def from_dict(cls: type[T], data: Any, source: str, prefix: str = "", base: T | 
             continue
         values[name] = _convert(hints[name], data[name], f.metadata, source, key, default)
     return dataclasses.replace(base, **values) if base is not None else cls(**values)
+
+
+def _with_table_hint(exc: ConfigError, root: type) -> ConfigError:
+    """``exc`` with ``(NAME is a key of [TABLE])`` added when it is an unknown key that some
+    other table of ``root`` has."""
+    if not exc.problem.startswith("unknown key") or not exc.key:
+        return exc
+    name = exc.key.rsplit(".", 1)[-1]
+    here = exc.key.rsplit(".", 1)[0] if "." in exc.key else ""
+    tables = [t for t in _tables_with(root, name, "") if t != here]
+    if not tables:
+        return exc
+    where = " or ".join("the top level" if not t else f"[{t}]" for t in tables)
+    problem = exc.problem.replace("unknown key", f"unknown key here: {name} is a key of {where}", 1)
+    return ConfigError(exc.source, exc.key, problem)
+
+
+def _tables_with(cls: type, name: str, prefix: str) -> list[str]:
+    """Dotted tables of the config class ``cls`` (nested dataclasses, arrays of tables) that
+    have a key ``name``."""
+    out = [prefix] if name in {f.name for f in dataclasses.fields(cls)} else []
+    for f_name, tp in typing.get_type_hints(cls).items():
+        args = [a for a in typing.get_args(tp) if a is not type(None) and a is not Ellipsis]
+        for sub in [tp, *args]:
+            if dataclasses.is_dataclass(sub):
+                out += _tables_with(sub, name, _join(prefix, f_name))
+                break
+    return out
 
 
 def to_dict(obj: Any) -> dict[str, Any]:
@@ -311,10 +350,29 @@ def _check_range(v: float, meta: Any, source: str, key: str) -> None:
         return
     lo, hi = meta.get("lo"), meta.get("hi")
     unit = f" {meta['unit']}" if meta.get("unit") else ""
+    problem = None
     if lo is not None:
         if meta.get("lo_open") and not v > lo:
-            raise ConfigError(source, key, f"must be > {lo:g}{unit}, got {v:g}")
-        if not meta.get("lo_open") and not v >= lo:
-            raise ConfigError(source, key, f"must be >= {lo:g}{unit}, got {v:g}")
-    if hi is not None and not v <= hi:
-        raise ConfigError(source, key, f"must be <= {hi:g}{unit}, got {v:g}")
+            problem = f"must be > {lo:g}{unit}, got {v:g}"
+        elif not meta.get("lo_open") and not v >= lo:
+            problem = f"must be >= {lo:g}{unit}, got {v:g}"
+    if problem is None and hi is not None and not v <= hi:
+        problem = f"must be <= {hi:g}{unit}, got {v:g}"
+    if problem is not None:
+        raise ConfigError(source, key, problem + _unit_hint(v, meta))
+
+
+UNIT_SLIPS = {"rad": ("degrees", "deg", math.pi / 180.0), "m": ("millimetres", "mm", 1e-3)}
+
+
+def _unit_hint(v: float, meta: Any) -> str:
+    """`` (degrees? 5 deg = 0.0873 rad)`` when ``v`` is out of range in the field's SI unit
+    but in range as the unit people often type instead (degrees for rad, mm for m)."""
+    slip = UNIT_SLIPS.get(meta.get("unit", ""))
+    if slip is None:
+        return ""
+    word, short, factor = slip
+    x, lo, hi = v * factor, meta.get("lo"), meta.get("hi")
+    if (lo is not None and not x >= lo) or (hi is not None and not x <= hi):
+        return ""
+    return f" ({word}? {v:g} {short} = {x:.4g} {meta['unit']})"

@@ -170,16 +170,27 @@ def simulate_dynamics(
         None, "--servo", help="TOML of ServoConfig keys (delay, lowpass_hz, a_max, ...)"
     ),
     hard: float = typer.Option(1.6, "--hard", help="hard moves: this times the robot's limits"),
+    speed_scale: float = typer.Option(
+        1.0, "--speed-scale", help="excitation within the robot's limits times this"
+    ),
+    stalls: float = typer.Option(
+        0.0, "--stalls", help="mean receive delay of a loaded host [s] (0: none)"
+    ),
     robot: Path | None = ROBOT,
 ) -> None:
     """Simulate a dynamics record: an excitation through the simulated controller."""
     from thinkfast.calib.dynamics_sim import servo_lag, simulate_dynamics_record
     from thinkfast.config import from_dict, load_toml
+    from thinkfast.errors import ConfigError
     from thinkfast.robot.model import load_robot
     from thinkfast.sim.controller import ServoConfig
 
     cfg = ServoConfig() if servo is None else from_dict(ServoConfig, load_toml(servo), str(servo))
-    n = simulate_dynamics_record(output, load_robot(robot), cfg, seed, hard=hard)
+    if not 0.0 < speed_scale <= 1.0 or stalls < 0.0:
+        raise ConfigError("--speed-scale/--stalls", None, "speed scale in (0, 1], stalls >= 0")
+    n = simulate_dynamics_record(
+        output, load_robot(robot), cfg, seed, hard=hard, speed_scale=speed_scale, stalls=stalls
+    )
     print(
         f"wrote {output} ({n} egm rows); servo lag {1e3 * servo_lag(cfg):.1f} ms, "
         f"a_max {list(cfg.a_max)} rad/s^2"
@@ -189,18 +200,23 @@ def simulate_dynamics(
 @app.command()
 def dynamics(
     record: Path = typer.Argument(..., help="flight record (thinkfast-run --record)"),
-    output: Path = typer.Option(..., "-o", "--output", help="config patch to write (TOML)"),
+    output: Path = typer.Option(..., "-o", "--output", help="run config patch to write (TOML)"),
     robot: Path | None = ROBOT,
+    cycle: float | None = typer.Option(
+        None, "--cycle", help="controller cycle [s] (default: the record's safety.dt, 4 ms)"
+    ),
 ) -> None:
-    """Estimate the controller lag and the acceleration and jerk the arm achieves."""
-    from thinkfast.calib.dynamics import dynamics_patch, dynamics_report, estimate_from_record
+    """Estimate the controller lag and the acceleration and jerk the arm achieves, on the
+    controller's clock; only limits the record approached are measured."""
+    from thinkfast.calib.dynamics import estimate_from_record
+    from thinkfast.calib.dynamics_report import dynamics_patch, dynamics_report, limit_verdicts
     from thinkfast.robot.model import load_robot
 
     rob = load_robot(robot)
-    est = estimate_from_record(str(record))
-    print(dynamics_report(est, str(record)))
-    patch = dynamics_patch(est, str(record), rob.a_max, rob.j_max, str(rob.toml_path))
-    output.write_text(patch, encoding="utf-8")
+    est = estimate_from_record(str(record), cycle=cycle)
+    verdicts = limit_verdicts(est, rob.a_max, rob.j_max)
+    print(dynamics_report(est, str(record), verdicts))
+    output.write_text(dynamics_patch(est, str(record), verdicts, str(rob.toml_path)), "utf-8")
     print(f"wrote {output}")
 
 

@@ -1,8 +1,11 @@
 """Controller lag, achieved acceleration and jerk from commanded vs measured joints.
 
-Input: the ``egm`` table of a flight record (docs/RECORD_FORMAT.md): per exchange the time, the
-measured joints ``q_fb`` and the setpoint sent ``q_cmd``, ``qd_cmd`` (rows while braking are
-left out). Both are resampled on a uniform grid at the median cycle (4 ms for EGM).
+Input: the ``egm`` table of a flight record (docs/RECORD_FORMAT.md): per exchange the
+controller's sequence number, the measured joints ``q_fb`` and the setpoint sent ``q_cmd``,
+``qd_cmd`` (rows while braking are left out). Motion is timed by the **controller's clock**:
+``seqno x cycle`` (the controller sends one ``EgmRobot`` per cycle and numbers them), never by
+the daemon's receive times, which a loaded host delays by anything from 0 to tens of ms. Both
+are resampled on a uniform grid at the cycle (4 ms for EGM).
 
 * **Lag** per joint and motion segment: the shift ``tau`` minimising
   ``sum (q_fb(t) - q_cmd(t - tau) - offset)^2``, the commanded path interpolated with its
@@ -44,6 +47,10 @@ class DynamicsOptions(NamedTuple):
     hold: float = 0.02  # s, an acceleration or jerk counts when held this long
     limited_ratio: float = 0.9  # achieved below this times commanded: the arm was limited
     min_seconds: float = 1.0  # shortest record accepted
+    min_motion: float = 0.1  # s, shortest stretch of commanded motion that counts as a segment
+    break_tolerance: float = 2e-5  # rad, a commanded step this far off its velocities ...
+    break_slip: float = 0.001  # s, ... and off by more than this clock slip is a timing break
+    approach: float = 0.8  # a limit is measured only where the command reached this x it
 
 
 class JointDynamics(NamedTuple):
@@ -62,30 +69,115 @@ class JointDynamics(NamedTuple):
 
 class DynamicsEstimate(NamedTuple):
     """``lag`` [s] (median over segments and joints), ``joints`` (6), ``dt`` [s] grid,
-    ``seconds`` of record used, ``segments`` of motion found."""
+    ``seconds`` of record used, ``segments`` of motion found, timing ``breaks`` found
+    (:func:`timing_breaks`) and the ``excluded`` seconds around them."""
 
     lag: float
     joints: list[JointDynamics]
     dt: float
     seconds: float
     segments: int
+    breaks: int = 0
+    excluded: float = 0.0
 
 
-def egm_arrays(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``t`` [s] (N,), ``q_fb``, ``q_cmd`` [rad], ``qd_cmd`` [rad/s] (N, 6) of a flight record's
-    ``egm`` table, without the rows sent while braking.
+class EgmRows(NamedTuple):
+    """The ``egm`` rows of a record on the controller's clock.
+
+    Attributes:
+        t: controller time [s] (N,), ``seqno x cycle`` from each session's first row, increasing.
+        t_recv: the daemon's receive times [s] (N,) (kept for reference only).
+        q_fb: measured joints [rad] (N, 6).
+        q_cmd, qd_cmd: setpoints sent [rad], [rad/s] (N, 6).
+        cycle: the controller's cycle [s].
+        sessions: EGM sessions found (the sequence number restarted between them).
+    """
+
+    t: np.ndarray
+    t_recv: np.ndarray
+    q_fb: np.ndarray
+    q_cmd: np.ndarray
+    qd_cmd: np.ndarray
+    cycle: float
+    sessions: int
+
+
+def egm_arrays(path: str, cycle: float | None = None) -> EgmRows:
+    """The ``egm`` table of a flight record, without the rows sent while braking, timed by the
+    controller's sequence numbers (:func:`controller_time`).
+
+    Args:
+        path: flight record (HDF5).
+        cycle: the controller's cycle [s] (None: the record's run config ``safety.dt``, else 4 ms).
 
     Raises:
-        RecordFileError: not a readable flight record, or no EGM rows (names the path).
+        RecordFileError: not a readable flight record, no EGM rows, or sequence numbers that do
+            not match the cycle (names the path).
     """
     rec = read_record(path)
     egm = rec.tables["egm"]
     if egm.ndim != 2 or egm.shape[0] == 0:
         raise RecordFileError(f"{path}: no egm rows (record a run with thinkfast-run --record)")
+    if cycle is None:
+        cycle = _record_cycle(rec.attrs.get("run_config"))
     egm = egm[egm[:, 20] == 0.0]
     if len(egm) == 0:
         raise RecordFileError(f"{path}: every egm row was sent while braking")
-    return egm[:, 0], egm[:, 2:8], egm[:, 8:14], egm[:, 14:20]
+    t, keep, sessions = controller_time(egm[:, 1], egm[:, 0], cycle, str(path))
+    egm = egm[keep]
+    return EgmRows(t, egm[:, 0], egm[:, 2:8], egm[:, 8:14], egm[:, 14:20], cycle, sessions)
+
+
+def _record_cycle(run_config) -> float:
+    """``safety.dt`` of a record's run config (JSON text), else the EGM cycle of 4 ms."""
+    import json
+
+    try:
+        return float(json.loads(run_config)["safety"]["dt"])
+    except (TypeError, ValueError, KeyError):
+        return 0.004
+
+
+def controller_time(
+    seqno: np.ndarray, t_recv: np.ndarray, cycle: float, source: str = "record"
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Controller time of each row from its sequence number (pure).
+
+    A session is a run of rows whose ``seqno`` increases (the controller restarts it with a new
+    EGM session); within one, time is ``(seqno - seqno_0) x cycle`` after the session's first
+    receive time (relative to the record's first), so sessions stay apart. Rows repeating a
+    sequence number (or going back in time across sessions) are left out.
+
+    Args:
+        seqno: the controller's sequence numbers (N,).
+        t_recv: the daemon's receive times [s] (N,).
+        cycle: the controller's cycle [s].
+        source: name for messages.
+
+    Returns:
+        ``t`` [s] (M,) increasing, ``keep`` (N,) bool mask of the rows ``t`` times, sessions.
+
+    Raises:
+        RecordFileError: a session whose sequence numbers span a time that the receive times
+            contradict by more than 25 % (a wrong cycle, or no controller numbering).
+    """
+    seqno, t_recv = np.asarray(seqno, dtype=float), np.asarray(t_recv, dtype=float)
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(seqno) <= 0) + 1, [len(seqno)]])
+    t = np.empty(len(seqno))
+    for a, b in zip(starts[:-1], starts[1:], strict=True):
+        span_c, span_r = (seqno[b - 1] - seqno[a]) * cycle, t_recv[b - 1] - t_recv[a]
+        if span_r > 1.0 and not 0.8 < span_c / span_r < 1.25:
+            raise RecordFileError(
+                f"{source}: sequence numbers x {1e3 * cycle:g} ms span {span_c:.2f} s where the "
+                f"packets arrived over {span_r:.2f} s: not the controller's cycle"
+            )
+        t[a:b] = (t_recv[a] - t_recv[0]) + (seqno[a:b] - seqno[a]) * cycle
+    keep = np.ones(len(t), dtype=bool)
+    last = -np.inf
+    for i, x in enumerate(t):  # repeated numbers; a session starting before the last ended
+        keep[i] = x > last
+        last = max(last, x)
+    return t[keep], keep, len(starts) - 1
 
 
 def estimate_dynamics(
@@ -95,6 +187,7 @@ def estimate_dynamics(
     qd_cmd: np.ndarray,
     opts: DynamicsOptions = DynamicsOptions(),
     source: str = "record",
+    cycle: float | None = None,
 ) -> DynamicsEstimate:
     """Lag and achieved acceleration and jerk from commanded vs measured joints (see module).
 
@@ -104,6 +197,7 @@ def estimate_dynamics(
         q_cmd, qd_cmd: setpoints sent [rad], [rad/s] (N, 6).
         opts: estimator settings.
         source: name for messages.
+        cycle: grid step [s] (None: the median step of ``t``).
 
     Raises:
         RecordFileError: too short, times not increasing, or no motion to measure.
@@ -116,12 +210,17 @@ def estimate_dynamics(
         )
     if not (np.diff(t) > 0).all():
         raise RecordFileError(f"{source}: egm times are not increasing")
-    dt = float(np.median(np.diff(t)))
+    dt = float(np.median(np.diff(t))) if cycle is None else cycle
     grid = np.arange(t[0], t[-1], dt)
     cmd = CubicHermiteSpline(t, q_cmd, qd_cmd, axis=0)
     fb = np.column_stack([np.interp(grid, t, q_fb[:, j]) for j in range(6)])
     qc = cmd(grid)
-    segs = motion_segments(cmd(grid, 1), dt, opts)
+    brk = np.searchsorted(grid, t[timing_breaks(t, q_cmd, qd_cmd, opts)])
+    segs = split_at(motion_segments(cmd(grid, 1), dt, opts), brk, opts.min_motion / dt)
+    ignore = np.zeros(len(grid), dtype=bool)
+    reach = int(np.ceil((opts.jerk_window / 2 + opts.hold) / dt))
+    for i in brk:
+        ignore[max(i - reach, 0) : i + reach + 1] = True
     if not segs:
         raise RecordFileError(
             f"{source}: no commanded motion (speed above {opts.motion_speed} rad/s) to measure"
@@ -134,8 +233,8 @@ def estimate_dynamics(
             lags[j].append(best_shift(grid[a:b], fb[a:b, j], cmd, j, opts.max_lag))
     joints = []
     for j in range(6):
-        acc, acc_c = held_peak(fb[:, j], dt, 2, opts), held_peak(qc[:, j], dt, 2, opts)
-        jrk, jrk_c = held_peak(fb[:, j], dt, 3, opts), held_peak(qc[:, j], dt, 3, opts)
+        acc, acc_c = (held_peak(x[:, j], dt, 2, opts, ignore) for x in (fb, qc))
+        jrk, jrk_c = (held_peak(x[:, j], dt, 3, opts, ignore) for x in (fb, qc))
         joints.append(
             JointDynamics(
                 lag=float(np.median(lags[j])) if lags[j] else float("nan"),
@@ -153,19 +252,54 @@ def estimate_dynamics(
         raise RecordFileError(
             f"{source}: no joint moved more than {opts.min_travel} rad in a motion segment"
         )
-    return DynamicsEstimate(float(np.median(every)), joints, dt, grid[-1] - grid[0], len(segs))
+    return DynamicsEstimate(
+        float(np.median(every)), joints, dt, grid[-1] - grid[0], len(segs), len(brk),
+        float(ignore.sum() * dt),
+    )  # fmt: skip
+
+
+def timing_breaks(
+    t: np.ndarray, q_cmd: np.ndarray, qd_cmd: np.ndarray, opts: DynamicsOptions
+) -> np.ndarray:
+    """Rows (N,) bool whose commanded step from the row before disagrees with the commanded
+    velocities: ``|dq - (qd + qd_prev) dt / 2|`` above ``break_tolerance`` and above what a
+    clock slip of ``break_slip`` would leave. A smooth plan sampled on the controller's clock
+    agrees to within ``jerk dt^3 / 12`` (below 1e-6 rad at 4 ms); a disagreement means the
+    plan's time jumped against the controller's (the daemon resynchronised its clock after a
+    silence, a stalled simulated controller) or the supervisor changed the setpoint: the
+    acceleration there is the jump's, not a motion's."""
+    dt = np.diff(t)[:, None]
+    step = np.diff(q_cmd, axis=0)
+    err = np.abs(step - 0.5 * (qd_cmd[1:] + qd_cmd[:-1]) * dt)
+    speed = 0.5 * np.abs(qd_cmd[1:] + qd_cmd[:-1])
+    bad = ((err > opts.break_tolerance) & (err > speed * opts.break_slip)).any(axis=1)
+    return np.concatenate([[False], bad])
+
+
+def split_at(segs: list[tuple[int, int]], cuts: np.ndarray, shortest: float) -> list:
+    """``segs`` (index ranges ``[a, b)``) cut at the indices ``cuts``; pieces shorter than
+    ``shortest`` samples are left out."""
+    out = []
+    for a, b in segs:
+        edges = [a, *sorted(int(c) for c in cuts if a < c < b), b]
+        out += [(x, y) for x, y in zip(edges[:-1], edges[1:], strict=True) if y - x >= shortest]
+    return out
 
 
 def motion_segments(qd: np.ndarray, dt: float, opts: DynamicsOptions) -> list[tuple[int, int]]:
-    """Index ranges ``[a, b)`` of commanded motion (any joint faster than ``motion_speed``),
-    padded by ``max_lag`` after each so the arm's catching up is inside."""
+    """Index ranges ``[a, b)`` of commanded motion (any joint faster than ``motion_speed``) of
+    at least ``min_motion``, padded by ``max_lag`` after each (as far as the record goes) so the
+    arm's catching up is inside."""
     moving = (np.abs(qd) > opts.motion_speed).any(axis=1)
     pad = int(np.ceil(opts.max_lag / dt))
+    shortest = max(3, int(round(opts.min_motion / dt)))
     edges = np.flatnonzero(np.diff(np.concatenate([[0], moving.astype(int), [0]])))
     out: list[tuple[int, int]] = []
     for a, b in zip(edges[::2], edges[1::2], strict=True):
+        if b - a < shortest:  # a record cut mid-motion keeps its last stretch
+            continue
         a, b = max(a, pad), min(b + pad, len(qd))
-        if b - a < 3 * pad:
+        if b - a < shortest:
             continue
         if out and a <= out[-1][1]:
             out[-1] = (out[-1][0], b)
@@ -195,69 +329,28 @@ def best_shift(
     return float(res.x)
 
 
-def held_peak(q: np.ndarray, dt: float, order: int, opts: DynamicsOptions) -> float:
-    """Largest ``|d^order q / dt^order|`` held for ``opts.hold`` (Savitzky-Golay, cubic)."""
+def held_peak(
+    q: np.ndarray, dt: float, order: int, opts: DynamicsOptions, ignore: np.ndarray | None = None
+) -> float:
+    """Largest ``|d^order q / dt^order|`` held for ``opts.hold`` (Savitzky-Golay, cubic),
+    samples where ``ignore`` (bool, same length) is set not counting."""
     window = opts.accel_window if order == 2 else opts.jerk_window
     n = max(order + 2, int(round(window / dt)) | 1)
     if len(q) < n:
         return float("nan")
     d = np.abs(savgol_filter(q, n, 3 if order <= 3 else order, deriv=order, delta=dt))
+    if ignore is not None:
+        d[ignore] = 0.0
     held = minimum_filter1d(d, max(1, int(round(opts.hold / dt))), mode="nearest")
     return float(held.max())
 
 
-def dynamics_report(est: DynamicsEstimate, source: str) -> str:
-    """A person's summary: lag and limits per joint."""
-    lines = [
-        f"{source}: {est.seconds:.1f} s at {1e3 * est.dt:.1f} ms, {est.segments} motion segments",
-        f"controller lag {1e3 * est.lag:.1f} ms (median over segments and joints)",
-        "",
-        "joint  lag_ms  segs  accel  accel_cmd  limited   jerk  jerk_cmd  limited",
-    ]
-    for j, d in enumerate(est.joints, start=1):
-        lines.append(
-            f"{j:5d}  {1e3 * d.lag:6.1f}  {d.segments:4d}  {d.accel:5.1f}  {d.accel_cmd:9.1f}  "
-            f"{'yes' if d.accel_limited else 'no':>7}  {d.jerk:5.0f}  {d.jerk_cmd:8.0f}  "
-            f"{'yes' if d.jerk_limited else 'no':>7}"
-        )
-    lines.append(
-        "accel [rad/s^2], jerk [rad/s^3]: largest held for 20 ms; 'limited': the arm achieved "
-        "less than commanded, so its limit was measured"
+def estimate_from_record(
+    path: str, opts: DynamicsOptions = DynamicsOptions(), cycle: float | None = None
+) -> DynamicsEstimate:
+    """:func:`estimate_dynamics` on the ``egm`` table of the flight record at ``path``, timed by
+    the controller's clock (:func:`egm_arrays`)."""
+    rows = egm_arrays(path, cycle)
+    return estimate_dynamics(
+        rows.t, rows.q_fb, rows.q_cmd, rows.qd_cmd, opts, str(path), rows.cycle
     )
-    return "\n".join(lines)
-
-
-def dynamics_patch(
-    est: DynamicsEstimate,
-    source: str,
-    a_max: np.ndarray,
-    j_max: np.ndarray,
-    robot_path: str,
-) -> str:
-    """The config patch (TOML): ``[run.execution] controller_lag`` for the run config, and
-    ``[robot] max_acceleration`` / ``max_jerk`` for robot.toml, measured where the arm was
-    limited and the current value elsewhere."""
-    acc = [d.accel if d.accel_limited else float(a) for d, a in zip(est.joints, a_max, strict=True)]
-    jrk = [d.jerk if d.jerk_limited else float(x) for d, x in zip(est.joints, j_max, strict=True)]
-    acc_src = ["measured" if d.accel_limited else "kept" for d in est.joints]
-    jrk_src = ["measured" if d.jerk_limited else "kept" for d in est.joints]
-    return (
-        f"# thinkfast-calib dynamics: config patch from {source}\n"
-        "# [run.execution]: keys of the run config (thinkfast-run --config): put them under\n"
-        "# [execution] there. [robot]: keys of robot.toml: replace them there, then recompile\n"
-        "# the tree (thinkfast-compile tree) so that plans use the new limits.\n"
-        "[run.execution]\n"
-        f"controller_lag = {est.lag:.4f}  # s, median over {est.segments} motion segments\n"
-        "\n"
-        f"[robot]  # {robot_path}\n"
-        f"# per joint: {', '.join(acc_src)}\n"
-        f"max_acceleration = [{', '.join(f'{v:.2f}' for v in acc)}]\n"
-        f"# per joint: {', '.join(jrk_src)}\n"
-        f"max_jerk = [{', '.join(f'{v:.1f}' for v in jrk)}]\n"
-    )
-
-
-def estimate_from_record(path: str, opts: DynamicsOptions = DynamicsOptions()) -> DynamicsEstimate:
-    """:func:`estimate_dynamics` on the ``egm`` table of the flight record at ``path``."""
-    t, q_fb, q_cmd, qd_cmd = egm_arrays(path)
-    return estimate_dynamics(t, q_fb, q_cmd, qd_cmd, opts, str(path))

@@ -16,6 +16,7 @@ lowpass_hz)`` (:func:`servo_lag`) and accelerates at most at ``a_max``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -83,6 +84,8 @@ def simulate_dynamics_record(
     hard: float = 1.6,
     feedback_noise: float = 1e-5,
     t0: float = 1.7e9,
+    speed_scale: float = 1.0,
+    stalls: float = 0.0,
 ) -> int:
     """Play :func:`excitation` through a :class:`SimController` and record every exchange.
 
@@ -94,6 +97,11 @@ def simulate_dynamics_record(
         hard: hard moves command this times the robot's acceleration and jerk.
         feedback_noise: std of the measured joints' noise [rad] (ASSUMED encoder-grade).
         t0: time of the first exchange [s] (Unix time).
+        speed_scale: the excitation uses the robot's limits times this (as ``thinkfast-run
+            --speed-scale`` does).
+        stalls: mean receive delay [s] of a loaded host (0: none): the daemon's receive times
+            lag the controller's cycles by exponential delays of this mean plus a stall of
+            2-15 times it every ~50 cycles, never closer than 0.8 ms (a burst after a stall).
 
     Returns:
         Rows written.
@@ -102,7 +110,15 @@ def simulate_dynamics_record(
         RecorderError: the record cannot be written, or rows were dropped.
     """
     rng = np.random.default_rng(seed)
+    if speed_scale != 1.0:
+        robot = dataclasses.replace(
+            robot,
+            v_max=robot.v_max * speed_scale,
+            a_max=robot.a_max * speed_scale,
+            j_max=robot.j_max * speed_scale,
+        )
     q_cmd, qd_cmd = excitation(robot, servo.dt, hard)
+    t_rx = receive_times(t0 + servo.dt * np.arange(len(q_cmd)), stalls, rng)
     sim = SimController(servo, q0=robot.home, max_history=4)
     attrs = {"planner": "calibration", "source": "thinkfast-calib simulate-dynamics",
              "servo": {k: getattr(servo, k) for k in ("delay", "lowpass_hz", "a_max")}}  # fmt: skip
@@ -111,7 +127,7 @@ def simulate_dynamics_record(
         for k in range(len(q_cmd)):
             fb = sim.q + rng.normal(0.0, feedback_noise, 6)
             sim.command(q_cmd[k], qd_cmd[k])
-            rec.egm(t0 + sim.t, k + 1, fb, q_cmd[k], qd_cmd[k], False)
+            rec.egm(t_rx[k], k + 1, fb, q_cmd[k], qd_cmd[k], False)
             sim.step(servo.dt)
             if k % 200 == 199:  # let the writer keep up: the pipe holds about 6000 rows
                 rec.service()
@@ -122,3 +138,17 @@ def simulate_dynamics_record(
     if st["state"] != "closed" or st["dropped"]:
         raise RecorderError(f"{path}: simulated record incomplete ({st})")
     return len(q_cmd)
+
+
+def receive_times(t_ctrl: np.ndarray, stalls: float, rng: np.random.Generator) -> np.ndarray:
+    """The daemon's receive times [s] (N,) of packets sent at ``t_ctrl`` [s] (N,) on a host
+    whose scheduling delays them (see :func:`simulate_dynamics_record`; 0: no delay)."""
+    if stalls <= 0.0:
+        return t_ctrl.copy()
+    delay = rng.exponential(stalls, len(t_ctrl))
+    hit = rng.random(len(t_ctrl)) < 1.0 / 50.0
+    delay[hit] += rng.uniform(2.0, 15.0, hit.sum()) * stalls
+    out = t_ctrl + delay
+    for k in range(1, len(out)):
+        out[k] = max(out[k], out[k - 1] + 0.0008)
+    return out

@@ -26,18 +26,21 @@ class CameraExtrinsic:
 
     xyz: tuple[float, float, float] = spec(
         (0.46, 0.0, 0.30),
-        doc="camera origin in base (ASSUMED default cell: lens on the pedestal at the robot base)",
+        doc="camera origin in base (ASSUMED default cell: lens on the pedestal at the robot base); "
+        "metres, within 20 m of the base, so that millimetres are refused",
         unit="m",
         length=3,
+        lo=-20.0,
+        hi=20.0,
     )
     rpy: tuple[float, float, float] = spec(
         (0.0, 0.0, 0.0),
-        doc="camera orientation in base (roll, pitch, yaw), radians: within one turn, so that "
-        "degrees are refused",
+        doc="camera orientation in base (roll, pitch, yaw), radians: within half a turn, so "
+        "that degrees are refused",
         unit="rad",
         length=3,
-        lo=-math.tau,
-        hi=math.tau,
+        lo=-math.pi,
+        hi=math.pi,
     )
 
     def rotation(self) -> np.ndarray:

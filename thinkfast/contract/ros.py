@@ -49,6 +49,7 @@ from thinkfast.errors import ConfigError, ThinkfastError
 
 POINT_STAMPED = "geometry_msgs/msg/PointStamped"
 JOINT_STATE = "sensor_msgs/msg/JointState"
+STRING = "std_msgs/msg/String"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 JOINT_NAMES = tuple(f"joint_{i}" for i in range(1, 7))  # the URDF's (ROS-Industrial names)
 JOINT_FRAME = "base_link"
@@ -290,6 +291,12 @@ def point_from_detection(payload: bytes) -> bytes | None:
     if not isinstance(det, Detection):
         return None
     return encode_point_stamped(det.stamp, det.position, det.frame)
+
+
+def encode_string(text: str) -> bytes:
+    """``std_msgs/msg/String`` in CDR."""
+    ts = typestore()
+    return bytes(ts.serialize_cdr(ts.types[STRING](data=text), STRING))
 
 
 def encode_joint_state(stamp: float, position, velocity=None, names=JOINT_NAMES) -> bytes:

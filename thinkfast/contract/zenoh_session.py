@@ -32,6 +32,12 @@ def open_session(conf: zenoh.Config) -> zenoh.Session:
 
 def drain(sub, limit: int) -> list[bytes]:
     """Payloads queued in the channel of subscriber ``sub`` (at most ``limit``), never blocking."""
+    return [sample.payload.to_bytes() for sample in drain_samples(sub, limit)]
+
+
+def drain_samples(sub, limit: int) -> list:
+    """Samples (payload and attachment) queued in the channel of ``sub`` (at most ``limit``),
+    never blocking."""
     out = []
     for _ in range(limit):
         try:
@@ -40,7 +46,7 @@ def drain(sub, limit: int) -> list[bytes]:
             break
         if sample is None:
             break
-        out.append(sample.payload.to_bytes())
+        out.append(sample)
     return out
 
 

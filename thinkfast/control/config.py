@@ -173,7 +173,24 @@ def load_run_config(path: str | Path | None) -> RunConfig:
     if path is None:
         return RunConfig()
     data = include_table(load_toml(path), path, "camera_file", "camera", CameraExtrinsic)
-    return check_cameras(from_dict(RunConfig, data, str(path)), str(path))
+    return check_lags(check_cameras(from_dict(RunConfig, data, str(path)), str(path)), str(path))
+
+
+def check_lags(cfg: RunConfig, source: str) -> RunConfig:
+    """``cfg`` once the supervisor's ``safety.tracking_lag`` (how far the arm may trail its
+    command) is at least ``execution.controller_lag`` (how far it does).
+
+    Raises:
+        ConfigError: names ``safety.tracking_lag`` and the fix.
+    """
+    lag, track = cfg.execution.controller_lag, cfg.safety.tracking_lag
+    if track < lag:
+        raise ConfigError(
+            source, "safety.tracking_lag",
+            f"{track:g} s is below execution.controller_lag ({lag:g} s): the supervisor would "
+            f"brake an arm that follows as assumed; raise it above {lag:g} s (default 0.2)",
+        )  # fmt: skip
+    return cfg
 
 
 def check_cameras(cfg: RunConfig, source: str) -> RunConfig:

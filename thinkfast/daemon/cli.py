@@ -106,6 +106,12 @@ def run(
     fifo: int | None = typer.Option(
         None, "--fifo", help="run the EGM loop under SCHED_FIFO at this priority (1-99)"
     ),
+    foxglove: str | None = typer.Option(
+        None,
+        "--foxglove",
+        help="live view in Foxglove: serve its WebSocket protocol on [HOST:]PORT (loopback by "
+        "default; needs the foxglove extra); not with --rerun",
+    ),
     rerun: str | None = typer.Option(
         None,
         "--rerun",
@@ -146,6 +152,12 @@ def run(
         from thinkfast.daemon.live_view import parse_sink
 
         parse_sink(rerun)
+    if foxglove is not None:
+        from thinkfast.daemon.foxglove_view import parse_hostport as parse_fox
+
+        if rerun is not None:
+            raise ConfigError("--foxglove", None, "not with --rerun: one live view at a time")
+        fox = parse_fox(foxglove)
     parse_hostport(egm_bind)
     parse_controller(egm_controller)
     if not 0.0 < egm_handover < math.inf:
@@ -190,6 +202,11 @@ def run(
         from thinkfast.daemon.live_view import daemon_view
 
         daemon.view = daemon_view(rerun, robot, daemon.executor.tree, cfg)
+    if foxglove is not None:
+        from thinkfast.daemon.foxglove_view import FoxgloveView
+
+        daemon.view = FoxgloveView(*fox, robot)
+        logging.getLogger("thinkfast.run").info("foxglove on ws://%s:%d", fox[0], daemon.view.port)
     sys.exit(daemon.run())
 
 
@@ -267,5 +284,11 @@ def _tree_robot(tree) -> Path | None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point."""
+    """Console entry point; ``thinkfast-run status ...`` watches daemons instead
+    (:mod:`thinkfast.daemon.status_cli`)."""
+    args = sys.argv[1:] if argv is None else argv
+    if args[:1] == ["status"]:
+        from thinkfast.daemon.status_cli import main as status_main
+
+        status_main(args[1:])
     sys.exit(run_app(app, "thinkfast-run", argv))

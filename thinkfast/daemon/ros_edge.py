@@ -8,6 +8,9 @@ in rmw_zenoh's layout (:mod:`thinkfast.contract.ros`):
   ``frame_id``, ``seq`` from the attachment) and joins the JSON detections in :meth:`drain`:
   the same intake, the same counters and drops. A sample that is not a PointStamped in CDR is
   handed on as it is, so the intake refuses it (``not_json`` or ``not_utf8``) and counts it.
+* in: ``/<prefix>/detections_3d`` (``vision_msgs/msg/Detection3DArray``): the best detection
+  of each array the same way (:func:`~thinkfast.contract.ros_vision.detection_from_array`);
+  an array without detections is counted ``empty`` and dropped.
 * out, with every setpoint mirrored: ``/<prefix>/joint_commands`` (the commanded position and
   velocity) and ``/<prefix>/joint_states`` (the measured position of the EGM feedback it
   answers), ``sensor_msgs/msg/JointState``;
@@ -21,7 +24,8 @@ from __future__ import annotations
 
 import zenoh
 
-from thinkfast.contract import ros
+from thinkfast.contract import ros, ros_vision
+from thinkfast.contract.zenoh_session import drain_samples
 from thinkfast.daemon.zenoh_edge import QUEUE, ZenohIO
 
 
@@ -42,30 +46,36 @@ class RosIO(ZenohIO):
         self.sub_ros = self.node.subscriber(
             self.topics.detections, ros.POINT_STAMPED, zenoh.handlers.FifoChannel(QUEUE)
         )
+        ros_vision.vision_typestore()  # the Detection3DArray definitions, before subscribing
+        self.sub_vision = self.node.subscriber(
+            ros_vision.detections_3d_topic(prefix),
+            ros_vision.DETECTION_3D_ARRAY,
+            zenoh.handlers.FifoChannel(QUEUE),
+        )
         self.pub_commands = self.node.publisher(self.topics.joint_commands, ros.JOINT_STATE)
         self.pub_states = self.node.publisher(self.topics.joint_states, ros.JOINT_STATE)
         self.pub_diagnostics = self.node.publisher(self.topics.diagnostics, ros.DIAGNOSTIC_ARRAY)
         self.received = 0
         self.undecodable = 0
+        self.empty = 0  # Detection3DArray without detections
 
     def describe(self) -> dict:
         ros_part = {"ros_domain": self.domain, "ros_topics": self.topics._asdict()}
         return {**super().describe(), **ros_part}
 
     def drain(self, limit: int = 256) -> list[bytes]:
-        """JSON detections, then the PointStamped ones as JSON (at most ``limit`` of each)."""
+        """JSON detections, then the PointStamped ones and the Detection3DArray ones as JSON
+        (at most ``limit`` of each)."""
         out = super().drain(limit)
-        for _ in range(limit):
-            try:
-                sample = self.sub_ros.try_recv()
-            except Exception:  # channel closed while shutting down
-                break
-            if sample is None:
-                break
-            out.append(self._convert(sample))
+        for sub, convert in ((self.sub_ros, ros.detection_from_point),
+                             (self.sub_vision, ros_vision.detection_from_array)):  # fmt: skip
+            for sample in drain_samples(sub, limit):
+                payload = self._convert(sample, convert)
+                if payload is not None:
+                    out.append(payload)
         return out
 
-    def _convert(self, sample) -> bytes:
+    def _convert(self, sample, convert) -> bytes | None:
         self.received += 1
         cdr = sample.payload.to_bytes()
         att = sample.attachment
@@ -74,10 +84,13 @@ class RosIO(ZenohIO):
         except ros.RosDecodeError:
             seq = None  # the attachment only helps ordering; a detection does not need it
         try:
-            return ros.detection_from_point(cdr, seq)
+            payload = convert(cdr, seq)
         except ros.RosDecodeError:
             self.undecodable += 1
             return cdr  # refused and counted by the intake
+        if payload is None:
+            self.empty += 1
+        return payload
 
     def publish_setpoint(self, stamp: float, q, qd, mode: str, q_meas=None) -> None:
         super().publish_setpoint(stamp, q, qd, mode, q_meas)
@@ -92,7 +105,8 @@ class RosIO(ZenohIO):
 
     def as_dict(self) -> dict:
         """ROS counters for the status."""
-        return {"domain": self.domain, "received": self.received, "undecodable": self.undecodable}
+        return {"domain": self.domain, "received": self.received, "undecodable": self.undecodable,
+                "empty": self.empty}  # fmt: skip
 
     def close(self) -> None:
         self.node.close()

@@ -55,6 +55,7 @@ from thinkfast.decide.tree_view import runtime_tree
 from thinkfast.record.recorder import Recorder
 from thinkfast.robot.model import Robot
 from thinkfast.tree.action_tree import ActionTree
+from thinkfast.tree.file import tree_fingerprint
 
 log = logging.getLogger("thinkfast.run")
 STATUS_COST = 0.001  # s set aside for a status message (JSON, timing percentiles)
@@ -110,12 +111,14 @@ class Daemon:
         self.cfg, self.robot, self.planner, self.modes = cfg, robot, planner, modes
         self.view = view  # live view (daemon/live_view.DaemonView) or None: off
         self.tree_meta = tree.meta
+        self.tree_fingerprint = tree_fingerprint(tree)  # `thinkfast-compile diff` prints it too
         self.cycle, self.cpu, self.fifo = Cycle(cfg.safety.dt, spin_ahead), cpu, fifo
         self.recorder = Recorder(
             endpoints.record,
             {
                 "planner": planner,
                 "tree_config_sha256": tree.meta.get("config_sha256", ""),
+                "tree_fingerprint": self.tree_fingerprint,
                 "run_config": json.dumps(_plain(cfg)),
                 "started": time.time(),
             },
@@ -152,6 +155,7 @@ class Daemon:
 
             self.zio = RosIO(zenoh_conf, endpoints.key_prefix, endpoints.ros_domain)
         self.stop_reason: str | None = None
+        self._signal_braked = False  # the signal's brake was logged
         self.last_rx = -math.inf  # receive time of the last served EgmRobot (wall clock)
         self.outbox: list[tuple[float, np.ndarray, np.ndarray, str, np.ndarray]] = []
         self.decision_ms = 0.0
@@ -169,12 +173,12 @@ class Daemon:
         now = time.time()
         self.last_rx = now
         if self.stop_reason is not None:
-            self.control.brake("signal")
+            self._brake_on_signal()
         errors = self.control.errors
         prev = None if before is None else (before.tm_ms, before.q_rad)
-        if (fb.motors_on, fb.mci_running, fb.rapid_running) != self._controller_key:
-            self._controller_changed(fb)
         r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, ready=fb.ready)
+        if (fb.motors_on, fb.mci_running, fb.rapid_running) != self._controller_key:
+            self._controller_changed(fb, now)  # after the clock took this packet's time
         if self.control.errors != errors:
             self._planner_error("setpoint", self.control.last_error)
         if r is None:
@@ -188,8 +192,24 @@ class Daemon:
         self.recorder.egm(now, fb.seqno, fb.q_rad, q, qd, self.supervisor.braking)
         return q, qd
 
-    def _controller_changed(self, fb) -> None:
-        """The controller reports another motor, MCI or RAPID state: status and a log line."""
+    def _brake_on_signal(self) -> None:
+        """SIGINT/SIGTERM while the controller talks: brake smoothly; the first time, a log line
+        and a record event saying what was going on."""
+        if not self._signal_braked:
+            self._signal_braked = True
+            ex = self.executor
+            self._event(
+                self.control.clock.t,
+                "brake",
+                {"reason": "signal", "signal": self.stop_reason, "mode": ex.mode,
+                 "throws": ex.episodes},
+            )  # fmt: skip
+        self.control.brake("signal")
+
+    def _controller_changed(self, fb, now: float) -> None:
+        """The controller reports another motor, MCI or RAPID state: status and a log line,
+        stamped with this packet's controller time (its receive time ``now`` [s] before the
+        controller's clock has started)."""
         self._controller_key = (fb.motors_on, fb.mci_running, fb.rapid_running)
         self.controller_state = {
             "motors_on": fb.motors_on,
@@ -197,7 +217,8 @@ class Daemon:
             "rapid_running": fb.rapid_running,
             "ready": fb.ready,
         }
-        self._event(self.control.clock.t, "controller_state", self.controller_state)
+        t = self.control.clock.t
+        self._event(t if math.isfinite(t) else now, "controller_state", self.controller_state)
 
     def _planner_error(self, where: str, exc: BaseException | None) -> None:
         self.planner_errors += 1
@@ -489,6 +510,7 @@ class Daemon:
         """What the daemon runs with (logged at start-up)."""
         cfg, robot, meta = self.cfg, self.robot, self.tree_meta
         return {
+            "tree_fingerprint": self.tree_fingerprint[:16],
             "tree_config_sha256": str(meta.get("config_sha256", ""))[:16],
             "tree_urdf_sha256": str(meta.get("urdf_sha256", ""))[:16],
             "planner": self.planner,

@@ -2,8 +2,9 @@
 
 ``thinkfast-sim record mcap RECORD -o OUT.mcap`` (and ``replay RECORD --mcap OUT.mcap``). Schemas
 are ROS 2 message definitions (encoding ``ros2msg``), messages CDR (little endian, encoding
-``cdr``), written with the ``mcap`` package (the ``view`` extra). The few message types used
-are encoded here (:func:`cdr_joint_state`, ...); tests check the bytes against ``rosbags``.
+``cdr``), written with the ``mcap`` package (the ``view`` extra). Messages and schemas come
+from the encoder of the live ROS 2 topics (:mod:`thinkfast.contract.ros`, rosbags' CDR and
+message definitions), so a recorded JointState is the bytes the live topic carries.
 
 Channels (:data:`TOPICS`; log and publish time = the record's Unix time):
 
@@ -24,11 +25,19 @@ Points are in the frame ``base`` (the robot base); joint states name the robot's
 from __future__ import annotations
 
 import json
-import struct
 from pathlib import Path
 
 import numpy as np
 
+from thinkfast.contract.ros import (
+    JOINT_STATE,
+    POINT_STAMPED,
+    STRING,
+    encode_joint_state,
+    encode_point_stamped,
+    encode_string,
+    typestore,
+)
 from thinkfast.errors import ConfigError
 from thinkfast.record.format import MODES, Record
 from thinkfast.record.tables import (
@@ -40,95 +49,35 @@ from thinkfast.record.tables import (
 )
 
 FRAME = "base"
-SEP = "=" * 80 + "\n"
-_TIME = "int32 sec\nuint32 nanosec\n"
-_HEADER = "builtin_interfaces/Time stamp\nstring frame_id\n"
-_POINT = "float64 x\nfloat64 y\nfloat64 z\n"
-SCHEMAS = {
-    "sensor_msgs/msg/JointState": "std_msgs/Header header\nstring[] name\nfloat64[] position\n"
-    "float64[] velocity\nfloat64[] effort\n"
-    + SEP + "MSG: std_msgs/Header\n" + _HEADER
-    + SEP + "MSG: builtin_interfaces/Time\n" + _TIME,
-    "geometry_msgs/msg/PointStamped": "std_msgs/Header header\ngeometry_msgs/Point point\n"
-    + SEP + "MSG: std_msgs/Header\n" + _HEADER
-    + SEP + "MSG: builtin_interfaces/Time\n" + _TIME
-    + SEP + "MSG: geometry_msgs/Point\n" + _POINT,
-    "std_msgs/msg/String": "string data\n",
-}  # fmt: skip
 TOPICS = {
-    "/thinkfast/joints/commanded": "sensor_msgs/msg/JointState",
-    "/thinkfast/joints/measured": "sensor_msgs/msg/JointState",
-    "/thinkfast/detections/raw": "geometry_msgs/msg/PointStamped",
-    "/thinkfast/detections/accepted": "geometry_msgs/msg/PointStamped",
-    "/thinkfast/ball/belief": "geometry_msgs/msg/PointStamped",
-    "/thinkfast/ball/crossing": "geometry_msgs/msg/PointStamped",
-    "/thinkfast/decisions": "std_msgs/msg/String",
-    "/thinkfast/events": "std_msgs/msg/String",
+    "/thinkfast/joints/commanded": JOINT_STATE,
+    "/thinkfast/joints/measured": JOINT_STATE,
+    "/thinkfast/detections/raw": POINT_STAMPED,
+    "/thinkfast/detections/accepted": POINT_STAMPED,
+    "/thinkfast/ball/belief": POINT_STAMPED,
+    "/thinkfast/ball/crossing": POINT_STAMPED,
+    "/thinkfast/decisions": STRING,
+    "/thinkfast/events": STRING,
 }
 
 
-# ------------------------------------------------------------------ CDR (little endian)
-class _Cdr:
-    """A CDR body after the 4-byte encapsulation header (alignment counts from the body)."""
-
-    def __init__(self):
-        self.buf = bytearray(b"\x00\x01\x00\x00")  # CDR_LE, options 0
-
-    def _align(self, n: int) -> None:
-        self.buf += b"\x00" * (-(len(self.buf) - 4) % n)
-
-    def u32(self, v: int) -> None:
-        self._align(4)
-        self.buf += struct.pack("<I", v)
-
-    def i32(self, v: int) -> None:
-        self._align(4)
-        self.buf += struct.pack("<i", v)
-
-    def f64s(self, values) -> None:
-        self._align(8)
-        self.buf += np.asarray(values, dtype="<f8").tobytes()
-
-    def string(self, s: str) -> None:
-        data = s.encode("utf-8") + b"\x00"
-        self.u32(len(data))
-        self.buf += data
-
-    def header(self, t: float, frame: str) -> None:
-        sec = int(np.floor(t))
-        nsec = min(int(round((t - sec) * 1e9)), 999_999_999)
-        self.i32(sec)
-        self.u32(nsec)
-        self.string(frame)
+def schemas() -> dict[str, str]:
+    """The ROS 2 message definitions (``ros2msg``, with their dependencies, as rosbag2 writes
+    them) of every type in :data:`TOPICS`, from the same type store that encodes them."""
+    ts = typestore()
+    return {typ: ts.generate_msgdef(typ, ros_version=2)[0] for typ in set(TOPICS.values())}
 
 
 def cdr_joint_state(t: float, names, position, velocity=()) -> bytes:
-    """sensor_msgs/msg/JointState at Unix time ``t`` [s]: positions [rad], velocities [rad/s]."""
-    w = _Cdr()
-    w.header(t, "")
-    w.u32(len(names))
-    for n in names:
-        w.string(n)
-    for values in (position, velocity, ()):
-        w.u32(len(values))
-        if len(values):
-            w.f64s(values)
-    return bytes(w.buf)
+    """sensor_msgs/msg/JointState at Unix time ``t`` [s]: positions [rad], velocities [rad/s];
+    the live topics' encoder (:func:`thinkfast.contract.ros.encode_joint_state`)."""
+    vel = None if len(velocity) == 0 else velocity
+    return encode_joint_state(t, position, vel, tuple(names))
 
 
 def cdr_point_stamped(t: float, p, frame: str = FRAME) -> bytes:
     """geometry_msgs/msg/PointStamped at Unix time ``t`` [s]: point (3,) [m] in ``frame``."""
-    w = _Cdr()
-    w.header(t, frame)
-    w.f64s(np.asarray(p, dtype=float)[:3])
-    return bytes(w.buf)
-
-
-def cdr_string(text: str) -> bytes:
-    """std_msgs/msg/String."""
-    w = _Cdr()
-    w.string(text)
-    return bytes(w.buf)
+    return encode_point_stamped(t, np.asarray(p, dtype=float)[:3], frame)
 
 
 # ------------------------------------------------------------------ the record's messages
@@ -166,10 +115,10 @@ def record_messages(record: Record, joint_names) -> list[tuple[float, str, bytes
             "value": float(dec["value"][i]),
             "best_goal": int(dec["best_goal"][i]),
         }
-        out.append((t, "/thinkfast/decisions", cdr_string(json.dumps(obj))))
+        out.append((t, "/thinkfast/decisions", encode_string(json.dumps(obj))))
     for t, ev in zip(event_times(record), record.events, strict=True):
         text = json.dumps({"kind": ev.kind, "detail": ev.detail})
-        out.append((t, "/thinkfast/events", cdr_string(text)))
+        out.append((t, "/thinkfast/events", encode_string(text)))
     out.sort(key=lambda m: m[0])
     return out
 
@@ -195,7 +144,7 @@ def write_mcap(record: Record, path: Path, joint_names) -> dict[str, int]:
         w.start(profile="ros2", library="thinkfast")
         schema = {
             name: w.register_schema(name=name, encoding="ros2msg", data=text.encode())
-            for name, text in SCHEMAS.items()
+            for name, text in sorted(schemas().items())
         }
         channel = {
             topic: w.register_channel(topic=topic, message_encoding="cdr", schema_id=schema[typ])

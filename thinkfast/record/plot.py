@@ -15,9 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from thinkfast.record.format import MODES, Record
-from thinkfast.record.tables import columns, event_times
+from thinkfast.record.tables import break_at_gaps, columns, event_times
 
 CROSS_SD = 0.5  # m: crossing predictions with a larger standard deviation are not drawn
+GAP = 0.5  # s: ball, belief, crossing and decision rows further apart are not joined
 
 
 def record_info(record: Record) -> list[str]:
@@ -79,9 +80,10 @@ def plot_record(record: Record, png: Path) -> None:
         c = colours[k]
         ax[1].plot(d["t_recv"] - t0, d[axis], ".", ms=3, color=c, label=f"{axis} detected")
         if len(b["t"]):
-            m, sd = b["mean"][:, k], np.sqrt(np.clip(b["cov"][:, 7 * k], 0.0, None))
-            ax[1].plot(b["t"] - t0, m, color=c, lw=1, label=f"{axis} belief")
-            ax[1].fill_between(b["t"] - t0, m - 2 * sd, m + 2 * sd, color=c, alpha=0.2)
+            sd = np.sqrt(np.clip(b["cov"][:, 7 * k], 0.0, None))
+            tb, m, sd = break_at_gaps(b["t"] - t0, b["mean"][:, k], sd, gap=GAP)
+            ax[1].plot(tb, m, color=c, lw=1, label=f"{axis} belief")
+            ax[1].fill_between(tb, m - 2 * sd, m + 2 * sd, color=c, alpha=0.2)
     ax[1].set_ylabel("ball [m] (base)")
     ax[1].set_title("ball track: accepted detections against the belief (mean, 2 sigma)")
     ax[1].legend(ncol=6, fontsize=8, loc="upper right")
@@ -89,20 +91,21 @@ def plot_record(record: Record, png: Path) -> None:
     if len(b["t"]):  # a ball held still "crosses" far away, with metres of spread: left out
         ok &= np.sqrt(np.clip(np.maximum(b["o_cov"][:, 0], b["o_cov"][:, 4]), 0, None)) < CROSS_SD
     for k, name in enumerate(("Y", "Z")):
-        m = b["o_mean"][ok, k]
         sd = np.sqrt(np.clip(b["o_cov"][ok, 4 * k], 0.0, None))
-        ax[2].plot(b["t"][ok] - t0, m, ".-", ms=3, color=colours[k], label=f"{name} at plane")
-        ax[2].fill_between(b["t"][ok] - t0, m - 2 * sd, m + 2 * sd, color=colours[k], alpha=0.2)
+        tc, m, sd = break_at_gaps(b["t"][ok] - t0, b["o_mean"][ok, k], sd, gap=GAP)
+        ax[2].plot(tc, m, ".-", ms=3, color=colours[k], label=f"{name} at plane")
+        ax[2].fill_between(tc, m - 2 * sd, m + 2 * sd, color=colours[k], alpha=0.2)
     ax[2].set_ylabel("crossing [m]")
     ax[2].set_title(
         f"predicted crossing point on the plane (mean, 2 sigma; where sigma < {CROSS_SD:g} m)"
     )
     ax[2].legend(fontsize=8, loc="upper right")
-    ax[3].step(dec["t"] - t0, dec["value"], where="post", color=colours[0], label="value")
+    td, value, mode = decision_steps(dec, t0)
+    ax[3].step(td, value, where="post", color=colours[0], label="value")
     ax[3].set_ylabel("value (block probability)")
     ax[3].set_ylim(-0.05, 1.05)
     twin = ax[3].twinx()
-    twin.step(dec["t"] - t0, dec["mode"], where="post", color=colours[1], lw=0.8, label="mode")
+    twin.step(td, mode, where="post", color=colours[1], lw=0.8, label="mode")
     twin.set_yticks(range(len(MODES)), MODES, fontsize=8)
     twin.set_ylim(-0.5, len(MODES) - 0.5)
     for t, ev in zip(event_times(record), record.events, strict=True):
@@ -114,6 +117,23 @@ def plot_record(record: Record, png: Path) -> None:
     fig.tight_layout()
     fig.savefig(png, dpi=90)
     plt.close(fig)
+
+
+def decision_steps(dec: dict, t0: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Times [s] since ``t0``, values and modes of the decisions, drawn as steps held until
+    the next decision: decisions come with detections, so each step ends at most ``GAP`` after
+    its decision (a NaN row), never through an idle stretch to the next throw."""
+    t, value, mode = np.asarray(dec["t"], float) - t0, dec["value"], dec["mode"]
+    if len(t) == 0:
+        return t, np.asarray(value, float), np.asarray(mode, float)
+    end = np.append(np.diff(t) > GAP, True)  # the last decision before a gap (or the end)
+    at = np.flatnonzero(end) + 1
+    t_end = t[end] + np.minimum(GAP, 0.02)  # a decision holds until the next detection
+    return (
+        np.insert(t, at, t_end),
+        np.insert(np.asarray(value, float), at, np.nan),
+        np.insert(np.asarray(mode, float), at, np.nan),
+    )
 
 
 def _origin(record: Record) -> float:

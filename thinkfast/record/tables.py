@@ -98,3 +98,19 @@ def event_times(record: Record) -> np.ndarray:
             last = ev.t
         out[i] = last
     return out
+
+
+def break_at_gaps(t: np.ndarray, *ys: np.ndarray, gap: float) -> tuple[np.ndarray, ...]:
+    """``t`` (N,) and each ``y`` (N, ...) with a NaN row inserted wherever consecutive times are
+    more than ``gap`` [s] apart, so a plotted line (or step) stops at the gap instead of
+    bridging it (a state held through an idle stretch, a line from one throw to the next)."""
+    t = np.asarray(t, dtype=float)
+    at = np.flatnonzero(np.diff(t) > gap) + 1
+    if len(at) == 0:
+        return (t, *(np.asarray(y, dtype=float) for y in ys))
+    t_out = np.insert(t, at, (t[at - 1] + t[at]) / 2.0)
+    out = [t_out]
+    for y in ys:
+        y = np.asarray(y, dtype=float)
+        out.append(np.insert(y, at, np.nan, axis=0))
+    return tuple(out)

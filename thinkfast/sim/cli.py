@@ -11,6 +11,7 @@ import typer
 
 from thinkfast.cli_util import make_app, run_app
 from thinkfast.contract import keys
+from thinkfast.sim.irc5_cli import controller as controller_cmd
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
 PLANNERS = ("tree", "tree-rest", "naive", "naive-paper", "oracle", "oracle_seen")
@@ -462,6 +463,7 @@ record_app = typer.Typer(
     rich_markup_mode=None,
 )
 app.add_typer(record_app, name="record")
+app.command("controller")(controller_cmd)  # the simulated IRC5 (EGM + RWS), thinkfast/sim/irc5.py
 
 
 @record_app.command("info")

@@ -23,6 +23,7 @@ from thinkfast.contract import keys
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.decide.tree_view import BALL_RADIUS
+from thinkfast.errors import ThinkfastError
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.sim.camera import CameraModelConfig, observe
@@ -32,6 +33,51 @@ from thinkfast.sim.publisher import publish_detections
 from thinkfast.sim.throws import Throw, plane_crossing
 
 GAP = 3.5  # s between throws: crossing + return home + the contract's 3 s
+SILENCE = 3.0  # s without an EGM reply or a status: the daemon is gone (status comes at 20 Hz)
+
+
+class DaemonGone(ThinkfastError):
+    """The daemon stopped answering EGM or publishing its status while throws were running."""
+
+
+class Watchdog:
+    """Notices a daemon that died: no EGM reply to the simulated controller, or no status on
+    zenoh, for ``silence`` seconds (checked while the thrower waits)."""
+
+    def __init__(self, runner: ControllerRunner, session, prefix: str, egm, silence: float):
+        self.runner, self.egm, self.silence = runner, egm, silence
+        now = time.monotonic()
+        self._replies, self._reply_at, self.status_at = 0, now, now
+        self._sub = session.declare_subscriber(keys.status(prefix), self._on_status)
+
+    def _on_status(self, _sample) -> None:
+        self.status_at = time.monotonic()  # only a time: nothing else in zenoh's thread
+
+    def check(self, done: int, total: int) -> None:
+        """Raise :class:`DaemonGone` (naming what went silent) when the daemon is gone."""
+        now = time.monotonic()
+        replies = self.runner.stats.replies
+        if replies != self._replies:
+            self._replies, self._reply_at = replies, now
+        quiet = []
+        if now - self._reply_at > self.silence:
+            quiet.append(f"no EGM reply for {now - self._reply_at:.1f} s")
+        if now - self.status_at > self.silence:
+            quiet.append(f"no status for {now - self.status_at:.1f} s")
+        if quiet:
+            raise DaemonGone(
+                f"the daemon at EGM {self.egm[0]}:{self.egm[1]} stopped ({', '.join(quiet)}) "
+                f"after {done} of {total} throws"
+            )
+
+    def sleep_until(self, t_wall: float, done: int, total: int) -> None:
+        """Sleep until wall time ``t_wall`` [s], checking the daemon every 0.1 s."""
+        while True:
+            self.check(done, total)
+            left = t_wall - time.time()
+            if left <= 0.0:
+                return
+            time.sleep(min(left, 0.1))
 
 
 class WallClockSim(SimController):
@@ -131,8 +177,10 @@ def run_throws(
     session = open_peer(connect=[zenoh_endpoint])
     results = []
     try:
+        dog = Watchdog(runner, session, prefix, egm, SILENCE)
         time.sleep(1.0)  # EGM exchange running, zenoh routes up
         for i, th in enumerate(throws):
+            dog.check(i, len(throws))
             if frames is not None:  # frames in real time from the ball's appearance in the hand
                 t0 = time.time() + 0.3 + th.t_release
                 frames.publish_throw(th, extrinsic, throw_rng(seed, i), t0)
@@ -143,7 +191,7 @@ def run_throws(
                 t0 = time.time() + 0.3 + (th.t_release if th.kind != "still" else 0.0)
                 publish_detections(session, keys.detections(prefix), dets, t0_wall=t0)
             if th.kind == "feint":
-                time.sleep(max(0.0, t0 + FEINT_WINDOW + 0.3 - time.time()))
+                dog.sleep_until(t0 + FEINT_WINDOW + 0.3, i, len(throws))
                 t_hist, q_hist = sim.joint_history(t0 - th.t_release - 0.5)
                 f = judge_feint(t_hist, q_hist, kin, robot.home, t0, FEINT_WINDOW)
                 results.append(
@@ -154,14 +202,14 @@ def run_throws(
                     f"throw {i + 1:3d}/{len(throws)} {th.id:>10}: FEINT -> shield moved "
                     f"{f.displacement:.3f} m, home again: {'yes' if f.home_again else 'no'}"
                 )
-                time.sleep(max(0.0, t0 + FEINT_WINDOW + 1.0 - time.time()))
+                dog.sleep_until(t0 + FEINT_WINDOW + 1.0, i + 1, len(throws))
                 continue
             cross = plane_crossing(th)
-            time.sleep(max(0.0, t0 + cross.t + 0.3 - time.time()))
+            dog.sleep_until(t0 + cross.t + 0.3, i, len(throws))
             r = judge_throw(th, *sim.joint_history(t0 - 1.0), kin, t0)._replace(kind=th.kind)
             results.append(r)
             report(throw_line(i, len(throws), th, r))
-            time.sleep(max(0.0, t0 + cross.t + GAP - time.time()))
+            dog.sleep_until(t0 + cross.t + GAP, i + 1, len(throws))
     finally:
         runner.stop()
         runner.join(2.0)

@@ -191,6 +191,14 @@ class FakeRwsController:
         elif status == "lost":  # restarted after a lost session: RETURN, next request
             self._wait_for_request()
 
+    def lose_session(self) -> None:
+        """The EGM peer went silent during a session (``ERR_UDPUC_COMM``): the module writes
+        "lost" and the program stops, as :meth:`_step_program` does with ``egm_peer=False``."""
+        with self.lock:
+            if self.status() == "session" and self.execstate == "running":
+                self._set_var("tf_status", '"lost"')
+                self._halt()
+
     def _wait_for_request(self) -> None:
         self._set_var("tf_start_request", "FALSE")
         self._set_var("tf_status", '"waiting"')

@@ -1,0 +1,128 @@
+"""``thinkfast-run status``: two real daemons on loopback zenoh (one served by the simulated
+EGM controller over UDP, one with no controller), watched as JSON, as rich's recorded console,
+and live in a terminal (tmux capture)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+from tests.daemon_harness import DaemonRun, free_port
+from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
+from thinkfast.daemon.status_cli import Listener
+from thinkfast.daemon.status_view import StatusBoard, panel_rows, render, snapshot
+from thinkfast.sim.realtime import start_daemon, wait_port
+
+EXE = str(Path(sys.executable).parent / "thinkfast-run")
+
+
+@pytest.fixture(scope="module")
+def daemons(small_tree_015, robot, tmp_path_factory):
+    """(endpoint A, endpoint B): daemon A served by a simulated controller, B by none."""
+    run = DaemonRun(small_tree_015, tmp_path_factory.mktemp("a") / "a.h5", q0=robot.home,
+                    prefix="lab_a")  # fmt: skip
+    zb = free_tcp_port()
+    b = start_daemon(small_tree_015, "naive", free_port(), zb, "lab_b", None, None)
+    try:
+        wait_port(b, zb)
+        time.sleep(1.0)
+        yield f"tcp/127.0.0.1:{run.zport}", f"tcp/127.0.0.1:{zb}"
+    finally:
+        b.terminate()
+        b.wait(15)
+        run.stop()
+
+
+@pytest.mark.realtime
+def test_json_snapshot_of_two_daemons(daemons):
+    a, b = daemons
+    out = subprocess.run(
+        [EXE, "status", "--json", "--key-prefix", "lab_a", "--key-prefix", "lab_b",
+         "--zenoh-connect", a, "--zenoh-connect", b, "--timeout", "10"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    snap = json.loads(out.stdout)
+    assert set(snap) == {"lab_a", "lab_b"}
+    sa, sb = snap["lab_a"]["status"], snap["lab_b"]["status"]
+    assert sa["state"] == "idle" and sa["egm_connected"] and sa["planner"] == "tree"
+    assert sb["egm_connected"] is False and sb["planner"] == "naive"
+    assert snap["lab_a"]["egm_rates"]["replied"] > 0  # the controller is served
+    assert snap["lab_b"]["egm_rates"].get("replied", 0) == 0
+    assert not snap["lab_a"]["stale"]
+
+
+@pytest.mark.realtime
+def test_the_recorded_console_shows_state_controller_and_egm(daemons):
+    a, b = daemons
+    session = open_peer(connect=[a, b])
+    board = StatusBoard()
+    try:
+        listener = Listener(session, ["lab_a", "lab_b", "lab_none"], board)
+        deadline = time.time() + 10.0
+        while time.time() < deadline and not all(
+            p in board.daemons and board.daemons[p].rates for p in ("lab_a", "lab_b")
+        ):
+            listener.poll()
+            time.sleep(0.05)
+    finally:
+        session.close()
+    console = Console(record=True, width=140)
+    console.print(render(board, time.time(), ("lab_a", "lab_b", "lab_none")))
+    text = console.export_text()
+    assert "lab_a/status" in text and "lab_b/status" in text
+    assert "lab_none/status: no status heard yet" in text
+    panel_a = text.split("lab_b/status")[0]
+    assert "idle" in panel_a and "connected yes (127.0.0.1:" in panel_a
+    assert "motors yes, MCI yes, RAPID yes" in panel_a
+    assert "replied " in panel_a and "/s" in panel_a and "work p50" in panel_a
+    assert "connected no" in text.split("lab_b/status")[1]
+
+
+@pytest.mark.realtime
+@pytest.mark.skipif(shutil.which("tmux") is None, reason="needs tmux")
+def test_live_view_in_a_terminal(daemons, tmp_path):
+    a, _ = daemons
+    name = f"tf{uuid.uuid4().hex[:8]}"
+    cmd = f"{EXE} status --key-prefix lab_a --zenoh-connect {a} --rate 4; echo EXIT=$?; sleep 30"
+    subprocess.run(["tmux", "new-session", "-d", "-s", name, "-x", "150", "-y", "40", cmd],
+                   check=True)  # fmt: skip
+    try:
+        screen = ""
+        deadline = time.time() + 30.0
+        while time.time() < deadline and "replied" not in screen.split("EGM rate")[-1][:40]:
+            time.sleep(0.5)
+            screen = subprocess.run(["tmux", "capture-pane", "-p", "-t", name],
+                                    capture_output=True, text=True).stdout  # fmt: skip
+        assert "lab_a/status" in screen and "idle" in screen and "connected yes" in screen
+        subprocess.run(["tmux", "send-keys", "-t", name, "C-c"], check=True)
+        deadline = time.time() + 15.0
+        while time.time() < deadline and "EXIT=" not in screen:
+            time.sleep(0.3)
+            screen = subprocess.run(["tmux", "capture-pane", "-p", "-t", name],
+                                    capture_output=True, text=True).stdout  # fmt: skip
+        assert "EXIT=0" in screen
+    finally:
+        subprocess.run(["tmux", "kill-session", "-t", name], check=False)
+
+
+def test_stale_exiting_and_missing_keys_are_shown():
+    board = StatusBoard()
+    board.update("x", {"stamp": 100.0, "state": "idle", "egm": {"replied": 0}}, 10.0)
+    last = {"stamp": 100.5, "state": "fault", "egm": {"replied": 125}, "braking": True,
+            "brake_reason": "deviation", "exiting": True}  # fmt: skip
+    board.update("x", last, 10.5)
+    snap = snapshot(board, 12.0)
+    assert snap["x"]["stale"] and snap["x"]["egm_rates"]["replied"] == 250.0
+    rows = dict(panel_rows(board.daemons["x"].status, board.daemons["x"].rates, 1.5))
+    assert rows["state"] == "fault (braking: deviation) (exiting)"
+    assert rows["status age"] == "1.50 s STALE" and rows["recorder"] == "-"
+    assert rows["EGM rate"].startswith("replied 250/s")

@@ -1,0 +1,116 @@
+"""A simulated IRC5 on one machine: EGM over UDP and Robot Web Services over HTTP, coupled.
+
+``thinkfast-sim controller`` runs it so docs/CELL.md can be rehearsed without RobotStudio: the
+RWS side is :class:`~thinkfast.sim.rws_server.FakeRwsController` (motors, operating mode, the
+kit's RAPID program ``ThinkfastEGM.mod`` as a state machine, its persistent variables), the EGM
+side a :class:`~thinkfast.sim.controller.SimController` (servo model) run by a
+:class:`~thinkfast.sim.controller.ControllerRunner`. As on the real controller, ``EgmRobot``
+packets flow only while the program is in an EGM session (``tf_status`` "session", started
+by ``thinkfast-cell start``), they report the motors and RAPID state RWS shows, and a session
+whose sensor stays silent for ``comm_timeout`` is lost (the program stops, "lost").
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
+from thinkfast.sim.rws_server import FakeRwsController, ProgramTiming
+
+log = logging.getLogger("thinkfast.sim.irc5")
+
+# ASSUMED durations of the simulated program for a rehearsal (the kit's module: homing takes
+# the MoveAbsJ's time, EGM_RAMP_OUT_TIME 0.5 s, EGM_COMM_TIMEOUT a few seconds)
+REHEARSAL = ProgramTiming(home_time=1.0, ramp_out=0.5, comm_timeout=2.0)
+
+
+class SimIrc5:
+    """The coupled controller (module doc); call :meth:`step` every few ms (or :meth:`run`).
+
+    Args:
+        egm_target: ``(host, port)`` of the daemon's EGM socket (the UDP unicast device).
+        rws_host, rws_port: where RWS listens (port 0: a free one; see :attr:`url`).
+        servo: the arm's servo model.
+        q0: joints at start [rad] (6,), default the servo's zero.
+        timing: durations of the simulated RAPID program.
+    """
+
+    def __init__(
+        self,
+        egm_target: tuple[str, int],
+        rws_host: str = "127.0.0.1",
+        rws_port: int = 0,
+        servo: ServoConfig = ServoConfig(),
+        q0=None,
+        timing: ProgramTiming = REHEARSAL,
+    ):
+        self.target = egm_target
+        self.rws = FakeRwsController(timing=timing, host=rws_host, port=rws_port)
+        self.rws.execstate = "stopped"
+        self.sim = SimController(servo, q0=q0, max_history=1000)
+        self.runner: ControllerRunner | None = None
+        self._last_reply = (0, 0.0)  # (replies, monotonic time it last changed)
+        self._said: tuple | None = None
+
+    @property
+    def url(self) -> str:
+        """RWS base URL (``thinkfast-cell --url``)."""
+        return self.rws.url
+
+    def start(self) -> SimIrc5:
+        self.rws.start()
+        return self
+
+    def close(self) -> None:
+        self._stop_egm()
+        self.rws.close()
+
+    def step(self) -> None:
+        """Follow the RWS state: motors and RAPID flags into EGM, the stream on in a session,
+        a silent sensor loses the session."""
+        rws = self.rws
+        with rws.lock:
+            motors, running, status = (
+                rws.ctrlstate == "motoron",
+                rws.execstate == "running",
+                rws.status(),
+            )
+        session = running and status == "session"
+        self.sim.motors_on, self.sim.rapid_running, self.sim.mci_running = motors, running, session
+        now = time.monotonic()
+        if session and self.runner is None:
+            self.runner = ControllerRunner(self.sim, self.target).start()
+            self._last_reply = (0, now)
+        elif not session and self.runner is not None:
+            self._stop_egm()
+        if self.runner is not None:
+            replies = self.runner.stats.replies
+            if replies != self._last_reply[0]:
+                self._last_reply = (replies, now)
+            elif now - self._last_reply[1] > rws.timing.comm_timeout:
+                log.warning("no EGM answer for %.1f s: session lost", now - self._last_reply[1])
+                rws.lose_session()
+        said = (motors, rws.opmode, running, status)
+        if said != self._said:
+            self._said = said
+            log.info("motors %s, %s, RAPID %s, tf_status %s", "on" if motors else "off",
+                     rws.opmode, "running" if running else "stopped", status or "-")  # fmt: skip
+
+    def _stop_egm(self) -> None:
+        if self.runner is not None:
+            self.runner.stop()
+            self.runner.join(2.0)
+            self.runner = None
+
+    def joints(self) -> np.ndarray:
+        """The simulated arm's joints [rad] (6,)."""
+        return self.sim.q.copy()
+
+    def run(self, stop) -> None:
+        """:meth:`step` every 10 ms until ``stop()`` is true."""
+        while not stop():
+            self.step()
+            time.sleep(0.01)
