@@ -22,7 +22,7 @@ from thinkfast.robot.batch_traj import TrajectoryTable
 from thinkfast.robot.shield_path import ShieldSampler
 from thinkfast.robot.steering import Steering
 
-BATCH = 2048  # terminal edges sampled per numpy pass (bounds the temporaries)
+BATCH = 256  # terminal edges sampled per numpy pass (its temporaries stay in the cache)
 
 
 def sample_spacing(eps: float, largest: float) -> float:
@@ -96,14 +96,14 @@ def edge_shield_paths(
     longest = float(np.max(term_duration)) if len(term_duration) else 0.0
     s = math.ceil(longest / dt - 1e-9) + 1
     t_term = np.arange(s) * dt
-    qt = np.empty((len(term_node), s, 3))
-    for lo in range(0, len(term_node), BATCH):
+    term = np.empty((len(term_node), s, 3))
+    for lo in range(0, len(term_node), BATCH):  # the FK per batch is the same, bit for bit
         trajs = [
             steer.steer(node_state[term_node[j]], goal_q[term_goal[j], :3])
             for j in range(lo, min(lo + BATCH, len(term_node)))
         ]
-        qt[lo : lo + len(trajs)] = _positions(trajs, t_term)
-    return sampler.centres(q), sampler.centres(qt)
+        term[lo : lo + len(trajs)] = sampler.centres(_positions(trajs, t_term))
+    return sampler.centres(q), term
 
 
 __all__ = ["NoSolutionError", "edge_shield_paths", "sample_spacing", "steps_per_edge"]

@@ -114,16 +114,15 @@ class BatchCollision:
             self._coarse.append(
                 (link, self._bounding(spheres), [(c, self._bounding(c)) for c in parts])
             )
-        # the first level for all pairs at once: bounding centres grouped by link, pairs by
-        # their exact side
+        # level 0, all pairs at once: that sphere against one around the exact side
         self._reach = np.array([whole[1] for _, whole, _ in self._coarse])
-        self._by_link = [
-            (link, np.array(ps), np.array([self._coarse[p][1][0] for p in ps]))
-            for link in self._links
-            if (ps := [p for p, c in enumerate(self._coarse) if c[0] == link])
-        ]
-        exact = [b for _, b in self._plan]
-        self._by_exact = [(b, np.flatnonzero(np.array(exact) == b)) for b in sorted(set(exact))]
+        mids = {(c[0], c[1][0].tobytes()): c for c in self._coarse}
+        self._mids = [(link, mid, np.array([p for p, c in enumerate(self._coarse)
+                                            if c[0] == link and np.array_equal(c[1][0], mid)]))
+                      for link, (mid, _) in ((c[0], c[1]) for c in mids.values())]  # fmt: skip
+        exact = np.array([b for _, b in self._plan])
+        self._by_exact = [(b, np.flatnonzero(exact == b)) for b in sorted(set(exact.tolist()))]
+        self._level0 = (self._reach + checker._radius[exact] + 1e-9) ** 2
 
     def _bounding(self, spheres: np.ndarray) -> tuple[np.ndarray, float]:
         """Centre (3,) in the link frame and radius [m] of a sphere holding ``spheres``."""
@@ -181,8 +180,10 @@ class BatchCollision:
 
     def suspects(self, poses: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray]:
         """(configuration, pair) indices whose lower bound is <= 0, in row-major order: the same
-        as ``np.nonzero(self.lower_bounds(q)[0] <= 0)``, computed sphere by sphere only where a
-        pair's bound against one sphere around its covered side is not positive.
+        as ``np.nonzero(self.lower_bounds(q)[0] <= 0)``, computed sphere by sphere only where
+        the pair's bounds at three coarser levels are not positive: a sphere around its covered
+        side against one around the exact side, then against the exact shape, then spheres
+        around clusters of the covered side's spheres against the exact shape.
 
         Args:
             poses: link poses (n, 4, 4) in ``base``.
@@ -190,14 +191,29 @@ class BatchCollision:
         """
         shape_pose = {b: self._shape_pose(b, poses) for b, _ in self._by_exact}
         centre = np.empty((n, len(self._plan), 3))
-        for link, pairs, mids in self._by_link:
+        for link, mid, pairs in self._mids:
             P = poses[link]
-            centre[:, pairs] = _points(mids, P[:, :3, :3], P[:, :3, 3])
-        near = np.empty((n, len(self._plan)), dtype=bool)
+            centre[:, pairs] = _points(mid[None], P[:, :3, :3], P[:, :3, 3])
+        other = np.empty((n, len(self._plan), 3))
+        ck = self.checker
         for b, pairs in self._by_exact:
+            c = ck._shape_centre[b]  # in the shape's frame (robot) or in base (cell)
+            if ck.links[b]:
+                T = shape_pose[b]
+                c = _points(c[None], T[:, :3, :3], T[:, :3, 3])
+            other[:, pairs] = c
+        other -= centre
+        np.square(other, out=other)
+        near = other.sum(axis=2) <= self._level0
+        # level 1: the covered side's sphere against the exact shape
+        for p in np.flatnonzero(near.any(axis=0)).tolist():
+            b = self._plan[p][1]
             T = shape_pose[b]
-            local = _points(centre[:, pairs] - T[:, None, :3, 3], T[:, :3, :3], inverse=True)
-            near[:, pairs] = point_distance(self.shapes[b], local) - self._reach[pairs] <= 1e-9
+            rows = np.flatnonzero(near[:, p])
+            Tr = T[rows] if len(T) > 1 else T
+            c = centre[rows, p][:, None] - Tr[:, None, :3, 3]
+            local = _points(c, Tr[:, :3, :3], inverse=True)[:, 0]
+            near[rows, p] = point_distance(self.shapes[b], local) - self._reach[p] <= 1e-9
         rows, cols = [], []
         for p in np.flatnonzero(near.any(axis=0)).tolist():
             (spheres, b), (link, _, parts) = self._plan[p], self._coarse[p]
@@ -206,14 +222,16 @@ class BatchCollision:
                 hit = close[self._sphere_bound(P, T, b, spheres, close) <= 0.0]
             else:
                 found = np.zeros(n, dtype=bool)
-                for part, (mid, reach) in parts:
-                    Pc = P[close]
-                    Tc = T[close] if len(T) > 1 else T
-                    c = _points(mid[None], Pc[:, :3, :3], Pc[:, :3, 3]) - Tc[:, None, :3, 3]
-                    local = _points(c, Tc[:, :3, :3], inverse=True)[:, 0]
-                    sub = close[point_distance(self.shapes[b], local) - reach <= 1e-9]
-                    if sub.size:
-                        found[sub[self._sphere_bound(P, T, b, part, sub) <= 0.0]] = True
+                Pc = P[close]
+                Tc = T[close] if len(T) > 1 else T
+                mids = np.array([mid for _, (mid, _) in parts])
+                c = _points(mids, Pc[:, :3, :3], Pc[:, :3, 3]) - Tc[:, None, :3, 3]
+                local = _points(c, Tc[:, :3, :3], inverse=True)  # (rows, clusters, 3)
+                reach = np.array([r for _, (_, r) in parts])
+                ok = point_distance(self.shapes[b], local) - reach <= 1e-9
+                for k in np.flatnonzero(ok.any(axis=0)).tolist():
+                    sub = close[ok[:, k]]
+                    found[sub[self._sphere_bound(P, T, b, parts[k][0], sub) <= 0.0]] = True
                 hit = np.flatnonzero(found)
             rows.append(hit)
             cols.append(np.full(len(hit), p))
