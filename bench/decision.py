@@ -247,6 +247,16 @@ def planner_rows(times: dict) -> list[dict]:
     return rows
 
 
+def memory_bytes(tree) -> int:
+    """Bytes of the tree's arrays plus the value and backup layouts an update reads."""
+    dec = Decision(tree)
+    arrays = [a for a in vars(tree).values() if isinstance(a, np.ndarray)]
+    arrays += [a for a in dec.vlay if isinstance(a, np.ndarray)]
+    arrays += [a for a in dec.blay if isinstance(a, np.ndarray)]
+    arrays += [a for lev in dec.blay.levels for a in lev if isinstance(a, np.ndarray)]
+    return int(sum(a.nbytes for a in arrays))
+
+
 def machine() -> dict:
     """The machine the figures come from (shared with the other benchmarks)."""
     return machine_info()
@@ -315,6 +325,7 @@ def main(argv=None) -> int:
                     "nodes": int(len(t.node_depth)),
                     "p50_ms": round(float(np.percentile(ms, 50)), 4),
                     "p99_ms": round(float(np.percentile(ms, 99)), 4),
+                    "memory_mb": round(memory_bytes(t) / 2**20, 2),
                 }
             )
         result["scaling"] = rows
@@ -328,7 +339,7 @@ def main(argv=None) -> int:
         f"{result['updates']} updates"
     )
     print(f"  {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m['numpy']}")
-    print(f"  {'terminals':>10} {'nodes':>9} {'p50 ms':>9} {'p99 ms':>9}")
+    print(f"  {'terminals':>10} {'nodes':>9} {'p50 ms':>9} {'p99 ms':>9} {'MB':>8}")
     print(
         f"  {result['terminals']:>10} {result['nodes']:>9} {result['p50_ms']:>9.3f} "
         f"{result['p99_ms']:>9.3f}   (default)"
@@ -336,7 +347,7 @@ def main(argv=None) -> int:
     for row in result.get("scaling", []):
         print(
             f"  {row['terminals']:>10} {row['nodes']:>9} {row['p50_ms']:>9.3f} "
-            f"{row['p99_ms']:>9.3f}"
+            f"{row['p99_ms']:>9.3f} {row['memory_mb']:>8.2f}"
         )
     if "planners" in result:
         print("executor decisions (on_detection that decided), same detections:")

@@ -75,3 +75,27 @@ def test_sphere_cover_contains_every_point_of_the_primitive(shape, size):
     inside = np.linalg.norm(pts[:, None] - centres[None], axis=2) <= radii[None] + 1e-9
     assert inside.any(axis=1).all()
     assert np.all(point_distance(s, pts) <= 1e-12)
+
+
+def test_suspects_are_the_pairs_whose_lower_bound_is_not_positive(robot, batch):
+    """The coarse sphere per pair only skips pairs the sphere-by-sphere bound clears too."""
+    rng = np.random.default_rng(24)
+    q = np.vstack([
+        rng.uniform(robot.q_lower, robot.q_upper, size=(600, 6)),
+        robot.home + np.cumsum(rng.normal(0.0, 0.05, (200, 6)), axis=0),
+    ])  # fmt: skip
+    lb, poses = batch.lower_bounds(q)
+    rows, cols = batch.suspects(poses, len(q))
+    want_rows, want_cols = np.nonzero(lb <= 0.0)
+    assert len(want_rows) > 100
+    assert np.array_equal(rows, want_rows) and np.array_equal(cols, want_cols)
+
+
+def test_first_collisions_of_stacked_paths_equal_one_path_at_a_time(robot, batch):
+    rng = np.random.default_rng(25)
+    paths = [rng.uniform(robot.q_lower, robot.q_upper, size=(int(n), 6)) for n in (1, 7, 30, 3)]
+    paths.append(np.tile(robot.home, (4, 1)))
+    counts = np.array([len(p) for p in paths])
+    hits = batch.first_collisions(np.vstack(paths), np.cumsum(counts) - counts)
+    assert hits == [batch.first_collision(p) for p in paths]
+    assert any(h is not None for h in hits) and hits[-1] is None

@@ -46,3 +46,27 @@ def test_position_limits_are_enforced_along_the_primitive(robot):
         steer.steer(start, target), 5.0, robot.home[3:]
     )
     assert not res.ok and res.reason in ("position_limit", "collision")
+
+
+def test_check_many_equals_one_primitive_at_a_time(robot):
+    """Batched checking (groups, refinement rounds, stacked collision checks) gives each
+    primitive the result it gets alone: valid ones, a limit, a collision, a resting one."""
+    steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
+    pc = PathChecker(robot, 0.02, 0.01, 0.002)
+    rng = np.random.default_rng(26)
+    start = np.r_[robot.home[:3], np.zeros(6)]
+    targets = [robot.home[:3] + rng.uniform(-0.8, 0.8, 3) for _ in range(14)]
+    targets.append(np.array([0.0, 1.6, 0.5]))  # through the floor
+    high = robot.home[:3].copy()
+    high[1] = robot.q_upper[1] - 0.005  # inside the URDF limit, outside the margin
+    targets += [high, robot.home[:3]]
+    trajs = [steer.steer(start, g) for g in targets]
+    spans = [min(t.duration, 0.1) if k % 3 == 0 else t.duration for k, t in enumerate(trajs)]
+    wrists = np.tile(robot.home[3:], (len(trajs), 1))
+    many = pc.check_many(trajs, spans, wrists)
+    one = [pc.check(t, s, w) for t, s, w in zip(trajs, spans, wrists, strict=True)]
+    for a, b in zip(many, one, strict=True):
+        assert (a.ok, a.reason, a.checks, a.detail) == (b.ok, b.reason, b.checks, b.detail)
+        assert np.array_equal(a.wrist_end, b.wrist_end)
+    reasons = {r.reason for r in many}
+    assert "" in reasons and len(reasons) >= 2

@@ -64,9 +64,9 @@ def _init_worker(inputs: GrowInputs) -> None:
 
 def _expand(chunk: list[tuple[int, np.ndarray, np.ndarray]]) -> tuple[list, Counter]:
     """Children of each (node, state (9,), wrist (3,)) in ``chunk``."""
-    inputs, steer, check = _W["inputs"], _W["steer"], _W["check"]
+    inputs, steer = _W["inputs"], _W["steer"]
     eps = inputs.tree.eps
-    out, why = [], Counter()
+    why, moves = Counter(), []
     for node, state, wrist in chunk:
         for k, g in enumerate(inputs.subgoal_goal):
             try:
@@ -76,23 +76,35 @@ def _expand(chunk: list[tuple[int, np.ndarray, np.ndarray]]) -> tuple[list, Coun
                 continue
             reached = traj.duration <= eps
             t_move = traj.duration if reached else eps  # then at rest until eps
-            if t_move > 0.0:
-                res = check.check(traj, t_move, wrist)
-                if not res.ok:
-                    why[res.reason] += 1
-                    continue
-                wrist_end = res.wrist_end
-            else:
-                wrist_end = wrist.copy()
-            kind = EDGE_REACHED if reached else EDGE_CUT
-            out.append((node, kind, eps, k, state_at(traj, t_move), wrist_end))
+            moves.append((node, wrist, k, traj, reached, t_move))
+    checked = iter(_check([m for m in moves if m[5] > 0.0]))
+    out = []
+    for node, wrist, k, traj, reached, t_move in moves:
+        if t_move > 0.0:
+            res = next(checked)
+            if not res.ok:
+                why[res.reason] += 1
+                continue
+            wrist_end = res.wrist_end
+        else:
+            wrist_end = wrist.copy()
+        kind = EDGE_REACHED if reached else EDGE_CUT
+        out.append((node, kind, eps, k, state_at(traj, t_move), wrist_end))
     return out, why
+
+
+def _check(moves: list) -> list:
+    """PathResults of ``moves`` = [(node, wrist, k, traj, reached, span), ...] in one batch."""
+    if not moves:
+        return []
+    wrists = np.array([m[1] for m in moves])
+    return _W["check"].check_many([m[3] for m in moves], [m[5] for m in moves], wrists)
 
 
 def _connect(chunk: list[tuple[int, np.ndarray, np.ndarray, list[int]]]) -> tuple[list, Counter]:
     """Terminal edges of each (leaf, state, wrist, goals) in ``chunk``: (leaf, goal, duration)."""
-    inputs, steer, check = _W["inputs"], _W["steer"], _W["check"]
-    out, why = [], Counter()
+    inputs, steer = _W["inputs"], _W["steer"]
+    why, moves = Counter(), []
     for leaf, state, wrist, goals in chunk:
         for g in goals:
             try:
@@ -100,11 +112,13 @@ def _connect(chunk: list[tuple[int, np.ndarray, np.ndarray, list[int]]]) -> tupl
             except NoSolutionError:
                 why["steering_failed"] += 1
                 continue
-            res = check.check(traj, traj.duration, wrist)
-            if not res.ok:
-                why[res.reason] += 1
-                continue
-            out.append((leaf, g, traj.duration))
+            moves.append((leaf, wrist, g, traj, False, traj.duration))
+    out = []
+    for (leaf, _, g, traj, _, _), res in zip(moves, _check(moves), strict=True):
+        if not res.ok:
+            why[res.reason] += 1
+            continue
+        out.append((leaf, g, traj.duration))
     return out, why
 
 

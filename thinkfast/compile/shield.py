@@ -18,8 +18,11 @@ import math
 import numpy as np
 
 from thinkfast.errors import NoSolutionError
+from thinkfast.robot.batch_traj import TrajectoryTable
 from thinkfast.robot.shield_path import ShieldSampler
 from thinkfast.robot.steering import Steering
+
+BATCH = 256  # terminal edges sampled per numpy pass (its temporaries stay in the cache)
 
 
 def sample_spacing(eps: float, largest: float) -> float:
@@ -40,9 +43,14 @@ def steps_per_edge(eps: float, dt: float) -> int:
     return int(k)
 
 
-def _positions(traj, times: np.ndarray) -> np.ndarray:
-    """Joints 1-3 [rad] (T, 3) of ``traj`` at ``times`` clipped to its duration."""
-    return np.array([traj.at_time(t)[0] for t in np.clip(times, 0.0, traj.duration).tolist()])
+def _positions(trajs: list, times: np.ndarray) -> np.ndarray:
+    """Joints 1-3 [rad] (M, T, 3) of ``trajs`` at ``times`` (T,) clipped to each duration."""
+    if not trajs:
+        return np.empty((0, len(times), 3))
+    table = TrajectoryTable(trajs)
+    owner = np.repeat(np.arange(len(trajs)), len(times))
+    t = np.minimum(np.maximum(np.tile(times, len(trajs)), 0.0), table.duration[owner])
+    return table.positions(owner, t).reshape(len(trajs), len(times), 3)
 
 
 def edge_shield_paths(
@@ -83,17 +91,19 @@ def edge_shield_paths(
     q = np.empty((n, k + 1, 3))
     q[0] = node_state[0, :3]
     sub_q = goal_q[subgoal_goal, :3]
-    for i in range(1, n):
-        traj = steer.steer(node_state[node_parent[i]], sub_q[edge_target[i]])
-        q[i] = _positions(traj, np.minimum(t_edge, eps))
+    trajs = [steer.steer(node_state[node_parent[i]], sub_q[edge_target[i]]) for i in range(1, n)]
+    q[1:] = _positions(trajs, np.minimum(t_edge, eps))
     longest = float(np.max(term_duration)) if len(term_duration) else 0.0
     s = math.ceil(longest / dt - 1e-9) + 1
     t_term = np.arange(s) * dt
-    qt = np.empty((len(term_node), s, 3))
-    for j in range(len(term_node)):
-        traj = steer.steer(node_state[term_node[j]], goal_q[term_goal[j], :3])
-        qt[j] = _positions(traj, t_term)
-    return sampler.centres(q), sampler.centres(qt)
+    term = np.empty((len(term_node), s, 3))
+    for lo in range(0, len(term_node), BATCH):  # the FK per batch is the same, bit for bit
+        trajs = [
+            steer.steer(node_state[term_node[j]], goal_q[term_goal[j], :3])
+            for j in range(lo, min(lo + BATCH, len(term_node)))
+        ]
+        term[lo : lo + len(trajs)] = sampler.centres(_positions(trajs, t_term))
+    return sampler.centres(q), term
 
 
 __all__ = ["NoSolutionError", "edge_shield_paths", "sample_spacing", "steps_per_edge"]

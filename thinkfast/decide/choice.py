@@ -39,10 +39,12 @@ from thinkfast.config import spec
 from thinkfast.decide import iso_disk
 from thinkfast.decide.path_value import PathValueConfig, block_probability
 from thinkfast.decide.shield_paths import block_geometry, shield_paths
+from thinkfast.robot.batch_traj import TrajectoryTable
 from thinkfast.robot.shield_path import ShieldSampler
 from thinkfast.robot.steering import Steering
 
 CONTINUE, DIRECT, BRANCH = "continue", "direct", "branch"
+BATCH_SAMPLES = 64  # from this many samples, paths are read in one numpy pass (not at_time)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -178,10 +180,9 @@ class Chooser:
                 trajs.append(traj)
                 options.append(Option(DIRECT, g, traj, math.nan))
         times = self._window(mean[2], crossing_cov[2][2], t_plan + lag - t_belief)
-        joints = [_sample(current.traj, times + (t_plan - current.t0), current.end)]
-        joints += [_sample(tr, times, None) for tr in trajs]
+        joints = _joint_paths(current, times + (t_plan - current.t0), trajs, times)
         values = self.score_joint_paths(
-            np.stack(joints), times, mean, crossing_cov, approach, t_plan + lag - t_belief
+            joints, times, mean, crossing_cov, approach, t_plan + lag - t_belief
         )
         options = [Option(CONTINUE, -1, None, float(values[0]))] + [
             o._replace(value=float(v)) for o, v in zip(options, values[1:], strict=True)
@@ -237,6 +238,27 @@ class Chooser:
         """P(block) of shield-centre paths (M, T, 3) [m] in ``base``, shape (M,)."""
         packed = shield_paths(times, centres, self.geom)
         return block_probability(packed, mean, cov, self.geom, approach, t_start, self.quadrature)
+
+
+def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndarray):
+    """Joints 1-3 (1 + M, T, 3): the segment in progress at ``current_times`` and ``trajs`` at
+    ``times`` [s], each clipped to its trajectory (as :func:`_sample`, bit for bit; many samples
+    are read from the trajectories' phases in one numpy pass)."""
+    n_t = len(times)
+    moving = ([current.traj] if current.traj is not None else []) + list(trajs)
+    if len(moving) * n_t < BATCH_SAMPLES:
+        joints = [_sample(current.traj, current_times, current.end)]
+        return np.stack(joints + [_sample(tr, times, None) for tr in trajs])
+    out = np.empty((1 + len(trajs), n_t, 3))
+    table = TrajectoryTable(moving)
+    owner = np.repeat(np.arange(len(moving)), n_t)
+    t = np.concatenate([current_times] * (current.traj is not None) + [times] * len(trajs))
+    t = np.minimum(np.maximum(t, 0.0), table.duration[owner])
+    first = 0 if current.traj is not None else 1
+    if first:
+        out[0] = np.asarray(current.end[:3], dtype=float)
+    out[first:] = table.positions(owner, t).reshape(len(moving), n_t, 3)
+    return out
 
 
 def _sample(traj, times: np.ndarray, end) -> np.ndarray:

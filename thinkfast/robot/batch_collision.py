@@ -20,6 +20,7 @@ from thinkfast.robot.collision import CollisionChecker
 from thinkfast.robot.model import CollisionShape
 
 COVER_EDGE = 0.12  # m: boxes are cut into pieces at most this long (or their thinnest side)
+CLUSTER = 8  # spheres per cluster of a large cover (the second level of the bounds)
 
 
 class Hit(NamedTuple):
@@ -103,6 +104,31 @@ class BatchCollision:
             if checker.links[j] and self._count(j) < self._count(i):
                 a, b = j, i  # cover the side with fewer spheres, measure the other exactly
             self._plan.append((np.flatnonzero(self._owner == a), b))
+        # per pair, one sphere around the covered side's spheres (in its link frame), then one
+        # around each cluster of them: spheres inside a bounding sphere whose bound is positive
+        # need no bound of their own (distances to a convex body are 1-Lipschitz)
+        self._coarse = []
+        for spheres, _ in self._plan:
+            link = self._links[self._sphere_link[spheres[0]]]
+            parts = _clusters(self._centres, spheres) if len(spheres) > CLUSTER else []
+            self._coarse.append(
+                (link, self._bounding(spheres), [(c, self._bounding(c)) for c in parts])
+            )
+        # level 0, all pairs at once: that sphere against one around the exact side
+        self._reach = np.array([whole[1] for _, whole, _ in self._coarse])
+        mids = {(c[0], c[1][0].tobytes()): c for c in self._coarse}
+        self._mids = [(link, mid, np.array([p for p, c in enumerate(self._coarse)
+                                            if c[0] == link and np.array_equal(c[1][0], mid)]))
+                      for link, (mid, _) in ((c[0], c[1]) for c in mids.values())]  # fmt: skip
+        exact = np.array([b for _, b in self._plan])
+        self._by_exact = [(b, np.flatnonzero(exact == b)) for b in sorted(set(exact.tolist()))]
+        self._level0 = (self._reach + checker._radius[exact] + 1e-9) ** 2
+
+    def _bounding(self, spheres: np.ndarray) -> tuple[np.ndarray, float]:
+        """Centre (3,) in the link frame and radius [m] of a sphere holding ``spheres``."""
+        c = self._centres[spheres]
+        mid = 0.5 * (c.min(axis=0) + c.max(axis=0))
+        return mid, float((np.linalg.norm(c - mid, axis=1) + self._radii[spheres]).max())
 
     def _count(self, i: int) -> int:
         return int(np.count_nonzero(self._owner == i))
@@ -152,6 +178,107 @@ class BatchCollision:
             lb[:, p] = d.min(axis=1)
         return lb, poses
 
+    def suspects(self, poses: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(configuration, pair) indices whose lower bound is <= 0, in row-major order: the same
+        as ``np.nonzero(self.lower_bounds(q)[0] <= 0)``, computed sphere by sphere only where
+        the pair's bounds at three coarser levels are not positive: a sphere around its covered
+        side against one around the exact side, then against the exact shape, then spheres
+        around clusters of the covered side's spheres against the exact shape.
+
+        Args:
+            poses: link poses (n, 4, 4) in ``base``.
+            n: number of configurations.
+        """
+        shape_pose = {b: self._shape_pose(b, poses) for b, _ in self._by_exact}
+        centre = np.empty((n, len(self._plan), 3))
+        for link, mid, pairs in self._mids:
+            P = poses[link]
+            centre[:, pairs] = _points(mid[None], P[:, :3, :3], P[:, :3, 3])
+        other = np.empty((n, len(self._plan), 3))
+        ck = self.checker
+        for b, pairs in self._by_exact:
+            c = ck._shape_centre[b]  # in the shape's frame (robot) or in base (cell)
+            if ck.links[b]:
+                T = shape_pose[b]
+                c = _points(c[None], T[:, :3, :3], T[:, :3, 3])
+            other[:, pairs] = c
+        other -= centre
+        np.square(other, out=other)
+        near = other.sum(axis=2) <= self._level0
+        # level 1: the covered side's sphere against the exact shape
+        for p in np.flatnonzero(near.any(axis=0)).tolist():
+            b = self._plan[p][1]
+            T = shape_pose[b]
+            rows = np.flatnonzero(near[:, p])
+            Tr = T[rows] if len(T) > 1 else T
+            c = centre[rows, p][:, None] - Tr[:, None, :3, 3]
+            local = _points(c, Tr[:, :3, :3], inverse=True)[:, 0]
+            near[rows, p] = point_distance(self.shapes[b], local) - self._reach[p] <= 1e-9
+        rows, cols = [], []
+        for p in np.flatnonzero(near.any(axis=0)).tolist():
+            (spheres, b), (link, _, parts) = self._plan[p], self._coarse[p]
+            T, P, close = shape_pose[b], poses[link], np.flatnonzero(near[:, p])
+            if not parts:
+                hit = close[self._sphere_bound(P, T, b, spheres, close) <= 0.0]
+            else:
+                found = np.zeros(n, dtype=bool)
+                Pc = P[close]
+                Tc = T[close] if len(T) > 1 else T
+                mids = np.array([mid for _, (mid, _) in parts])
+                c = _points(mids, Pc[:, :3, :3], Pc[:, :3, 3]) - Tc[:, None, :3, 3]
+                local = _points(c, Tc[:, :3, :3], inverse=True)  # (rows, clusters, 3)
+                reach = np.array([r for _, (_, r) in parts])
+                ok = point_distance(self.shapes[b], local) - reach <= 1e-9
+                for k in np.flatnonzero(ok.any(axis=0)).tolist():
+                    sub = close[ok[:, k]]
+                    found[sub[self._sphere_bound(P, T, b, parts[k][0], sub) <= 0.0]] = True
+                hit = np.flatnonzero(found)
+            rows.append(hit)
+            cols.append(np.full(len(hit), p))
+        if not rows:
+            return np.empty(0, np.intp), np.empty(0, np.intp)
+        r, c = np.concatenate(rows), np.concatenate(cols)
+        order = np.argsort(r * len(self._plan) + c, kind="stable")
+        return r[order], c[order]
+
+    def _sphere_bound(self, P, T, b: int, spheres, rows: np.ndarray) -> np.ndarray:
+        """Smallest bound over ``spheres`` (link poses ``P``) against shape ``b`` at ``rows``, as
+        :meth:`lower_bounds` computes it."""
+        P = P[rows]
+        W = self._centres[spheres] @ P[:, :3, :3].transpose(0, 2, 1) + P[:, None, :3, 3]
+        T = T[rows] if len(T) > 1 else T
+        local = (W - T[:, None, :3, 3]) @ T[:, :3, :3]
+        return (point_distance(self.shapes[b], local) - self._radii[spheres]).min(axis=1)
+
+    def first_collisions(
+        self, q: np.ndarray, starts: np.ndarray, poses: dict[str, np.ndarray] | None = None
+    ) -> list[Hit | None]:
+        """:meth:`first_collision` of each of several paths stacked in ``q`` [rad] (N, 6), path
+        k starting at ``starts[k]`` (its hit's index counts from there)."""
+        poses = self.fk.link_poses(q) if poses is None else poses
+        starts = np.asarray(starts, dtype=np.intp)
+        rows, cols = self.suspects(poses, len(q))
+        path = np.searchsorted(starts, rows, side="right") - 1
+        hits: list[Hit | None] = [None] * len(starts)
+        ck = self.checker
+        for n, p, k in zip(rows.tolist(), cols.tolist(), path.tolist(), strict=True):
+            if hits[k] is not None:
+                continue
+            if self._collide(poses, n, p):
+                i, j = ck.pairs[p]
+                hits[k] = Hit(n - int(starts[k]), (ck.names[i], ck.names[j]))
+        return hits
+
+    def _collide(self, poses: dict[str, np.ndarray], n: int, p: int) -> bool:
+        """fcl's exact answer for pair ``p`` at configuration ``n``."""
+        ck = self.checker
+        i, j = ck.pairs[p]
+        for k in (i, j):
+            if ck.links[k]:
+                T = poses[ck.links[k]][n] @ ck.T_link_shape[k]
+                ck.objects[k].setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
+        return fcl.collide(ck.objects[i], ck.objects[j], ck._request, fcl.CollisionResult())
+
     def first_collision(
         self, q: np.ndarray, poses: dict[str, np.ndarray] | None = None
     ) -> Hit | None:
@@ -168,3 +295,31 @@ class BatchCollision:
             if fcl.collide(ck.objects[i], ck.objects[j], ck._request, fcl.CollisionResult()):
                 return Hit(int(n), (ck.names[i], ck.names[j]))
         return None
+
+
+def _clusters(centres: np.ndarray, spheres: np.ndarray) -> list[np.ndarray]:
+    """``spheres`` split at the median of their centres' longest extent, until <= CLUSTER."""
+    if len(spheres) <= CLUSTER:
+        return [spheres]
+    c = centres[spheres]
+    axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
+    order = spheres[np.argsort(c[:, axis], kind="stable")]
+    half = len(order) // 2
+    return _clusters(centres, order[:half]) + _clusters(centres, order[half:])
+
+
+def _points(p: np.ndarray, R: np.ndarray, t: np.ndarray | None = None, inverse: bool = False):
+    """Points ``p`` (K, 3) or (N, K, 3) mapped by rotations ``R`` (N, 3, 3) (and origins ``t``
+    (N, 3)): ``R p + t``, or ``R^T p`` with ``inverse``; (N, K, 3). For the bounds' first
+    levels only (not bit for bit a matmul)."""
+    if p.ndim == 2:
+        p = p[None]
+    if inverse:
+        out = p[..., 0:1] * R[:, None, 0, :] + p[..., 1:2] * R[:, None, 1, :]
+        out += p[..., 2:3] * R[:, None, 2, :]
+    else:
+        out = p[..., 0][..., None] * R[:, None, :, 0] + p[..., 1][..., None] * R[:, None, :, 1]
+        out += p[..., 2][..., None] * R[:, None, :, 2]
+    if t is not None:
+        out += t[:, None, :]
+    return out

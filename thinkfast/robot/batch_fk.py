@@ -75,11 +75,31 @@ class BatchFK:
             q: joint angles, shape (N, 6) (or (6,) for one configuration).
             until: stop once this link is posed (its ancestors are returned too).
         """
+        return assemble(*self.frames(q, until))
+
+    def frames(
+        self, q: np.ndarray, until: str | None = None, resume: tuple[dict, dict] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """Rotations (N, 3, 3) and origins (N, 3) of the links, as :meth:`link_poses` poses them.
+
+        Args:
+            q: joint angles [rad] (N, 6).
+            until: stop once this link is posed.
+            resume: the frames of an earlier call on the same first joints (e.g. with ``until``),
+                continued from there: the links they hold are not recomputed.
+        """
         q = np.atleast_2d(np.asarray(q, dtype=np.float64))
         n = len(q)
-        rot = {self.root: np.broadcast_to(np.eye(3), (n, 3, 3))}
-        pos = {self.root: np.zeros((n, 3))}
+        if resume is None:
+            rot = {self.root: np.broadcast_to(np.eye(3), (n, 3, 3))}
+            pos = {self.root: np.zeros((n, 3))}
+        else:
+            rot, pos = dict(resume[0]), dict(resume[1])
         for j, R0, t0, identity, frame_axis in self._steps:
+            if j.child in rot:
+                if j.child == until:
+                    break
+                continue
             Rp = rot[j.parent]
             pos[j.child] = pos[j.parent] + Rp @ t0
             R = Rp if identity else Rp @ R0
@@ -91,11 +111,17 @@ class BatchFK:
             rot[j.child] = R
             if j.child == until:
                 break
-        out = {}
-        for link, R in rot.items():
-            T = np.zeros((n, 4, 4))
-            T[:, :3, :3] = R
-            T[:, :3, 3] = pos[link]
-            T[:, 3, 3] = 1.0
-            out[link] = T
-        return out
+        return rot, pos
+
+
+def assemble(rot: dict[str, np.ndarray], pos: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Poses (N, 4, 4) from the rotations (N, 3, 3) and origins (N, 3) of :meth:`BatchFK.frames`."""
+    out = {}
+    for link, R in rot.items():
+        n = len(R)
+        T = np.zeros((n, 4, 4))
+        T[:, :3, :3] = R
+        T[:, :3, 3] = pos[link]
+        T[:, 3, 3] = 1.0
+        out[link] = T
+    return out

@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from thinkfast.errors import RobotModelError
-from thinkfast.robot.batch_fk import BatchFK
+from thinkfast.robot.batch_fk import BatchFK, assemble
 from thinkfast.robot.model import Robot
 
 
@@ -85,6 +85,60 @@ class CoplanarWrist:
         q4 += 2 * np.pi * np.round((q_prev[0] - q4[0]) / (2 * np.pi))
         return np.column_stack([q4, q5, np.full(len(q4), q_prev[2])])
 
+    def solve_paths(
+        self, q123: np.ndarray, starts: np.ndarray, q_prev: np.ndarray, frames=None
+    ) -> np.ndarray:
+        """:meth:`solve` of many paths at once (the constructor's normal), bit for bit.
+
+        Args:
+            q123: joints 1-3 [rad] (S, 3): the paths' samples one path after another.
+            starts: index of each path's first sample, increasing from 0, shape (P,).
+            q_prev: wrist angles (P, 3) just before each path.
+            frames: ``BatchFK.frames`` of ``q123`` through ``link_3`` when the caller has them.
+
+        Returns:
+            Wrist angles [rad] (S, 3).
+        """
+        q123 = np.atleast_2d(q123)
+        starts = np.asarray(starts, dtype=np.intp)
+        q_prev = np.asarray(q_prev, dtype=np.float64).reshape(-1, 3)
+        counts = np.diff(np.append(starts, len(q123)))
+        if frames is None:
+            q = np.zeros((len(q123), 6))
+            q[:, :3] = q123
+            frames = self.fk.frames(q, until="link_3")
+        rot, pos = frames
+        # the rotation inside a (S, 4, 4) pose, as solve() reads it: einsum sums in an order
+        # that depends on the strides
+        R03 = assemble({"link_3": rot["link_3"]}, pos)["link_3"][:, :3, :3]
+        v = np.einsum("nji,j->ni", R03, self.normal)
+        q5 = np.arccos(np.clip(v[:, 0], -1.0, 1.0))
+        theta = np.arctan2(v[:, 1], -v[:, 2])
+        inner = np.ones(len(q123), dtype=bool)  # sample k > 0 of its path
+        inner[starts] = False
+        dtheta = np.diff(theta)
+        jump = np.abs(np.angle(np.exp(1j * dtheta))) > 0.5 * np.pi
+        jump &= inner[1:]
+        flips = np.cumsum(np.r_[0, jump])
+        flips -= np.repeat(flips[starts], counts)
+        sign = np.where(flips % 2 == 0, 1.0, -1.0)
+        q4 = theta + np.where(sign < 0, np.pi, 0.0)
+        q5 = sign * q5
+        f4, f5, p4, p5 = q4[starts], q5[starts], q_prev[:, 0], q_prev[:, 1]
+        flip = _angs(f4 + np.pi - p4) + np.abs(-f5 - p5) < _angs(f4 - p4) + np.abs(f5 - p5)
+        flip = np.repeat(flip, counts)
+        q4 = np.where(flip, q4 + np.pi, q4)
+        q5 = np.where(flip, -q5, q5)
+        wraps = inner[1:] & (np.abs(np.diff(q4)) >= np.pi)
+        unwrapped = q4.copy()
+        unwrapped[1:] = q4[1:] + 0.0  # np.unwrap adds its (here zero) corrections
+        for p in np.unique(np.searchsorted(starts, np.flatnonzero(wraps) + 1, side="right") - 1):
+            s = slice(starts[p], starts[p] + counts[p])
+            unwrapped[s] = np.unwrap(q4[s])
+        turns = np.round((p4 - unwrapped[starts]) / (2 * np.pi))
+        unwrapped += np.repeat(2 * np.pi * turns, counts)
+        return np.column_stack([unwrapped, q5, np.repeat(q_prev[:, 2], counts)])
+
     def solve_one(self, q123, q_prev, normal=None) -> np.ndarray:
         """Wrist angles [rad] (3,) for one configuration of joints 1-3 [rad] (3,).
 
@@ -150,3 +204,8 @@ def _rotation_03(steps: tuple, q) -> list[list[float]]:
 def _ang(a: float) -> float:
     """Absolute angle difference wrapped to [0, pi]."""
     return abs((a + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _angs(a: np.ndarray) -> np.ndarray:
+    """:func:`_ang` element-wise."""
+    return np.abs((a + np.pi) % (2 * np.pi) - np.pi)
