@@ -65,21 +65,33 @@ def test_a_duplicated_packet_gets_the_same_setpoint_and_time_does_not_advance(rt
     _assert_admissible_over_the_controller_clock(t, q, qd, robot)
 
 
-def test_missed_cycles_advance_the_command_by_the_elapsed_time_within_the_limits(rtree, robot):
-    """The controller got no reply for some cycles: the next reply is the plan at that packet's
-    time, reached through admissible ticks (never one tick's motion at double speed)."""
+def _applied(t, q, qd, dt=DT):
+    """What the controller applies each cycle: the last reply, kept over cycles without one."""
+    k = np.round((np.asarray(t) - t[0]) / dt).astype(int)
+    idx = np.searchsorted(k, np.arange(k[-1] + 1), side="right") - 1
+    return np.asarray(q)[idx], np.asarray(qd)[idx]
+
+
+def test_missed_cycles_the_reply_moves_on_one_cycle_from_the_reference_the_controller_held(
+    rtree, robot
+):
+    """The controller got no reply for some cycles and kept the last reference: the next reply
+    moves one cycle on from it (never two cycles' motion in one), and the executor plans on
+    from it. Over the controller's clock the applied positions move within ``v_max`` and
+    ``speedRef`` changes within ``a_max``, holds included (before: up to 3x ``v_max``)."""
     ctl = _control(rtree, robot)
-    ctl.on_feedback(0, _away(robot), T0)
+    ctl.on_feedback(0, _away(robot), T0, seqno=0)
     rng = np.random.default_rng(4)
     tm, t, q, qd = 0, [0.0], [ctl.sup.q], [ctl.sup.qd]
     for _ in range(150):
         tm += 4 * int(rng.choice([1, 1, 1, 2, 3]))  # skipped cycles
-        r = ctl.on_feedback(tm, ctl.sup.q, T0 + tm / 1000)
+        r = ctl.on_feedback(tm, ctl.sup.q, T0 + tm / 1000, seqno=tm // 4)
         t.append(tm / 1000), q.append(r.q), qd.append(r.qd)
-    assert ctl.sup.ticks == tm // 4  # every elapsed cycle stepped
-    dt = np.diff(t)[:, None]
-    assert np.all(np.abs(np.diff(q, axis=0)) / dt <= robot.v_max * (1 + 1e-6))
-    assert np.all(np.abs(np.diff(qd, axis=0)) / dt <= robot.a_max * (1 + 1e-6))
+    assert ctl.sup.ticks == 150 and ctl.held == tm // 4 - 150 and ctl.catch_ups > 0
+    assert np.ptp(np.array(q), axis=0).max() > 0.2  # the arm really moved
+    qa, qda = _applied(t, q, qd)
+    assert np.all(np.abs(np.diff(qa, axis=0)) / DT <= robot.v_max * (1 + 1e-6))
+    assert np.all(np.abs(np.diff(qda, axis=0)) / DT <= robot.a_max * (1 + 1e-6))
 
 
 def test_a_stale_packet_or_a_reordered_one_gets_the_last_setpoint(rtree, robot):
@@ -272,6 +284,35 @@ def test_a_controller_clock_restart_is_a_resync_not_a_stale_packet():
     clock.tick(500_004, T0 + 0.004)
     assert clock.tick(12, T0 + 0.008).resync  # tm restarted with a new EGM session
     assert math.isclose(clock.t, T0 + 0.008)
+
+
+def test_clock_counts_the_cycles_by_seqno_whatever_tm_does():
+    """``tm`` of a clock that is not hard real-time (steps of 3-5 ms, a repeat, a 30 ms jump):
+    every new seqno is one cycle of 4 ms, a repeated seqno is a duplicate."""
+    clock = ControllerClock(DT, 0.02)
+    clock.tick(1000, T0, seqno=10)
+    for k, tm in enumerate([1003, 1008, 1008, 1041, 1044], 1):  # 3, 5, 0, 33, 3 ms
+        tick = clock.tick(tm, T0 + 0.004 * k, seqno=10 + k)
+        assert tick.elapsed == DT and not tick.repeat and not tick.resync
+    assert clock.tick(1044, T0 + 0.0201, seqno=15).repeat  # the same packet again
+    assert clock.tick(1041, T0 + 0.0202, seqno=14).repeat  # a stale one
+    assert math.isclose(clock.t, T0 + 5 * DT)
+    tick = clock.tick(1052, T0 + 0.028, seqno=17)  # one packet lost on the way
+    assert tick.elapsed == pytest.approx(2 * DT) and not tick.resync
+    assert clock.tick(1100, T0 + 0.05, seqno=23).resync  # 6 cycles unanswered: a silence
+
+
+def test_clock_falls_back_to_tm_when_seqno_does_not_count():
+    """A controller that leaves seqno at 0, or restarts it, is placed by ``tm``."""
+    clock = ControllerClock(DT, 0.02)
+    clock.tick(1000, T0, seqno=0)
+    tick = clock.tick(1008, T0 + 0.008, seqno=0)
+    assert tick.elapsed == pytest.approx(0.008) and not tick.repeat
+    assert clock.tick(1008, T0 + 0.0082, seqno=0).repeat
+    clock.tick(1012, T0 + 0.012, seqno=500)
+    tick = clock.tick(1016, T0 + 0.016, seqno=1)  # seqno restarted, tm goes on
+    assert tick.elapsed == pytest.approx(0.004) and not tick.resync and not tick.repeat
+    assert clock.tick(1020, T0 + 0.020, seqno=2).elapsed == DT
 
 
 @pytest.mark.parametrize("planner", ["tree", "naive"])

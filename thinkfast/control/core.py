@@ -10,8 +10,14 @@ Clock-free (time is passed in). For each ``EgmRobot`` the controller's clock
 and the supervisor's state at that time:
 
 * the same cycle again (a duplicated or stale packet): the same setpoint again;
-* one or more cycles on: the supervisor steps through each elapsed cycle (a missed cycle
-  advances the command by two cycles of admissible motion, never by one of double speed);
+* one cycle on: the plan at that time, through the supervisor;
+* more than one cycle on (``seqno`` counts the cycles; without it ``tm``): the packets between
+  went unanswered (superseded while this host was late, or lost), and the controller kept the
+  last reference through those cycles (:attr:`ControlCore.held` counts them). The reply moves
+  one cycle on from that reference, never several at once (a lurch of twice the speed across
+  the gap on the controller's clock), and the executor plans again from it with the same intent
+  (:meth:`Executor.resync`): the motion catches up with the time-true plan within the velocity,
+  acceleration and jerk limits where the plan has room, and arrives that much later where not;
 * the first packet, or one after a silence longer than ``resync_after``: the stream restarts
   from the measured feedback (position, and velocity where the feedback measured it: two
   packets at most three cycles apart), and the executor plans on from there with the same
@@ -104,6 +110,8 @@ class ControlCore:
         self.repeats = 0  # duplicate or stale packets answered with the same setpoint
         self.resyncs = 0  # restarts from the measured feedback (first packet excluded)
         self.deferred = 0  # packets left unanswered after a silence (measuring the velocity)
+        self.held = 0  # cycles the controller kept the last reference (unanswered packets)
+        self.catch_ups = 0  # replies that moved on from a held reference (replanned from it)
         self._waiting = -1  # packets deferred since the silence being resynchronised (-1: none)
         self._track: list[tuple[float, np.ndarray]] = []  # (s, q): consecutive packets since
         self.faults: collections.deque[float] = collections.deque()  # times, within the window
@@ -181,13 +189,21 @@ class ControlCore:
         return det
 
     def on_feedback(
-        self, tm_ms: int | None, q_meas: np.ndarray, now: float, before=None, ready: bool = True
+        self,
+        tm_ms: int | None,
+        q_meas: np.ndarray,
+        now: float,
+        before=None,
+        ready: bool = True,
+        seqno: int | None = None,
     ) -> Reply | None:
-        """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, joints ``q_meas`` [rad])
-        received at ``now`` [s], or None: leave this packet unanswered (after a silence in
-        motion, until three packets measure the velocity; counted in ``deferred``).
-        ``before``: ``(tm_ms, q_meas)`` of the peer's packet just before it when that one was
-        superseded unanswered (it measures the velocity after a stall of this host). ``ready``:
+        """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, sequence number ``seqno``,
+        joints ``q_meas`` [rad]) received at ``now`` [s], or None: leave this packet unanswered
+        (after a silence in motion, until three packets measure the velocity; counted in
+        ``deferred``). ``seqno`` None: the controller's cycles are counted by ``tm`` alone.
+        ``before``: ``(tm_ms, q_meas)`` or ``(tm_ms, q_meas, seqno)`` of the peer's packet just
+        before it when that one was superseded unanswered (it measures the velocity after a
+        stall of this host). ``ready``:
         the controller follows references (motors on, EGM motion running); otherwise the reply
         is the measured position (module doc). Never raises: a failing ``executor.setpoint``
         is counted in ``errors`` and brakes.
@@ -195,16 +211,16 @@ class ControlCore:
         In shadow mode the reply's ``q``/``qd`` are the virtual arm's; the caller sends
         :attr:`hold_q` at rest instead."""
         if not (ready or self.shadow):
-            return self._standby(tm_ms, q_meas, now)
+            return self._standby(tm_ms, q_meas, now, seqno)
         if self.shadow:  # hold where the arm stands when the stream (re)starts
             silent = now - self._last_rx > self.cfg.resync_after
             if not ready or silent or self.hold_q is None:
                 self.hold_q = np.array(q_meas, dtype=float)
             self._last_rx = now
-        return self._on_feedback(tm_ms, q_meas, now, before)
+        return self._on_feedback(tm_ms, q_meas, now, before, seqno)
 
-    def _on_feedback(self, tm_ms, q_meas, now, before) -> Reply | None:
-        tick = self.clock.tick(tm_ms, now, self.at_rest())
+    def _on_feedback(self, tm_ms, q_meas, now, before, seqno) -> Reply | None:
+        tick = self.clock.tick(tm_ms, now, self.at_rest(), seqno)
         if self.standby:  # the controller follows references again: restart from the arm
             self.standby = False
             self._waiting = -1
@@ -216,7 +232,7 @@ class ControlCore:
         if tick.repeat and self.last is not None:
             self.repeats += 1
             return self.last._replace(tick=tick)
-        qd_meas = self._measure(tick, q_meas, _earlier(tick, tm_ms, before))
+        qd_meas = self._measure(tick, q_meas, _earlier(tm_ms, seqno, before, self.cfg.dt))
         if tick.resync and self.last is not None and not self.latched and not self.at_rest():
             self._waiting, self._track = 0, []  # a silence in motion: measure the velocity
         if self._waiting >= 0:
@@ -232,9 +248,8 @@ class ControlCore:
         prepared, self._prepared = self._prepared, None
         steps = max(1, round(tick.elapsed / self.cfg.dt))
         h = tick.elapsed / steps
-        t0 = tick.t - tick.elapsed
-        for i in range(1, steps):  # cycles the controller skipped: still admissible motion
-            self.sup.step(*self._plan(t0 + i * h), dt=h)
+        if steps > 1:
+            self._catch_up(tick.t - h, steps - 1)
         was_braking = self.sup.braking
         q_fb = None if self.shadow else q_meas
         ahead = prepared.ahead if prepared is not None and prepared.t == tick.t else None
@@ -260,10 +275,10 @@ class ControlCore:
         self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
         return self.last
 
-    def _standby(self, tm_ms, q_meas, now: float) -> Reply:
+    def _standby(self, tm_ms, q_meas, now: float, seqno=None) -> Reply:
         """The controller does not follow references: command the measured position at rest
         and keep the planner's state on the arm (module doc)."""
-        tick = self.clock.tick(tm_ms, now, True)
+        tick = self.clock.tick(tm_ms, now, True, seqno)
         q = np.array(q_meas, dtype=float)
         first = self.last is None
         self.sup.reset(q)
@@ -283,6 +298,22 @@ class ControlCore:
         self.sup.request_brake(reason)
 
     # ------------------------------------------------------------------ internals
+    def _catch_up(self, t_from: float, held: int) -> None:
+        """The controller kept the last reference for ``held`` cycles: the commanded state is
+        still the supervisor's, one cycle before this reply (``t_from`` [s]). The executor
+        plans on from it with the same intent (module doc); at rest or while braking nothing
+        depends on time."""
+        self.held += held
+        if self.sup.braking or self.at_rest():
+            return
+        self.catch_ups += 1
+        try:
+            self.ex.resync(self.sup.q, self.sup.qd, self.sup.qdd, t_from)
+        except Exception as exc:  # a planner bug must cost a smooth stop, never a reply
+            self.errors += 1
+            self.last_error = exc
+            self.brake("nonfinite")
+
     def _plan(self, t: float):
         """The executor's setpoint at ``t``, or (None, None) when it fails (the supervisor
         brakes on it)."""
@@ -393,10 +424,18 @@ class Prepared(NamedTuple):
     ahead: Ahead | None
 
 
-def _earlier(tick: ClockTick, tm_ms: int | None, before) -> tuple[float, np.ndarray] | None:
-    """``(span [s], q)`` of the packet ``before``, when it was sent at most
-    :data:`MEASURED_SPAN` cycles before this one on the controller's clock."""
-    if before is None or tm_ms is None or before[0] is None:
+def _earlier(tm_ms, seqno, before, dt: float) -> tuple[float, np.ndarray] | None:
+    """``(span [s], q)`` of the packet ``before`` (``(tm_ms, q)`` or ``(tm_ms, q, seqno)``),
+    when it was sent at most :data:`MEASURED_SPAN` cycles before this one on the controller's
+    clock: counted by seqno where both have one, else by ``tm``."""
+    if before is None:
+        return None
+    if seqno is not None and len(before) > 2 and before[2] is not None:
+        ds = (seqno - before[2]) % (1 << 32)
+        if not 0 < ds <= MEASURED_SPAN:
+            return None
+        return ds * dt, np.asarray(before[1], dtype=float)
+    if tm_ms is None or before[0] is None:
         return None
     d_ms = (tm_ms - before[0]) % (1 << 32)
     if not 0 < d_ms <= MEASURED_SPAN * 4:

@@ -171,10 +171,10 @@ class Daemon:
         if self.stop_reason is not None:
             self.control.brake("signal")
         errors = self.control.errors
-        prev = None if before is None else (before.tm_ms, before.q_rad)
+        prev = None if before is None else (before.tm_ms, before.q_rad, before.seqno)
         if (fb.motors_on, fb.mci_running, fb.rapid_running) != self._controller_key:
             self._controller_changed(fb)
-        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, ready=fb.ready)
+        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, fb.ready, fb.seqno)
         if self.control.errors != errors:
             self._planner_error("setpoint", self.control.last_error)
         if r is None:
