@@ -350,3 +350,56 @@ def test_ordinary_throws_never_need_the_supervisor_and_stay_jerk_limited(rtree, 
     assert sup.ticks > 1000 and sup.intervened == 0, sup.counts
     jerk = np.abs(np.diff(np.array(q), 3, axis=0)) / DT**3
     assert np.all(jerk <= robot.j_max * (1 + 1e-6))
+
+
+def _throws_with_missed_replies(rtree, robot, planner, miss=0.01, n=5, seed=11):
+    """Throws through the core with the simulated servo; each reply misses its cycle with
+    probability ``miss`` (this host was late: the core never sees that packet, the controller
+    keeps the last reference). Returns the references the controller applied, one per cycle
+    (q, speedRef), the count of misses in motion and the core."""
+    from thinkfast.control.intake import Intake
+    from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
+    from thinkfast.sim.controller import ServoConfig, SimController
+    from thinkfast.sim.throws import ThrowConfig, sample_throws
+
+    ex = Executor(rtree, robot, CFG, planner)
+    sup = SafetySupervisor(robot_limits(robot, CFG.safety.position_margin), CFG.safety, robot.home)
+    ctl = ControlCore(ex, sup, CFG.safety)
+    arm = SimController(ServoConfig(), q0=robot.home)
+    intake, rng = Intake(CFG.camera, CFG.detections), np.random.default_rng(seed)
+    t, last, q, qd, moving_misses = 0.0, None, [], [], 0
+    for i, th in enumerate(sample_throws(ThrowConfig(), n, seed)):
+        t_rel = t + 0.5 + th.t_release
+        dets = observe(th, CameraModelConfig(), CFG.camera, np.random.default_rng(i), t_rel)
+        k, t_end = 0, t_rel + th.flight_time + 2.0
+        while t < t_end:
+            while k < len(dets) and dets[k].delivery_time <= t:
+                ctl.intake = intake
+                ctl.on_detection(detection_payload(dets[k]), None, ctl.t_next)
+                k += 1
+            seqno, tm = arm.header()
+            if last is not None and rng.random() < miss:
+                moving_misses += bool(np.abs(last.qd).max() > 0.1)
+            else:
+                last = ctl.on_feedback(tm, arm.q, t, seqno=seqno)
+                arm.command(last.q, last.qd, arm.t)
+            q.append(last.q), qd.append(last.qd)
+            arm.step(DT)
+            t += DT
+    return np.array(q), np.array(qd), moving_misses, ctl
+
+
+@pytest.mark.parametrize("planner", ["tree", "naive"])
+def test_missed_replies_the_reference_the_controller_applies_stays_within_the_limits(
+    rtree, robot, planner
+):
+    """1 % of the replies miss their cycle, in motion too. Over the controller's clock, holds
+    counted: the applied positions move within ``v_max`` and ``speedRef`` changes within
+    ``a_max`` (before: the reply after a hold was two cycles of motion ahead, up to 2x each).
+    A hold itself stops the position reference for a cycle: no later reply can undo that."""
+    q, qd, moving_misses, ctl = _throws_with_missed_replies(rtree, robot, planner)
+    assert moving_misses >= 3 and ctl.held >= moving_misses and ctl.fault_count == 0
+    assert ctl.sup.intervened == 0, ctl.sup.counts
+    v_ratio = (np.abs(np.diff(q, axis=0)) / DT / robot.v_max).max()
+    a_ratio = (np.abs(np.diff(qd, axis=0)) / DT / robot.a_max).max()
+    assert v_ratio <= 1.01 and a_ratio <= 1.05, (v_ratio, a_ratio)

@@ -308,7 +308,7 @@ class ControlCore:
             return
         self.catch_ups += 1
         try:
-            self.ex.resync(self.sup.q, self.sup.qd, self.sup.qdd, t_from)
+            self.ex.resync(self.sup.q, self.sup.qd, self.sup.qdd_end, t_from)
         except Exception as exc:  # a planner bug must cost a smooth stop, never a reply
             self.errors += 1
             self.last_error = exc
