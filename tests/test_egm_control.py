@@ -313,6 +313,8 @@ def test_clock_falls_back_to_tm_when_seqno_does_not_count():
     tick = clock.tick(1016, T0 + 0.016, seqno=1)  # seqno restarted, tm goes on
     assert tick.elapsed == pytest.approx(0.004) and not tick.resync and not tick.repeat
     assert clock.tick(1020, T0 + 0.020, seqno=2).elapsed == DT
+    clock.tick(1024, T0 + 0.024, seqno=0)  # restarted soon after: not a stale packet
+    assert clock.tick(1028, T0 + 0.028, seqno=1).elapsed == DT
 
 
 @pytest.mark.parametrize("planner", ["tree", "naive"])

@@ -119,10 +119,9 @@ class ControllerClock:
         )
         if ds == 0:  # a duplicate, unless the stamp moved on (a seqno that does not count)
             return None if d_ms is not None and d_ms > 0 else ClockTick(self.t, 0.0, False, True)
-        if -STALE <= ds < 0:
-            return ClockTick(self.t, 0.0, False, True)  # a stale packet
-        if ds < 0:
-            return None  # seqno restarted: place this packet by tm
+        if ds < 0:  # a stale packet (its stamp no later), else seqno restarted: place by tm
+            stale = ds >= -STALE and (d_ms is None or d_ms <= 0)
+            return ClockTick(self.t, 0.0, False, True) if stale else None
         elapsed = ds * self.dt
         if elapsed > self.resync_after:
             return self._restart(tm_ms, now, seqno)  # a silence: cycles ran without answers

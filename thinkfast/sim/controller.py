@@ -90,7 +90,7 @@ class ClockJitter:
     seed: int = spec(0, doc="seed of the stamps' randomness")
 
 
-class _Stamps:
+class Stamps:
     """``tm`` stamps of a :class:`ClockJitter` clock (deterministic per seed)."""
 
     def __init__(self, clock: ClockJitter):
@@ -136,7 +136,7 @@ class SimController:
         clock: ClockJitter | None = None,
     ):
         self.config = config
-        self._stamps = None if clock is None else _Stamps(clock)
+        self._stamps = None if clock is None else Stamps(clock)
         self.q = np.zeros(6) if q0 is None else np.array(q0, dtype=float).reshape(6)
         self.qd = np.zeros(6)
         self.t = 0.0
