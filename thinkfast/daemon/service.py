@@ -145,6 +145,7 @@ class Daemon:
             timing=True,
             handover=endpoints.egm_handover,
         )
+        self.egm.timing.late_after = cfg.safety.dt
         if endpoints.ros_domain is None:
             self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix)
         else:  # rosbags (the ros extra) only when asked for
@@ -450,6 +451,11 @@ class Daemon:
             "cameras": {} if ex.check is None else ex.check.as_dict(),
             **({} if self.view is None else {"view": self.view.as_dict()}),
             "egm": {**vars(self.egm.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},
+            "loop": {  # the reply loop's own counters (docs/ARCHITECTURE.md, The EGM path)
+                "missed_cycles": ctl.held,
+                "catch_ups": ctl.catch_ups,
+                "late_replies": self.egm.timing.late,
+            },
             "egm_peer": _peer_text(self.egm.peer),
             "egm_foreign": dict(self.egm.foreign_sources),
             "egm_connected": self._connected(now),
