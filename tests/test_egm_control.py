@@ -193,13 +193,13 @@ def test_the_measured_velocity_seeds_a_restart_when_two_packets_measure_it(rtree
     ctl = _control(rtree, robot)
     ctl.on_feedback(0, robot.home, T0)
     v = np.array([0.2, -0.1, 0.0, 0.3, 0.0, 0.0])
-    ctl._fb = (ctl.clock.t, robot.home)  # the last packet before the silence
+    ctl.rate.fb = (ctl.clock.t, robot.home)  # the last packet before the silence
     tm = 100  # 100 ms later: a silence
     r = ctl.on_feedback(tm, robot.home + v * 0.004, T0 + 0.1)
     assert r.tick.resync and not r.qd.any()  # 100 ms apart: no velocity measured
     r2 = ctl.on_feedback(tm + 4, robot.home + v * 0.008, T0 + 0.104)
     assert not r2.tick.resync  # consecutive: the velocity is measured from now on
-    assert ctl._measure(ctl.clock.tick(tm + 8, T0 + 0.108), robot.home + v * 0.012) is not None
+    assert ctl.rate.measure(ctl.clock.tick(tm + 8, T0 + 0.108), robot.home + v * 0.012) is not None
 
 
 def _lagging_run(ctl, robot, lag_cycles, freeze=(math.inf, math.inf), n=400):

@@ -58,12 +58,11 @@ import numpy as np
 
 from thinkfast.control.egm_clock import ClockTick, ControllerClock
 from thinkfast.control.executor import FAULT, IDLE, Executor
+from thinkfast.control.feedback_rate import FeedbackRate, span_before
 from thinkfast.control.intake import Accepted, Intake
 from thinkfast.control.safety import Ahead, SafetyConfig, SafetySupervisor
 
 FAULT_REASONS = ("deviation", "nonfinite")
-REST_SPEED = 1e-3  # rad/s: a measured joint slower than this is at rest
-MEASURED_SPAN = 3  # cycles: feedback further apart measures no velocity
 DEFER_MAX = 3  # packets left unanswered after a silence in motion, waiting for a velocity
 
 
@@ -113,12 +112,10 @@ class ControlCore:
         self.held = 0  # cycles the controller kept the last reference (unanswered packets)
         self.catch_ups = 0  # replies that moved on from a held reference (replanned from it)
         self._waiting = -1  # packets deferred since the silence being resynchronised (-1: none)
-        self._track: list[tuple[float, np.ndarray]] = []  # (s, q): consecutive packets since
         self.faults: collections.deque[float] = collections.deque()  # times, within the window
         self.fault_count = 0
         self.latched = False
-        self._fb: tuple[float, np.ndarray] | None = None  # (controller time, q) of last feedback
-        self._rest_since = math.inf  # measured arm at rest since (controller time)
+        self.rate = FeedbackRate(cfg.dt)  # velocity and rest measured from the feedback
         self._prepared: Prepared | None = None  # the next cycle's reply, computed ahead
         self.errors = 0  # executor.setpoint failures (each brakes)
         self.last_error: Exception | None = None
@@ -127,7 +124,7 @@ class ControlCore:
     @property
     def measured(self) -> tuple[float, np.ndarray] | None:
         """(controller time [s], joints [rad] (6,)) of the last feedback, None before any."""
-        return self._fb
+        return self.rate.fb
 
     @property
     def t_next(self) -> float:
@@ -232,11 +229,12 @@ class ControlCore:
         if tick.repeat and self.last is not None:
             self.repeats += 1
             return self.last._replace(tick=tick)
-        qd_meas = self._measure(tick, q_meas, _earlier(tm_ms, seqno, before, self.cfg.dt))
+        qd_meas = self.rate.measure(tick, q_meas, span_before(tm_ms, seqno, before, self.cfg.dt))
         if tick.resync and self.last is not None and not self.latched and not self.at_rest():
-            self._waiting, self._track = 0, []  # a silence in motion: measure the velocity
+            self._waiting = 0  # a silence in motion: measure the velocity
+            self.rate.track.clear()
         if self._waiting >= 0:
-            qd_end = self._track_velocity(tick, q_meas, qd_meas)
+            qd_end = self.rate.track_velocity(tick, q_meas, qd_meas)
             if qd_end is None and self._waiting < DEFER_MAX:
                 self._waiting += 1
                 self.deferred += 1
@@ -289,7 +287,7 @@ class ControlCore:
             self.on_event(tick.t, "controller_standby", {"q": np.round(q, 4).tolist()})
         self.standby_replies += 1
         self._prepared = None
-        self._fb = (tick.t, q)
+        self.rate.fb = (tick.t, q)
         self.last = Reply(self.sup.q, np.zeros(6), "standby", tick)
         return self.last
 
@@ -324,47 +322,6 @@ class ControlCore:
             self.last_error = exc
             return None, None
 
-    def _measure(self, tick: ClockTick, q_meas: np.ndarray, earlier=None) -> np.ndarray | None:
-        """Measured velocity [rad/s] (6,) from this feedback and the one before (``earlier``:
-        ``(span [s], q)`` of a superseded packet, else the last one served), or None."""
-        q = np.asarray(q_meas, dtype=float)
-        last, self._fb = self._fb, (tick.t, q)
-        if earlier is not None:
-            span, q_prev = earlier
-        elif last is not None and not tick.resync:
-            span, q_prev = tick.elapsed, last[1]
-        else:
-            span, q_prev = 0.0, None
-        if q_prev is None or not 0.0 < span <= MEASURED_SPAN * self.cfg.dt + 1e-9:
-            self._rest_since = math.inf
-            return None
-        qd = (q - q_prev) / span
-        if np.max(np.abs(qd)) < REST_SPEED:
-            self._rest_since = min(self._rest_since, tick.t - span)
-        else:
-            self._rest_since = math.inf
-        return qd
-
-    def _track_velocity(self, tick: ClockTick, q_meas, qd_meas) -> np.ndarray | None:
-        """Velocity [rad/s] (6,) at this packet from the packets since the silence, once three
-        consecutive ones measure it (exact for a constant acceleration: an arm that the
-        controller is slowing down decelerates fast), else None. A pair measures only the
-        average over its cycle, up to ``a dt / 2`` off, and the reply acts a cycle later."""
-        track = self._track
-        if qd_meas is None:  # not consecutive with the one before: start again from this one
-            track.clear()
-        s = track[-1][0] + tick.elapsed if track else 0.0  # time since the first one [s]
-        track.append((s, np.asarray(q_meas, dtype=float)))
-        if len(track) < 3:
-            return None
-        (s0, q0), (s1, q1), (s2, q2) = track[-3:]
-        h1, h2 = s1 - s0, s2 - s1
-        if not (h1 > 0.0 and h2 > 0.0):
-            return None
-        # derivative at s2 of the parabola through the three points (in differences: a standing
-        # arm measures exactly zero)
-        return (q2 - q1) / h2 * ((2 * h2 + h1) / (h1 + h2)) - (q1 - q0) / h1 * (h2 / (h1 + h2))
-
     def _restart(self, tick: ClockTick, q_meas, qd_meas) -> Reply:
         """First packet or after a silence: command the measured state, plan on from it."""
         first = self.last is None
@@ -392,7 +349,7 @@ class ControlCore:
         reason = self.sup.brake_reason
         if reason not in FAULT_REASONS or not self.sup.stopped or self.latched:
             return
-        if t - self._rest_since < self.cfg.recover_after:
+        if t - self.rate.rest_since < self.cfg.recover_after:
             return  # the commanded stop is done; wait until the arm stands too
         self.fault_count += 1
         while self.faults and t - self.faults[0] > self.cfg.fault_window:
@@ -422,22 +379,3 @@ class Prepared(NamedTuple):
 
     t: float
     ahead: Ahead | None
-
-
-def _earlier(tm_ms, seqno, before, dt: float) -> tuple[float, np.ndarray] | None:
-    """``(span [s], q)`` of the packet ``before`` (``(tm_ms, q)`` or ``(tm_ms, q, seqno)``),
-    when it was sent at most :data:`MEASURED_SPAN` cycles before this one on the controller's
-    clock: counted by seqno where both have one, else by ``tm``."""
-    if before is None:
-        return None
-    if seqno is not None and len(before) > 2 and before[2] is not None:
-        ds = (seqno - before[2]) % (1 << 32)
-        if not 0 < ds <= MEASURED_SPAN:
-            return None
-        return ds * dt, np.asarray(before[1], dtype=float)
-    if tm_ms is None or before[0] is None:
-        return None
-    d_ms = (tm_ms - before[0]) % (1 << 32)
-    if not 0 < d_ms <= MEASURED_SPAN * 4:
-        return None
-    return d_ms / 1000.0, np.asarray(before[1], dtype=float)
