@@ -354,11 +354,13 @@ def test_ordinary_throws_never_need_the_supervisor_and_stay_jerk_limited(rtree, 
     assert np.all(jerk <= robot.j_max * (1 + 1e-6))
 
 
-def _throws_with_missed_replies(rtree, robot, planner, miss=0.01, n=5, seed=11):
+def _throws_with_missed_replies(rtree, robot, planner, miss=0.01, n=5, seed=11, late=0.0):
     """Throws through the core with the simulated servo; each reply misses its cycle with
     probability ``miss`` (this host was late: the core never sees that packet, the controller
-    keeps the last reference). Returns the references the controller applied, one per cycle
-    (q, speedRef), the count of misses in motion and the core."""
+    keeps the last reference) or, with probability ``late``, arrives after the controller's next
+    cycle began (it keeps the last reference for that cycle and applies the next reply; the core
+    hears of it with the next packet). Returns the references the controller applied, one per
+    cycle (q, speedRef), the count of misses in motion and the core."""
     from thinkfast.control.intake import Intake
     from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
     from thinkfast.sim.controller import ServoConfig, SimController
@@ -369,7 +371,7 @@ def _throws_with_missed_replies(rtree, robot, planner, miss=0.01, n=5, seed=11):
     ctl = ControlCore(ex, sup, CFG.safety)
     arm = SimController(ServoConfig(), q0=robot.home)
     intake, rng = Intake(CFG.camera, CFG.detections), np.random.default_rng(seed)
-    t, last, q, qd, moving_misses = 0.0, None, [], [], 0
+    t, last, q, qd, moving_misses, was_late = 0.0, None, [], [], 0, False
     for i, th in enumerate(sample_throws(ThrowConfig(), n, seed)):
         t_rel = t + 0.5 + th.t_release
         dets = observe(th, CameraModelConfig(), CFG.camera, np.random.default_rng(i), t_rel)
@@ -383,23 +385,29 @@ def _throws_with_missed_replies(rtree, robot, planner, miss=0.01, n=5, seed=11):
             if last is not None and rng.random() < miss:
                 moving_misses += bool(np.abs(last.qd).max() > 0.1)
             else:
-                last = ctl.on_feedback(tm, arm.q, t, seqno=seqno)
-                arm.command(last.q, last.qd, arm.t)
+                r = ctl.on_feedback(tm, arm.q, t, seqno=seqno, late=was_late)
+                was_late = last is not None and rng.random() < late
+                if was_late:
+                    moving_misses += bool(np.abs(last.qd).max() > 0.1)
+                else:
+                    last = r
+                    arm.command(last.q, last.qd, arm.t)
             q.append(last.q), qd.append(last.qd)
             arm.step(DT)
             t += DT
     return np.array(q), np.array(qd), moving_misses, ctl
 
 
-@pytest.mark.parametrize("planner", ["tree", "naive"])
+@pytest.mark.parametrize("planner,late", [("tree", 0.0), ("naive", 0.0), ("naive", 0.01)])
 def test_missed_replies_the_reference_the_controller_applies_stays_within_the_limits(
-    rtree, robot, planner
+    rtree, robot, planner, late
 ):
-    """1 % of the replies miss their cycle, in motion too. Over the controller's clock, holds
-    counted: the applied positions move within ``v_max`` and ``speedRef`` changes within
-    ``a_max`` (before: the reply after a hold was two cycles of motion ahead, up to 2x each).
-    A hold itself stops the position reference for a cycle: no later reply can undo that."""
-    q, qd, moving_misses, ctl = _throws_with_missed_replies(rtree, robot, planner)
+    """1 % of the replies miss their cycle (and 1 % arrive a cycle late), in motion too. Over
+    the controller's clock, holds counted: the applied positions move within ``v_max`` and
+    ``speedRef`` changes within ``a_max`` (before: the reply after a hold was two cycles of
+    motion ahead, up to 2x each). A hold itself stops the position reference for a cycle: no
+    later reply can undo that."""
+    q, qd, moving_misses, ctl = _throws_with_missed_replies(rtree, robot, planner, late=late)
     assert moving_misses >= 3 and ctl.held >= moving_misses and ctl.fault_count == 0
     assert ctl.sup.intervened == 0, ctl.sup.counts
     v_ratio = (np.abs(np.diff(q, axis=0)) / DT / robot.v_max).max()

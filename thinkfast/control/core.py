@@ -17,7 +17,11 @@ and the supervisor's state at that time:
   one cycle on from that reference, never several at once (a lurch of twice the speed across
   the gap on the controller's clock), and the executor plans again from it with the same intent
   (:meth:`Executor.resync`): the motion catches up with the time-true plan within the velocity,
-  acceleration and jerk limits where the plan has room, and arrives that much later where not;
+  acceleration and jerk limits where the plan has room, and arrives that much later where not.
+  A reply that left more than a cycle after its packet arrived (``late``) reached the controller
+  after its next cycle began: it kept the reference before for that cycle and would take the
+  next reply after it, two cycles of motion on. The next reply is the late one again, and the
+  plan goes on from it the same way;
 * the first packet, or one after a silence longer than ``resync_after``: the stream restarts
   from the measured feedback (position, and velocity where the feedback measured it: two
   packets at most three cycles apart), and the executor plans on from there with the same
@@ -193,6 +197,7 @@ class ControlCore:
         before=None,
         ready: bool = True,
         seqno: int | None = None,
+        late: bool = False,
     ) -> Reply | None:
         """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, sequence number ``seqno``,
         joints ``q_meas`` [rad]) received at ``now`` [s], or None: leave this packet unanswered
@@ -200,7 +205,8 @@ class ControlCore:
         ``deferred``). ``seqno`` None: the controller's cycles are counted by ``tm`` alone.
         ``before``: ``(tm_ms, q_meas)`` or ``(tm_ms, q_meas, seqno)`` of the peer's packet just
         before it when that one was superseded unanswered (it measures the velocity after a
-        stall of this host). ``ready``:
+        stall of this host). ``late``: the previous reply left more than a cycle after its
+        packet arrived (module doc). ``ready``:
         the controller follows references (motors on, EGM motion running); otherwise the reply
         is the measured position (module doc). Never raises: a failing ``executor.setpoint``
         is counted in ``errors`` and brakes.
@@ -214,9 +220,9 @@ class ControlCore:
             if not ready or silent or self.hold_q is None:
                 self.hold_q = np.array(q_meas, dtype=float)
             self._last_rx = now
-        return self._on_feedback(tm_ms, q_meas, now, before, seqno)
+        return self._on_feedback(tm_ms, q_meas, now, before, seqno, late)
 
-    def _on_feedback(self, tm_ms, q_meas, now, before, seqno) -> Reply | None:
+    def _on_feedback(self, tm_ms, q_meas, now, before, seqno, late=False) -> Reply | None:
         tick = self.clock.tick(tm_ms, now, self.at_rest(), seqno)
         if self.standby:  # the controller follows references again: restart from the arm
             self.standby = False
@@ -246,6 +252,10 @@ class ControlCore:
         prepared, self._prepared = self._prepared, None
         steps = max(1, round(tick.elapsed / self.cfg.dt))
         h = tick.elapsed / steps
+        if late:  # the controller takes this reply where it kept the one before the last
+            self._catch_up(tick.t, steps)
+            self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
+            return self.last
         if steps > 1:
             self._catch_up(tick.t - h, steps - 1)
         was_braking = self.sup.braking
@@ -306,7 +316,10 @@ class ControlCore:
             return
         self.catch_ups += 1
         try:
-            self.ex.resync(self.sup.q, self.sup.qd, self.sup.qdd_end, t_from)
+            a_max = self.sup.limits.a_max  # the extrapolated end may pass the limit by a little
+            self.ex.resync(
+                self.sup.q, self.sup.qd, np.clip(self.sup.qdd_end, -a_max, a_max), t_from
+            )
         except Exception as exc:  # a planner bug must cost a smooth stop, never a reply
             self.errors += 1
             self.last_error = exc

@@ -175,7 +175,8 @@ class Daemon:
         prev = None if before is None else (before.tm_ms, before.q_rad, before.seqno)
         if (fb.motors_on, fb.mci_running, fb.rapid_running) != self._controller_key:
             self._controller_changed(fb)
-        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, fb.ready, fb.seqno)
+        late = self.egm.behind  # the last reply reached the controller a cycle late
+        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, fb.ready, fb.seqno, late)
         if self.control.errors != errors:
             self._planner_error("setpoint", self.control.last_error)
         if r is None:
@@ -454,7 +455,7 @@ class Daemon:
             "loop": {  # the reply loop's own counters (docs/ARCHITECTURE.md, The EGM path)
                 "missed_cycles": ctl.held,
                 "catch_ups": ctl.catch_ups,
-                "late_replies": self.egm.timing.late,
+                "late_replies": self.egm.counters.behind,
             },
             "egm_peer": _peer_text(self.egm.peer),
             "egm_foreign": dict(self.egm.foreign_sources),
