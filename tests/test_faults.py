@@ -129,6 +129,7 @@ def test_fault_controller_keeps_its_clock_through_gaps_duplicates_resets_and_fre
     assert np.all(moved > 0.5)  # and it follows the commands again (~0.05 rad per 0.05 s)
 
 
+@pytest.mark.realtime
 def test_a_jittering_fault_controller_stamps_tm_unevenly_and_its_pauses_stop_its_servo():
     """Jitter mode: ``tm`` off the 4 ms grid and repeating, ``seqno`` and the cycle +1 per
     packet (never skipped, also when this host stalls the loop), and after a pause ``tm`` has

@@ -199,7 +199,7 @@ class EgmServer:
         self.counters = EgmCounters()
         self.seqno = 0
         self.behind = False  # the request being answered arrived before the last reply left
-        self._sent_at = math.inf  # perf_counter when the last reply left
+        self._sent_at = -math.inf  # perf_counter when the last reply left
         self.peer: tuple[str, int] | None = None
         self.foreign_sources: dict[str, int] = {}
         self.last_rx_time: float | None = None
