@@ -18,10 +18,10 @@ and the supervisor's state at that time:
   the gap on the controller's clock), and the executor plans again from it with the same intent
   (:meth:`Executor.resync`): the motion catches up with the time-true plan within the velocity,
   acceleration and jerk limits where the plan has room, and arrives that much later where not.
-  A reply that left more than a cycle after its packet arrived (``late``) reached the controller
-  after its next cycle began: it kept the reference before for that cycle and would take the
-  next reply after it, two cycles of motion on. The next reply is the late one again, and the
-  plan goes on from it the same way;
+  A reply that reached the controller after its next cycle began (``late``: the daemon read the
+  next packet's arrival before that reply left) made it keep the reference before for that
+  cycle, and it would take the next reply after it, two cycles of motion on. The next reply is
+  the late one again, and the plan goes on from it the same way;
 * the first packet, or one after a silence longer than ``resync_after``: the stream restarts
   from the measured feedback (position, and velocity where the feedback measured it: two
   packets at most three cycles apart), and the executor plans on from there with the same
@@ -205,8 +205,8 @@ class ControlCore:
         ``deferred``). ``seqno`` None: the controller's cycles are counted by ``tm`` alone.
         ``before``: ``(tm_ms, q_meas)`` or ``(tm_ms, q_meas, seqno)`` of the peer's packet just
         before it when that one was superseded unanswered (it measures the velocity after a
-        stall of this host). ``late``: the previous reply left more than a cycle after its
-        packet arrived (module doc). ``ready``:
+        stall of this host). ``late``: the previous reply reached the controller a cycle late
+        (this packet arrived before it left; module doc). ``ready``:
         the controller follows references (motors on, EGM motion running); otherwise the reply
         is the measured position (module doc). Never raises: a failing ``executor.setpoint``
         is counted in ``errors`` and brakes.
