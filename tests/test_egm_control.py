@@ -94,6 +94,21 @@ def test_missed_cycles_the_reply_moves_on_one_cycle_from_the_reference_the_contr
     assert np.all(np.abs(np.diff(qda, axis=0)) / DT <= robot.a_max * (1 + 1e-6))
 
 
+def test_replies_that_stay_a_cycle_late_are_repeated_once_not_frozen(rtree, robot):
+    """A late reply is sent again for the next packet (the controller kept the reference before
+    it); when every reply stays late the controller takes one per cycle, a cycle later, so the
+    stream moves on after one repeat instead of standing still."""
+    ctl = _control(rtree, robot)
+    ctl.on_feedback(0, _away(robot), T0, seqno=0)
+    for k in range(1, 40):
+        r = ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k, seqno=k)
+    q = [r.q]
+    for k in range(40, 60):
+        q.append(ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k, seqno=k, late=True).q)
+    moved = np.abs(np.diff(q, axis=0)).max(axis=1) > 0
+    assert not moved[0] and moved[1:].all() and ctl.held == 1
+
+
 def test_a_stale_packet_or_a_reordered_one_gets_the_last_setpoint(rtree, robot):
     ctl = _control(rtree, robot)
     ctl.on_feedback(400, _away(robot), T0)

@@ -21,7 +21,8 @@ and the supervisor's state at that time:
   A reply that reached the controller after its next cycle began (``late``: the daemon read the
   next packet's arrival before that reply left) made it keep the reference before for that
   cycle, and it would take the next reply after it, two cycles of motion on. The next reply is
-  the late one again, and the plan goes on from it the same way;
+  the late one again, and the plan goes on from it the same way (once: when the replies stay a
+  cycle late, the controller takes one each cycle, a cycle later, and no repeat is wanted);
 * the first packet, or one after a silence longer than ``resync_after``: the stream restarts
   from the measured feedback (position, and velocity where the feedback measured it: two
   packets at most three cycles apart), and the executor plans on from there with the same
@@ -115,6 +116,7 @@ class ControlCore:
         self.deferred = 0  # packets left unanswered after a silence (measuring the velocity)
         self.held = 0  # cycles the controller kept the last reference (unanswered packets)
         self.catch_ups = 0  # replies that moved on from a held reference (replanned from it)
+        self._repeated_late = False  # the last reply repeated a late one
         self._waiting = -1  # packets deferred since the silence being resynchronised (-1: none)
         self.faults: collections.deque[float] = collections.deque()  # times, within the window
         self.fault_count = 0
@@ -252,10 +254,12 @@ class ControlCore:
         prepared, self._prepared = self._prepared, None
         steps = max(1, round(tick.elapsed / self.cfg.dt))
         h = tick.elapsed / steps
-        if late:  # the controller takes this reply where it kept the one before the last
+        if late and not self._repeated_late:  # the controller takes this reply where it kept
+            self._repeated_late = True  # the one before the last (once: a lasting lag is steady)
             self._catch_up(tick.t, steps)
             self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
             return self.last
+        self._repeated_late = late  # still late: the controller takes one reply per cycle
         if steps > 1:
             self._catch_up(tick.t - h, steps - 1)
         was_braking = self.sup.braking
