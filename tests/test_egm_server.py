@@ -323,3 +323,27 @@ def test_serve_thread_replies_as_packets_arrive_and_stops_on_event(client):
         assert server.counters.replied == 200
         assert server.last_rx_time is not None and server.peer == c.getsockname()
     assert len(rtts) == 200 and min(rtts) > 0.0  # latency figures: bench/egm_latency.py
+
+
+@pytest.mark.realtime
+def test_a_request_that_arrived_before_the_last_reply_left_marks_that_reply_late(client):
+    """The controller sends its next request as its next cycle begins: one that was already in
+    the socket when the last reply left means that reply came a cycle late (``behind``)."""
+    c = client()
+    seen = []
+
+    def reply(fb, before=None):
+        seen.append(server.behind)
+        if fb.seqno == 1:  # the next request arrives while this reply is being made
+            c.sendto(egm.encode_robot(2, 4, np.zeros(6)), server.address)
+            time.sleep(0.002)
+        return _hold(fb)
+
+    with EgmServer(f"{LOOPBACK}:0", reply, timing=True) as server:
+        c.sendto(egm.encode_robot(1, 0, np.zeros(6)), server.address)
+        _poll_until(server, 1)
+        _poll_until(server, 2)
+        c.recv(65535), c.recv(65535)
+        c.sendto(egm.encode_robot(3, 8, np.zeros(6)), server.address)  # after the reply
+        _poll_until(server, 3)
+    assert seen == [False, True, False] and server.counters.behind == 1

@@ -124,10 +124,41 @@ def test_fault_controller_keeps_its_clock_through_gaps_duplicates_resets_and_fre
     assert (rows[:, R.FLAGS].astype(int) & R.DUP).sum() >= 20
     reset = np.flatnonzero(rows[:, R.FLAGS].astype(int) & R.SEQ_RESET)[0]
     assert rows[reset, R.SEQNO] == 0 and rows[reset, R.TM] > rows[reset - 1, R.TM]
-    assert np.all(np.diff(rows[:reset, R.SEQNO]) >= 1)
+    assert np.all(np.diff(rows[:reset, R.SEQNO]) == np.diff(rows[:reset, R.K]))  # counts cycles
     assert np.ptp(np.array(q_frozen), axis=0).max() == 0.0  # the arm stood while frozen
     moved = rows[-1, R.Q_TRUE] - rows[0, R.Q_TRUE]
     assert np.all(moved > 0.5)  # and it follows the commands again (~0.05 rad per 0.05 s)
+
+
+@pytest.mark.realtime
+def test_a_jittering_fault_controller_stamps_tm_unevenly_and_its_pauses_stop_its_servo():
+    """Jitter mode: ``tm`` off the 4 ms grid and repeating, ``seqno`` and the cycle +1 per
+    packet (never skipped, also when this host stalls the loop), and after a pause ``tm`` has
+    jumped by it while the servo moved one cycle."""
+    from thinkfast.sim.controller import ClockJitter
+
+    sensor = _EchoSensor(offset=np.full(6, 0.05))
+    ctl = FaultController(sensor.sock.getsockname(), seed=3).start()
+    try:
+        ctl.jitter(ClockJitter(repeat=0.3, seed=2))
+        time.sleep(0.3)
+        ctl.gap(0.06, R.PAUSE)
+        time.sleep(0.3)
+    finally:
+        ctl.stop()
+        sensor.close()
+    rows = ctl.rows.take()
+    rows = rows[np.flatnonzero(np.diff(rows[:, R.K]) == 1)[0] + 5 :]  # jitter mode on
+    d_tm, paused = np.diff(rows[:, R.TM]), (rows[1:, R.FLAGS].astype(int) & R.PAUSE) > 0
+    assert np.all(np.diff(rows[:, R.K]) == 1) and np.all(np.diff(rows[:, R.SEQNO]) == 1)
+    p = int(np.flatnonzero(paused)[0]) + 1  # the row after the pause (stamps may repeat)
+    after = rows[min(p + 5, len(rows) - 1), R.TM] - rows[p - 1, R.TM]
+    assert paused.sum() == 1 and after >= 55
+    late = (rows[1:, R.FLAGS].astype(int) & R.LATE) > 0  # this host stalled the loop: a jump
+    ordinary = ~(paused | late | np.r_[False, paused[:-1]])
+    assert (d_tm[ordinary] == 0).any() and (d_tm[ordinary] % 4 != 0).any()  # off the 4 ms grid
+    assert (d_tm >= 0).all()
+    assert {3, 5} <= set(d_tm.tolist())
 
 
 def _rows(q, qd=None, k=None, replied=None, q_true=None, qd_true=None):

@@ -16,7 +16,7 @@ from thinkfast.daemon.reply_times import ReplyTimes
 
 def test_nothing_timed_yet_summarises_to_none():
     s = ReplyTimes(8).summary()
-    assert s == {"n": 0, "wait_us": None, "work_us": None}
+    assert s == {"n": 0, "late": 0, "wait_us": None, "work_us": None}
 
 
 def test_percentiles_cover_the_recent_window_and_maxima_all_time():
@@ -57,3 +57,20 @@ def test_a_timing_egm_server_times_every_reply():
     assert s["n"] == 20 and 0.0 < s["work_us"]["p50"] < 1e5
     if sys.platform == "linux":  # kernel arrival stamps: the wait is known
         assert 0.0 <= s["wait_us"]["p50"] < 1e6
+
+
+def test_a_reply_leaving_more_than_a_cycle_after_its_request_arrived_is_counted_late():
+    t = ReplyTimes(size=4, late_after=0.004)
+    t.add(0.001, 0.0005)  # 1.5 ms: in time
+    t.add(0.0035, 0.0008)  # waited in the socket, then worked: 4.3 ms
+    t.add(math.nan, 0.0045)  # no arrival stamp: the work alone is late
+    t.add(math.nan, 0.002)
+    s = t.summary()
+    assert s["late"] == 2 and s["n"] == 4
+    assert s["work_us"]["max"] == 4500.0 and s["wait_us"]["max"] == 3500.0
+
+
+def test_without_a_cycle_nothing_is_counted_late():
+    t = ReplyTimes(size=2)
+    t.add(0.5, 0.5)
+    assert t.summary()["late"] == 0

@@ -247,3 +247,29 @@ def test_lockstep_checks_the_arm_it_measures_like_the_daemon(tree_path):
     world.servo = dataclasses.replace(weak)
     lame = simulate(world, throw, "naive", seed=3)
     assert lame.moved and lame.intervened > 0, lame  # braked: the arm left its commands
+
+
+def test_a_jittering_controller_clock_needs_no_supervisor_and_blocks_as_the_exact_one(tree_path):
+    """A controller whose ``tm`` jitters +-1 ms, rounds to whole ms, repeats and jumps 10-50 ms
+    (its servo advancing one cycle per packet): the core counts the cycles by ``seqno``, so the
+    plan is sampled on the servo's clock and the supervisor changes fewer than 0.1 % of the
+    ticks (judged by ``tm``: about 1 %, and throws lost), blocking what the exact clock blocks."""
+    from thinkfast.sim.controller import ClockJitter
+    from thinkfast.sim.lockstep import DT, LEAD
+    from thinkfast.sim.throws import ThrowConfig, sample_throws
+
+    throws = sample_throws(ThrowConfig(), 8, seed=5)
+    exact = _Factory(tree_path)()
+    jitter = _Factory(tree_path)()
+    jitter.clock = ClockJitter(stall_rate=2.0, seed=7)
+    intervened, ticks, blocked = 0, 0, {"exact": 0, "jitter": 0}
+    for i, th in enumerate(throws):
+        a = simulate(exact, th, "tree", seed=i)
+        b = simulate(jitter, th, "tree", seed=i)
+        intervened += b.intervened
+        ticks += int((LEAD + th.t_release + th.flight_time) / DT)  # fewer than were stepped
+        blocked["exact"] += a.blocked
+        blocked["jitter"] += b.blocked
+        assert b.faults == 0
+    assert intervened < 0.001 * ticks, (intervened, ticks)
+    assert blocked["jitter"] == blocked["exact"], blocked

@@ -10,8 +10,19 @@ Clock-free (time is passed in). For each ``EgmRobot`` the controller's clock
 and the supervisor's state at that time:
 
 * the same cycle again (a duplicated or stale packet): the same setpoint again;
-* one or more cycles on: the supervisor steps through each elapsed cycle (a missed cycle
-  advances the command by two cycles of admissible motion, never by one of double speed);
+* one cycle on: the plan at that time, through the supervisor;
+* more than one cycle on (``seqno`` counts the cycles; without it ``tm``): the packets between
+  went unanswered (superseded while this host was late, or lost), and the controller kept the
+  last reference through those cycles (:attr:`ControlCore.held` counts them). The reply moves
+  one cycle on from that reference, never several at once (a lurch of twice the speed across
+  the gap on the controller's clock), and the executor plans again from it with the same intent
+  (:meth:`Executor.resync`): the motion catches up with the time-true plan within the velocity,
+  acceleration and jerk limits where the plan has room, and arrives that much later where not.
+  A reply that reached the controller after its next cycle began (``late``: the daemon read the
+  next packet's arrival before that reply left) made it keep the reference before for that
+  cycle, and it would take the next reply after it, two cycles of motion on. The next reply is
+  the late one again, and the plan goes on from it the same way (once: when the replies stay a
+  cycle late, the controller takes one each cycle, a cycle later, and no repeat is wanted);
 * the first packet, or one after a silence longer than ``resync_after``: the stream restarts
   from the measured feedback (position, and velocity where the feedback measured it: two
   packets at most three cycles apart), and the executor plans on from there with the same
@@ -52,12 +63,11 @@ import numpy as np
 
 from thinkfast.control.egm_clock import ClockTick, ControllerClock
 from thinkfast.control.executor import FAULT, IDLE, Executor
+from thinkfast.control.feedback_rate import FeedbackRate, span_before
 from thinkfast.control.intake import Accepted, Intake
 from thinkfast.control.safety import Ahead, SafetyConfig, SafetySupervisor
 
 FAULT_REASONS = ("deviation", "nonfinite")
-REST_SPEED = 1e-3  # rad/s: a measured joint slower than this is at rest
-MEASURED_SPAN = 3  # cycles: feedback further apart measures no velocity
 DEFER_MAX = 3  # packets left unanswered after a silence in motion, waiting for a velocity
 
 
@@ -104,13 +114,14 @@ class ControlCore:
         self.repeats = 0  # duplicate or stale packets answered with the same setpoint
         self.resyncs = 0  # restarts from the measured feedback (first packet excluded)
         self.deferred = 0  # packets left unanswered after a silence (measuring the velocity)
+        self.held = 0  # cycles the controller kept the last reference (unanswered packets)
+        self.catch_ups = 0  # replies that moved on from a held reference (replanned from it)
+        self._repeated_late = False  # the last reply repeated a late one
         self._waiting = -1  # packets deferred since the silence being resynchronised (-1: none)
-        self._track: list[tuple[float, np.ndarray]] = []  # (s, q): consecutive packets since
         self.faults: collections.deque[float] = collections.deque()  # times, within the window
         self.fault_count = 0
         self.latched = False
-        self._fb: tuple[float, np.ndarray] | None = None  # (controller time, q) of last feedback
-        self._rest_since = math.inf  # measured arm at rest since (controller time)
+        self.rate = FeedbackRate(cfg.dt)  # velocity and rest measured from the feedback
         self._prepared: Prepared | None = None  # the next cycle's reply, computed ahead
         self.errors = 0  # executor.setpoint failures (each brakes)
         self.last_error: Exception | None = None
@@ -119,7 +130,7 @@ class ControlCore:
     @property
     def measured(self) -> tuple[float, np.ndarray] | None:
         """(controller time [s], joints [rad] (6,)) of the last feedback, None before any."""
-        return self._fb
+        return self.rate.fb
 
     @property
     def t_next(self) -> float:
@@ -181,13 +192,23 @@ class ControlCore:
         return det
 
     def on_feedback(
-        self, tm_ms: int | None, q_meas: np.ndarray, now: float, before=None, ready: bool = True
+        self,
+        tm_ms: int | None,
+        q_meas: np.ndarray,
+        now: float,
+        before=None,
+        ready: bool = True,
+        seqno: int | None = None,
+        late: bool = False,
     ) -> Reply | None:
-        """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, joints ``q_meas`` [rad])
-        received at ``now`` [s], or None: leave this packet unanswered (after a silence in
-        motion, until three packets measure the velocity; counted in ``deferred``).
-        ``before``: ``(tm_ms, q_meas)`` of the peer's packet just before it when that one was
-        superseded unanswered (it measures the velocity after a stall of this host). ``ready``:
+        """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, sequence number ``seqno``,
+        joints ``q_meas`` [rad]) received at ``now`` [s], or None: leave this packet unanswered
+        (after a silence in motion, until three packets measure the velocity; counted in
+        ``deferred``). ``seqno`` None: the controller's cycles are counted by ``tm`` alone.
+        ``before``: ``(tm_ms, q_meas)`` or ``(tm_ms, q_meas, seqno)`` of the peer's packet just
+        before it when that one was superseded unanswered (it measures the velocity after a
+        stall of this host). ``late``: the previous reply reached the controller a cycle late
+        (this packet arrived before it left; module doc). ``ready``:
         the controller follows references (motors on, EGM motion running); otherwise the reply
         is the measured position (module doc). Never raises: a failing ``executor.setpoint``
         is counted in ``errors`` and brakes.
@@ -195,16 +216,16 @@ class ControlCore:
         In shadow mode the reply's ``q``/``qd`` are the virtual arm's; the caller sends
         :attr:`hold_q` at rest instead."""
         if not (ready or self.shadow):
-            return self._standby(tm_ms, q_meas, now)
+            return self._standby(tm_ms, q_meas, now, seqno)
         if self.shadow:  # hold where the arm stands when the stream (re)starts
             silent = now - self._last_rx > self.cfg.resync_after
             if not ready or silent or self.hold_q is None:
                 self.hold_q = np.array(q_meas, dtype=float)
             self._last_rx = now
-        return self._on_feedback(tm_ms, q_meas, now, before)
+        return self._on_feedback(tm_ms, q_meas, now, before, seqno, late)
 
-    def _on_feedback(self, tm_ms, q_meas, now, before) -> Reply | None:
-        tick = self.clock.tick(tm_ms, now, self.at_rest())
+    def _on_feedback(self, tm_ms, q_meas, now, before, seqno, late=False) -> Reply | None:
+        tick = self.clock.tick(tm_ms, now, self.at_rest(), seqno)
         if self.standby:  # the controller follows references again: restart from the arm
             self.standby = False
             self._waiting = -1
@@ -216,11 +237,12 @@ class ControlCore:
         if tick.repeat and self.last is not None:
             self.repeats += 1
             return self.last._replace(tick=tick)
-        qd_meas = self._measure(tick, q_meas, _earlier(tick, tm_ms, before))
+        qd_meas = self.rate.measure(tick, q_meas, span_before(tm_ms, seqno, before, self.cfg.dt))
         if tick.resync and self.last is not None and not self.latched and not self.at_rest():
-            self._waiting, self._track = 0, []  # a silence in motion: measure the velocity
+            self._waiting = 0  # a silence in motion: measure the velocity
+            self.rate.track.clear()
         if self._waiting >= 0:
-            qd_end = self._track_velocity(tick, q_meas, qd_meas)
+            qd_end = self.rate.track_velocity(tick, q_meas, qd_meas)
             if qd_end is None and self._waiting < DEFER_MAX:
                 self._waiting += 1
                 self.deferred += 1
@@ -232,9 +254,14 @@ class ControlCore:
         prepared, self._prepared = self._prepared, None
         steps = max(1, round(tick.elapsed / self.cfg.dt))
         h = tick.elapsed / steps
-        t0 = tick.t - tick.elapsed
-        for i in range(1, steps):  # cycles the controller skipped: still admissible motion
-            self.sup.step(*self._plan(t0 + i * h), dt=h)
+        if late and not self._repeated_late:  # the controller takes this reply where it kept
+            self._repeated_late = True  # the one before the last (once: a lasting lag is steady)
+            self._catch_up(tick.t, steps)
+            self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
+            return self.last
+        self._repeated_late = late  # still late: the controller takes one reply per cycle
+        if steps > 1:
+            self._catch_up(tick.t - h, steps - 1)
         was_braking = self.sup.braking
         q_fb = None if self.shadow else q_meas
         ahead = prepared.ahead if prepared is not None and prepared.t == tick.t else None
@@ -260,10 +287,10 @@ class ControlCore:
         self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
         return self.last
 
-    def _standby(self, tm_ms, q_meas, now: float) -> Reply:
+    def _standby(self, tm_ms, q_meas, now: float, seqno=None) -> Reply:
         """The controller does not follow references: command the measured position at rest
         and keep the planner's state on the arm (module doc)."""
-        tick = self.clock.tick(tm_ms, now, True)
+        tick = self.clock.tick(tm_ms, now, True, seqno)
         q = np.array(q_meas, dtype=float)
         first = self.last is None
         self.sup.reset(q)
@@ -274,7 +301,7 @@ class ControlCore:
             self.on_event(tick.t, "controller_standby", {"q": np.round(q, 4).tolist()})
         self.standby_replies += 1
         self._prepared = None
-        self._fb = (tick.t, q)
+        self.rate.fb = (tick.t, q)
         self.last = Reply(self.sup.q, np.zeros(6), "standby", tick)
         return self.last
 
@@ -283,6 +310,25 @@ class ControlCore:
         self.sup.request_brake(reason)
 
     # ------------------------------------------------------------------ internals
+    def _catch_up(self, t_from: float, held: int) -> None:
+        """The controller kept the last reference for ``held`` cycles: the commanded state is
+        still the supervisor's, one cycle before this reply (``t_from`` [s]). The executor
+        plans on from it with the same intent (module doc); at rest or while braking nothing
+        depends on time."""
+        self.held += held
+        if self.sup.braking or self.at_rest():
+            return
+        self.catch_ups += 1
+        try:
+            a_max = self.sup.limits.a_max  # the extrapolated end may pass the limit by a little
+            self.ex.resync(
+                self.sup.q, self.sup.qd, np.clip(self.sup.qdd_end, -a_max, a_max), t_from
+            )
+        except Exception as exc:  # a planner bug must cost a smooth stop, never a reply
+            self.errors += 1
+            self.last_error = exc
+            self.brake("nonfinite")
+
     def _plan(self, t: float):
         """The executor's setpoint at ``t``, or (None, None) when it fails (the supervisor
         brakes on it)."""
@@ -292,47 +338,6 @@ class ControlCore:
             self.errors += 1
             self.last_error = exc
             return None, None
-
-    def _measure(self, tick: ClockTick, q_meas: np.ndarray, earlier=None) -> np.ndarray | None:
-        """Measured velocity [rad/s] (6,) from this feedback and the one before (``earlier``:
-        ``(span [s], q)`` of a superseded packet, else the last one served), or None."""
-        q = np.asarray(q_meas, dtype=float)
-        last, self._fb = self._fb, (tick.t, q)
-        if earlier is not None:
-            span, q_prev = earlier
-        elif last is not None and not tick.resync:
-            span, q_prev = tick.elapsed, last[1]
-        else:
-            span, q_prev = 0.0, None
-        if q_prev is None or not 0.0 < span <= MEASURED_SPAN * self.cfg.dt + 1e-9:
-            self._rest_since = math.inf
-            return None
-        qd = (q - q_prev) / span
-        if np.max(np.abs(qd)) < REST_SPEED:
-            self._rest_since = min(self._rest_since, tick.t - span)
-        else:
-            self._rest_since = math.inf
-        return qd
-
-    def _track_velocity(self, tick: ClockTick, q_meas, qd_meas) -> np.ndarray | None:
-        """Velocity [rad/s] (6,) at this packet from the packets since the silence, once three
-        consecutive ones measure it (exact for a constant acceleration: an arm that the
-        controller is slowing down decelerates fast), else None. A pair measures only the
-        average over its cycle, up to ``a dt / 2`` off, and the reply acts a cycle later."""
-        track = self._track
-        if qd_meas is None:  # not consecutive with the one before: start again from this one
-            track.clear()
-        s = track[-1][0] + tick.elapsed if track else 0.0  # time since the first one [s]
-        track.append((s, np.asarray(q_meas, dtype=float)))
-        if len(track) < 3:
-            return None
-        (s0, q0), (s1, q1), (s2, q2) = track[-3:]
-        h1, h2 = s1 - s0, s2 - s1
-        if not (h1 > 0.0 and h2 > 0.0):
-            return None
-        # derivative at s2 of the parabola through the three points (in differences: a standing
-        # arm measures exactly zero)
-        return (q2 - q1) / h2 * ((2 * h2 + h1) / (h1 + h2)) - (q1 - q0) / h1 * (h2 / (h1 + h2))
 
     def _restart(self, tick: ClockTick, q_meas, qd_meas) -> Reply:
         """First packet or after a silence: command the measured state, plan on from it."""
@@ -361,7 +366,7 @@ class ControlCore:
         reason = self.sup.brake_reason
         if reason not in FAULT_REASONS or not self.sup.stopped or self.latched:
             return
-        if t - self._rest_since < self.cfg.recover_after:
+        if t - self.rate.rest_since < self.cfg.recover_after:
             return  # the commanded stop is done; wait until the arm stands too
         self.fault_count += 1
         while self.faults and t - self.faults[0] > self.cfg.fault_window:
@@ -391,14 +396,3 @@ class Prepared(NamedTuple):
 
     t: float
     ahead: Ahead | None
-
-
-def _earlier(tick: ClockTick, tm_ms: int | None, before) -> tuple[float, np.ndarray] | None:
-    """``(span [s], q)`` of the packet ``before``, when it was sent at most
-    :data:`MEASURED_SPAN` cycles before this one on the controller's clock."""
-    if before is None or tm_ms is None or before[0] is None:
-        return None
-    d_ms = (tm_ms - before[0]) % (1 << 32)
-    if not 0 < d_ms <= MEASURED_SPAN * 4:
-        return None
-    return d_ms / 1000.0, np.asarray(before[1], dtype=float)

@@ -455,6 +455,12 @@ class SafetySupervisor:
         return self.brake_reason is not None
 
     @property
+    def qdd_end(self) -> np.ndarray:
+        """Commanded acceleration [rad/s^2] (n,) at the end of the last tick, not its average
+        over it (the average of a jerk-limited motion lags by half a tick of jerk)."""
+        return self.qdd + 0.5 * (self.qdd - self._qdd_prev)
+
+    @property
     def stopped(self) -> bool:
         """The commanded velocity is zero on every joint."""
         return not self.qd.any()
@@ -466,10 +472,7 @@ class SafetySupervisor:
         if self.brake_reason is None:
             self.brake_reason = reason
             self.counts[f"brake_{reason}"] += 1
-            # the acceleration at the end of the last tick, not its average over it: the
-            # average of a jerk-limited motion lags by half a tick of jerk
-            a_end = self.qdd + 0.5 * (self.qdd - self._qdd_prev)
-            self._stop = JerkLimitedStop.plan(self.qd, a_end, self.limits)
+            self._stop = JerkLimitedStop.plan(self.qd, self.qdd_end, self.limits)
 
     def release(self) -> None:
         """Accept requests again (call when stopped and the cause is gone)."""

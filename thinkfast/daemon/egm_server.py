@@ -77,6 +77,8 @@ class EgmCounters:
         deferred: valid requests left unanswered because ``reply_fn`` returned None (by
             design: after a silence the daemon waits for packets that measure the velocity).
         socket_errors: ``recvfrom``/``sendto`` failures (the datagram is lost).
+        behind: requests that arrived before the reply to the one before them left (with
+            ``timing`` only): that reply reached the controller a cycle late.
     """
 
     received: int = 0
@@ -88,6 +90,7 @@ class EgmCounters:
     reply_errors: int = 0
     deferred: int = 0
     socket_errors: int = 0
+    behind: int = 0
 
 
 def parse_hostport(text: str, what: str = "--egm-bind") -> tuple[str, int]:
@@ -195,6 +198,8 @@ class EgmServer:
         self.reply_fn = reply_fn
         self.counters = EgmCounters()
         self.seqno = 0
+        self.behind = False  # the request being answered arrived before the last reply left
+        self._sent_at = -math.inf  # perf_counter when the last reply left
         self.peer: tuple[str, int] | None = None
         self.foreign_sources: dict[str, int] = {}
         self.last_rx_time: float | None = None
@@ -329,6 +334,10 @@ class EgmServer:
     ) -> int:
         c = self.counters
         self.last_rx_time = self._clock()
+        # this packet arrived before the last reply left: that reply reached the controller after
+        # the cycle that sent this packet began (the controller kept its reference before)
+        self.behind = t_read - wait < self._sent_at  # False without arrival stamps (NaN)
+        c.behind += self.behind
         try:
             out = self.reply_fn(fb, before)
             if out is None:
@@ -346,6 +355,8 @@ class EgmServer:
         except OSError:
             c.socket_errors += 1
             return 0
+        if self.timing is not None:
+            self._sent_at = time.perf_counter()
         self.seqno = (self.seqno + 1) & UINT32
         c.replied += 1
         if self.timing is not None:

@@ -22,12 +22,17 @@ class ReplyTimes:
             (Not ``sendto`` itself: on loopback it may run the receiver before it returns.)
         count: replies timed since the start.
         max_wait_s, max_work_s: largest since the start [s].
+        late: replies that left more than ``late_after`` after their request arrived (wait +
+            work; work alone without arrival stamps): they reached the controller after its
+            next cycle began, which kept its last reference for that cycle.
+        late_after: the controller's cycle [s] (None: nothing is counted late).
     """
 
-    def __init__(self, size: int = 5000):
+    def __init__(self, size: int = 5000, late_after: float | None = None):
         self.wait_s = np.full(size, np.nan)
         self.work_s = np.full(size, np.nan)
         self.count = 0
+        self.late, self.late_after = 0, late_after
         self.max_wait_s = 0.0
         self.max_work_s = 0.0
 
@@ -41,12 +46,15 @@ class ReplyTimes:
             self.max_work_s = work_s
         if wait_s > self.max_wait_s:  # False for NaN
             self.max_wait_s = wait_s
+        if self.late_after is not None:
+            self.late += (work_s if wait_s != wait_s else wait_s + work_s) > self.late_after
 
     def summary(self) -> dict:
-        """``{"wait_us": {...}, "work_us": {...}, "n": count}``; each has p50, p99, max over the
-        recent replies and ``max_all`` since the start [us] (None where nothing was measured)."""
+        """``{"wait_us": {...}, "work_us": {...}, "n": count, "late": late}``; each has p50, p99,
+        max over the recent replies and ``max_all`` since the start [us] (None where nothing was
+        measured)."""
         n = min(self.count, len(self.work_s))
-        out: dict = {"n": self.count}
+        out: dict = {"n": self.count, "late": self.late}
         for name, ring, top in (
             ("wait_us", self.wait_s, self.max_wait_s),
             ("work_us", self.work_s, self.max_work_s),

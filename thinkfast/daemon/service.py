@@ -148,6 +148,7 @@ class Daemon:
             timing=True,
             handover=endpoints.egm_handover,
         )
+        self.egm.timing.late_after = cfg.safety.dt
         if endpoints.ros_domain is None:
             self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix)
         else:  # rosbags (the ros extra) only when asked for
@@ -175,8 +176,9 @@ class Daemon:
         if self.stop_reason is not None:
             self._brake_on_signal()
         errors = self.control.errors
-        prev = None if before is None else (before.tm_ms, before.q_rad)
-        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, ready=fb.ready)
+        prev = None if before is None else (before.tm_ms, before.q_rad, before.seqno)
+        late = self.egm.behind  # the last reply reached the controller a cycle late
+        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, fb.ready, fb.seqno, late)
         if (fb.motors_on, fb.mci_running, fb.rapid_running) != self._controller_key:
             self._controller_changed(fb, now)  # after the clock took this packet's time
         if self.control.errors != errors:
@@ -471,6 +473,11 @@ class Daemon:
             "cameras": {} if ex.check is None else ex.check.as_dict(),
             **({} if self.view is None else {"view": self.view.as_dict()}),
             "egm": {**vars(self.egm.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},
+            "loop": {  # the reply loop's own counters (docs/ARCHITECTURE.md, The EGM path)
+                "missed_cycles": ctl.held,
+                "catch_ups": ctl.catch_ups,
+                "late_replies": self.egm.counters.behind,
+            },
             "egm_peer": _peer_text(self.egm.peer),
             "egm_foreign": dict(self.egm.foreign_sources),
             "egm_connected": self._connected(now),

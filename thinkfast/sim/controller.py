@@ -18,6 +18,11 @@ feedback; docs/FACTS.md: ABB quotes 10-20 ms lag, field reports 40-80 ms with de
 
 With ``kff = 1`` a ramp is tracked with a steady lag of about ``delay + 1 / (2 pi lowpass_hz)``.
 Simulated time advances by the nominal ``dt`` per exchange, whatever the wall clock does.
+
+Header stamps: ``seqno`` +1 per ``EgmRobot`` (one per cycle), ``tm`` the simulated time in whole
+ms; with a :class:`ClockJitter`, ``tm`` is a clock that is not hard real-time (a virtual
+controller's wall clock): jitter around the cycle, whole-ms rounding, repeats and jumps after its
+own stalls, while the servo still advances one cycle per packet.
 """
 
 from __future__ import annotations
@@ -67,6 +72,42 @@ class ServoConfig:
     a_max: tuple[float, ...] = spec((12.0, 12.0, 15.0, 30.0, 30.0, 40.0), unit="rad/s^2", length=6)
 
 
+@dataclasses.dataclass(frozen=True)
+class ClockJitter:
+    """A controller clock that is not hard real-time: how ``tm`` departs from the servo's time.
+
+    ``tm`` = round(1000 (t + jumps) + U(-jitter_ms, jitter_ms)), where ``t`` is the servo's time
+    (one cycle per packet) and ``jumps`` the sum of the stalls so far; with probability
+    ``repeat`` a stamp repeats the previous one. Never decreasing.
+    """
+
+    jitter_ms: float = spec(
+        1.0, doc="stamp jitter around the cycle (uniform +-)", unit="ms", lo=0.0
+    )
+    repeat: float = spec(0.01, doc="probability that a stamp repeats the last one", lo=0.0, hi=1.0)
+    stall_rate: float = spec(0.5, doc="clock jumps per second of servo time", unit="1/s", lo=0.0)
+    stall_ms: tuple[float, float] = spec((10.0, 50.0), doc="range of a jump", unit="ms", length=2)
+    seed: int = spec(0, doc="seed of the stamps' randomness")
+
+
+class Stamps:
+    """``tm`` stamps of a :class:`ClockJitter` clock (deterministic per seed)."""
+
+    def __init__(self, clock: ClockJitter):
+        self.clock, self.rng = clock, np.random.default_rng(clock.seed)
+        self.jumps_ms, self.last = 0.0, None
+
+    def tm(self, t: float, dt: float) -> int:
+        c, rng = self.clock, self.rng
+        if c.stall_rate > 0 and rng.random() < c.stall_rate * dt:
+            self.jumps_ms += float(rng.uniform(*c.stall_ms))
+        if self.last is not None and rng.random() < c.repeat:
+            return self.last
+        tm = round(1000.0 * t + self.jumps_ms + rng.uniform(-c.jitter_ms, c.jitter_ms))
+        self.last = tm if self.last is None else max(tm, self.last)
+        return self.last
+
+
 class JointHistory(NamedTuple):
     """Recorded motion: ``t`` [s] (T,), ``q`` [rad] (T, 6), ``qd`` [rad/s] (T, 6)."""
 
@@ -83,12 +124,19 @@ class SimController:
         q0: initial joint angles [rad], shape (6,); zeros by default.
         max_history: keep only this many recent history samples and commands (None: all; a
             long run at 250 Hz would otherwise grow without bound).
+        clock: ``tm`` stamps of a clock that is not hard real-time (None: exact, whole ms of
+            the servo's time).
     """
 
     def __init__(
-        self, config: ServoConfig = ServoConfig(), q0=None, max_history: int | None = None
+        self,
+        config: ServoConfig = ServoConfig(),
+        q0=None,
+        max_history: int | None = None,
+        clock: ClockJitter | None = None,
     ):
         self.config = config
+        self._stamps = None if clock is None else Stamps(clock)
         self.q = np.zeros(6) if q0 is None else np.array(q0, dtype=float).reshape(6)
         self.qd = np.zeros(6)
         self.t = 0.0
@@ -117,12 +165,19 @@ class SimController:
         """The servo follows the sensor's references (motors on, MCI and RAPID running)."""
         return self.motors_on and self.mci_running and self.rapid_running is not False
 
-    def robot_message(self) -> bytes:
-        """The next ``EgmRobot`` datagram: current joint angles, sequence number +1."""
+    def header(self) -> tuple[int, int]:
+        """``(seqno, tm)`` of the next ``EgmRobot``: sequence number +1, time stamp [ms]."""
         self.seqno += 1
+        if self._stamps is None:
+            return self.seqno, int(round(self.t * 1000.0))
+        return self.seqno, self._stamps.tm(self.t, self.config.dt)
+
+    def robot_message(self) -> bytes:
+        """The next ``EgmRobot`` datagram: current joint angles, :meth:`header`."""
+        seqno, tm = self.header()
         return encode_robot(
-            self.seqno,
-            int(round(self.t * 1000.0)),
+            seqno,
+            tm,
             self.q,
             motors_on=self.motors_on,
             mci_running=self.mci_running,

@@ -40,7 +40,7 @@ from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering
 from thinkfast.sim.camera import CameraModelConfig, SimCamera, detection_payload, observe_cameras
-from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.throws import Throw, plane_crossing
 
@@ -71,7 +71,9 @@ class Outcome(NamedTuple):
 
 
 class World:
-    """Everything shared by all throws of a run (built once per process)."""
+    """Everything shared by all throws of a run (built once per process). ``clock``: the
+    simulated controller stamps ``tm`` with a clock that is not hard real-time (each throw its
+    own seed), and the core counts cycles by ``seqno``; None: exact stamps, no ``seqno``."""
 
     def __init__(
         self,
@@ -81,7 +83,9 @@ class World:
         servo: ServoConfig,
         camera: CameraModelConfig,
         cameras: tuple[SimCamera, ...] | None = None,
+        clock: ClockJitter | None = None,
     ):
+        self.clock = clock
         self.tree = runtime_tree(tree, robot, cfg)
         self.robot, self.cfg, self.servo, self.camera = robot, cfg, servo, camera
         self.cameras = sim_cameras(cfg, camera) if cameras is None else tuple(cameras)
@@ -115,7 +119,10 @@ def simulate(
     else:
         cross = plane_crossing(throw)
         t_end = t_rel + cross.t + cfg.throw.after_crossing + 0.15
-    sim = SimController(world.servo, q0=robot.home)
+    clock = world.clock
+    if clock is not None:
+        clock = dataclasses.replace(clock, seed=clock.seed * 1_000_003 + seed)
+    sim = SimController(world.servo, q0=robot.home, clock=clock)
     sup = SafetySupervisor(world.limits, cfg.safety, robot.home)
     if planner in ("oracle", "oracle_seen"):
         t_go = t_rel + oracle_start
@@ -137,11 +144,17 @@ def simulate(
             while k_det < len(dets) and dets[k_det].delivery_time <= t:
                 core.on_detection(detection_payload(dets[k_det]), None, t)
                 k_det += 1
-            reply = core.on_feedback(round(t * 1000.0), sim.q, t)
-            q_cmd, qd_cmd = reply.q, reply.qd
+            if clock is None:
+                reply = core.on_feedback(round(t * 1000.0), sim.q, t)
+            else:
+                seqno, tm = sim.header()
+                reply = core.on_feedback(tm, sim.q, t, seqno=seqno)
+            if reply is not None:  # None: unanswered, the controller keeps its last reference
+                q_cmd, qd_cmd = reply.q, reply.qd
         if not moved and np.any(np.abs(qd_cmd) > 1e-6):
             moved, t_move = True, t - t_rel
-        sim.command(q_cmd, qd_cmd, t)
+        if ex is None or reply is not None:
+            sim.command(q_cmd, qd_cmd, t)
         sim.step(DT)
         t += DT
     hist = sim.history()

@@ -21,7 +21,7 @@ ORDER = (
     "silence_rest", "silence_motion", "arm_stops_following", "sigint", "sigterm",
     "zenoh_peer_lost", "record_missing", "record_readonly", "record_full", "fuzz_detections",
     "baseline_tree", "baseline_naive", "pauses_tree", "pauses_naive", "soft_servo_tree",
-    "soft_servo_naive",
+    "soft_servo_naive", "clock_jitter",
 )  # fmt: skip
 assert set(ORDER) == set(REGISTRY), set(ORDER) ^ set(REGISTRY)
 

@@ -2,10 +2,16 @@
 
 :class:`FaultController` runs in a thread. Its clock is a grid of 4 ms cycles anchored on
 ``perf_counter``: cycle ``k`` is due at ``t0 + k dt`` and its ``EgmRobot`` carries
-``tm = tm0 + 4 k`` ms and ``seqno`` +1 per message. A loop that wakes more than half a cycle late
-(this host stalled it, or a fault paused it) skips to the cycle that is due, so ``tm`` jumps by
-the time lost, as a real controller's clock would; the servo (:class:`SimController`) integrates
-every cycle of it with the last reference.
+``tm = tm0 + 4 k`` ms and ``seqno`` counts the cycles (+1 per cycle, like a real controller whose
+packets the network lost). A loop that wakes more than half a cycle late (this host stalled it,
+or a fault paused it) skips to the cycle that is due, so ``tm`` and ``seqno`` jump by the cycles
+lost, as a real controller's would; the servo (:class:`SimController`) integrates every cycle of
+it with the last reference.
+
+:meth:`jitter` makes it a controller that is not hard real-time (a virtual controller): ``tm``
+jitters around the cycle in whole ms and repeats (:class:`~thinkfast.sim.controller.ClockJitter`),
+and its pauses stop its servo too: after one, ``tm`` has jumped by the pause while the next
+cycle is the next one (``seqno`` +1, the servo one cycle on).
 
 Each cycle: read the replies that arrived during the previous cycle (kernel arrival stamps, so a
 late read of this process never moves a reply to another cycle), apply the last valid one to the
@@ -23,6 +29,7 @@ feedback values), :meth:`reset_seqno`, and a soft servo through the ``servo`` co
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import os
 import socket
@@ -32,7 +39,7 @@ import time
 import numpy as np
 
 from thinkfast.daemon.egm_server import SO_TIMESTAMPNS
-from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController, Stamps
 from thinkfast.sim.faults import rows as R
 from thinkfast.sim.faults.egm_pb import decode_reply, robot_message
 from thinkfast.sim.faults.senders import malformed_datagram, recv_stamped
@@ -76,6 +83,9 @@ class FaultController:
         self.malformed = 0.0  # malformed datagrams per cycle (mean; Poisson)
         self.malformed_sent = 0
         self._seqno = 0
+        self._k_sent: int | None = None  # cycle of the last EgmRobot
+        self._stamps: Stamps | None = None  # jitter mode: tm stamps
+        self._shift = 0.0  # jitter mode: the cycle grid moved by the pauses so far [s]
         self._gaps: collections.deque = collections.deque()  # (seconds, flag)
         self._pauses: tuple[float, float, float] | None = None
         self._next_pause = math.inf
@@ -104,6 +114,14 @@ class FaultController:
     def absurd(self, values: list[np.ndarray]) -> None:
         """Report these joint values [rad] (6,) instead of the measured ones, one per cycle."""
         self._absurd.extend(np.asarray(v, dtype=float) for v in values)
+
+    def jitter(self, clock: ClockJitter, pauses: tuple[float, float, float] | None = None) -> None:
+        """From the next cycle: ``tm`` jitters and repeats as ``clock`` says, and pauses (``mean
+        interval, lo, hi`` [s], as :meth:`random_pauses`) stop the servo and the cycle grid
+        instead of skipping cycles (``tm`` jumps by the pause)."""
+        self._stamps = Stamps(dataclasses.replace(clock, stall_rate=0.0))
+        if pauses is not None:
+            self.random_pauses(*pauses)
 
     def reset_seqno(self) -> None:
         """Restart ``seqno`` from 0 at the next message (``tm`` continues)."""
@@ -141,13 +159,22 @@ class FaultController:
         k_prev, row = -1, None
         while not self._stop.is_set():
             k = k_prev + 1
+            t_pause = time.perf_counter()
             flag = self._maybe_pause()
+            if flag and self._stamps is not None:  # its servo stopped too: the grid moves on
+                lost = time.perf_counter() - t_pause
+                t0, self._shift = t0 + lost, self._shift + lost
             due = t0 + k * dt
             now = time.perf_counter()
             if due > now:
                 time.sleep(due - now)
                 now = time.perf_counter()
-            if now > due + 0.5 * dt:  # stalled (by a fault or by this host): skip to the due cycle
+            if now > due + 0.5 * dt and self._stamps is not None:  # jitter mode: all stopped
+                t0, self._shift = t0 + now - due, self._shift + now - due
+                flag |= R.LATE if not flag else 0
+            elif (
+                now > due + 0.5 * dt
+            ):  # stalled (by a fault or by this host): skip to the due cycle
                 k = int(math.floor((now - t0) / dt + 0.5))
                 flag |= R.LATE if not flag else 0
             t_send = time.time()
@@ -159,7 +186,7 @@ class FaultController:
                 sim.command(cmd[0], cmd[1])  # received in the previous cycle (its start time)
             for _ in range(k - k_prev if k_prev >= 0 else 0):
                 self._step()
-            row = self._send(k, t_send, w0 + k * dt, flag)
+            row = self._send(k, t_send, w0 + self._shift + k * dt, flag)
             k_prev = k
         if row is not None:
             self._collect(row, time.time())
@@ -198,10 +225,14 @@ class FaultController:
         q_sent = q_true
         if self._absurd:
             q_sent, flag = self._absurd.popleft(), flag | R.ABSURD
+        step = 1 if self._k_sent is None else k - self._k_sent
+        self._k_sent = k
         if self._seq_reset:
-            self._seq_reset, self._seqno, flag = False, -1, flag | R.SEQ_RESET
-        self._seqno += 1
+            self._seq_reset, self._seqno, step, flag = False, -1, 1, flag | R.SEQ_RESET
+        self._seqno += step
         tm = self.tm0 + 4 * k
+        if self._stamps is not None:
+            tm = self.tm0 + self._stamps.tm(k * self.dt + self._shift, self.dt)
         msg = robot_message(self._seqno, tm, q_sent, unix_time=t_send)
         copies = 2 if self.duplicate else 1
         flag |= R.DUP if copies == 2 else 0

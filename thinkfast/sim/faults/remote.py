@@ -22,7 +22,7 @@ from thinkfast.sim.faults.controller import FaultController
 
 _SETTABLE = ("duplicate", "malformed")
 _READABLE = ("last_cmd", "malformed_sent", "gap_log", "address", "realtime")
-_CALLS = ("gap", "random_pauses", "freeze", "absurd", "reset_seqno", "history")
+_CALLS = ("gap", "random_pauses", "freeze", "absurd", "reset_seqno", "history", "jitter")
 
 
 class _Conn:

@@ -181,3 +181,33 @@ for _p in ("tree", "naive"):
     scenario(f"soft_servo_{_p}", f"servo time constants and lag 3x ServoConfig's ({_p} planner)")(
         lambda ctx, opts, p=_p: _throw_series(f"soft_servo_{p}", ctx, opts, p, servo=SOFT)
     )
+
+
+MAX_INTERVENED = 0.001  # share of the supervisor's ticks it may change with a jittering clock
+
+
+@scenario("clock_jitter", "tm jitters +-1 ms in whole ms and repeats; 10-50 ms controller stalls")
+def clock_jitter(ctx, opts):
+    """A controller that is not hard real-time (a virtual controller): ``tm`` +-1 ms around the
+    cycle, rounded to whole ms, 1 % repeats; stalls of 10-50 ms (mean 1 s apart) after which
+    ``tm`` has jumped while its servo moved one cycle. The supervisor changes fewer than
+    :data:`MAX_INTERVENED` of the requests, and the commands pass the usual checks."""
+
+    def body(cell):
+        from thinkfast.sim.controller import ClockJitter
+
+        cell.ctl.jitter(ClockJitter(seed=ctx.seed), (1.0, 0.01, 0.05))
+        outs = [cell.throw(th, i) for i, th in
+                enumerate(sampled_throws(ctx, 2 if opts.quick else opts.throws))]  # fmt: skip
+        iv = cell.status().get("interventions") or {}
+        ticks, changed = iv.get("ticks") or 0, iv.get("intervened") or 0
+        share = changed / ticks if ticks else None
+        fig = {**blocked_summary(outs), "pauses": len(cell.ctl.gap_log),
+               "supervisor_ticks": ticks, "intervened": changed,
+               "intervened_pct": None if share is None else round(100.0 * share, 4)}  # fmt: skip
+        fails = [] if all(o.executed for o in outs) else ["a throw was not executed"]
+        if share is None or share >= MAX_INTERVENED:
+            fails.append(f"supervisor changed {changed} of {ticks} ticks")
+        return fig, fails
+
+    return _run("clock_jitter", ctx, opts, body)

@@ -106,7 +106,7 @@ def blocked_summary(outcomes) -> dict:
 
 # ---------------------------------------------------------------------- verdict
 _KEEP = ("answered_pct", "cycles", "missed", "missed_host_stall", "missed_unexplained",
-         "host_stall_max_ms", "v_ratio", "a_ratio", "a_ratio_all", "speedref_ratio",
+         "v_ratio_all", "host_stall_max_ms", "v_ratio", "a_ratio", "a_ratio_all", "speedref_ratio",
          "jerk_ratio_brake", "speedref_jerk_ratio_brake", "jerk_ratio_normal",
          "resyncs_checked", "resyncs_late", "missed_after_silence", "resync_pos_err_mrad",
          "resync_vel_ratio", "gaps", "brake_cycles", "extra_replies", "nonfinite",
