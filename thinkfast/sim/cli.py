@@ -14,6 +14,7 @@ from thinkfast.contract import keys
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
 PLANNERS = ("tree", "tree-rest", "naive", "naive-paper", "oracle", "oracle_seen")
+PLANNERS += ("tree-hedge-none", "tree-hedge-mean", "tree-hedge-tree")  # lockstep.HEDGED
 ONLINE = ("tree", "tree-rest", "naive", "naive-paper")  # the ones the daemon runs
 
 
