@@ -18,6 +18,12 @@ the setpoint of every 4 ms tick (``setpoint``), both with the time the plans run
   predicts a throw. From the confirmation on, every belief goes to the planner, which leaves
   home (``executing``) as below. No detection for ``detection_timeout`` (counted from the last
   stamp plus ``stamp_lag``) ends the episode: back to ``idle``.
+  *Hedge stage* (tree planner, ``[hedge] mode`` not ``none``; :mod:`thinkfast.control.hedge`):
+  before the confirmation, once the early belief makes a launch likely, the arm may start on a
+  move kept within ``[hedge] bound`` of home (``stage`` = ``hedge``); a hedge given up
+  (``hedge_end``: ``no_launch``, ``timeout``, ``silence``) returns home while still tracking
+  (the episode ends only once the arm is home); at the confirmation the planner takes over from
+  the commanded state (``stage`` = ``commit``, mode ``executing`` when the arm is off home).
 - ``executing``: what the planner does at every belief from the confirmation on:
   - ``tree`` (the re-rooted choice, :mod:`thinkfast.decide.choice`): the best of continuing
     the motion in progress (at home: waiting there), direct moves to goals and (``[choice]
