@@ -10,8 +10,8 @@ detection reaches the daemon 30-60 ms later).
 The hedge stage's trigger (``[early]``, :func:`thinkfast.estimate.early_belief.likely_launch` on
 the same detections) is counted beside it: hedges begun while the ball is held (each time the
 test turns true), per minute of holding, and the delay from release to the first one after it.
-With ``--executor N``, the first N balls are also flown through the tree planner's executor (its
-default ``[hedge]``, detections delivered with the camera's latency, a setpoint every 4 ms,
+With ``--executor N``, the first N balls are also flown through the tree planner's executor (``--hedge``
+mode, default mean, detections delivered with the camera's latency, a setpoint every 4 ms,
 until the release): the largest shield displacement from home its commanded joints reach while
 the ball is held.
 
@@ -52,6 +52,7 @@ def main() -> None:
     ap.add_argument("--tree", default=str(DEFAULT_TREE), help="plane and goal grid (hedge prior)")
     ap.add_argument("--mix", default=None, help="kinds of throw, KIND=WEIGHT,... (default mix)")
     ap.add_argument("--executor", type=int, default=0, help="balls flown through the executor")
+    ap.add_argument("--hedge", default="mean", help="[hedge] mode of the executor (--executor)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
@@ -100,7 +101,11 @@ def main() -> None:
         "delay_median_ms": round(1e3 * float(np.median(delays)), 1),
         "delay_p90_ms": round(1e3 * float(np.percentile(delays, 90)), 1),
         "held_shield_displacement_max_m": _held_displacement(
-            throws[: args.executor], cfg, cam, tree, args.seed
+            throws[: args.executor],
+            dataclasses.replace(cfg, hedge=dataclasses.replace(cfg.hedge, mode=args.hedge)),
+            cam,
+            tree,
+            args.seed,
         ),
         "hedges_while_held": hedges,
         "hedges_per_minute_held": round(hedges / (held / cam.rate / 60.0), 2),
