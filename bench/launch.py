@@ -10,10 +10,10 @@ detection reaches the daemon 30-60 ms later).
 The hedge stage's trigger (``[early]``, :func:`thinkfast.estimate.early_belief.likely_launch` on
 the same detections) is counted beside it: hedges begun while the ball is held (each time the
 test turns true), per minute of holding, and the delay from release to the first one after it.
-With ``--executor N``, the first N balls are also flown through the tree planner's executor (``--hedge``
-mode, default mean, detections delivered with the camera's latency, a setpoint every 4 ms,
-until the release): the largest shield displacement from home its commanded joints reach while
-the ball is held.
+With ``--executor N``, the first N balls are also flown through the tree planner's executor
+(``--hedge`` mode, default mean; detections delivered with the camera's latency, a setpoint
+every 4 ms, until the release): the largest shield displacement from home its commanded joints
+reach while the ball is held.
 
     python bench/launch.py                       # 100 balls held 5 s: 25,000 held frames
     python bench/launch.py --depth-only --outlier-prob 0.04 --json
