@@ -11,11 +11,13 @@ from pathlib import Path
 from thinkfast.config import from_dict, include_table, load_toml, spec, to_toml
 from thinkfast.contract.detection import CAMERA_ID, DetectionLimits
 from thinkfast.contract.frames import CameraExtrinsic
+from thinkfast.control.hedge import HedgeConfig
 from thinkfast.control.safety import SafetyConfig
 from thinkfast.decide.choice import ChoiceConfig
 from thinkfast.decide.path_value import PathValueConfig
 from thinkfast.decide.values import ValueConfig
 from thinkfast.errors import ConfigError
+from thinkfast.estimate.early_belief import EarlyConfig
 from thinkfast.estimate.filter import FilterConfig
 from thinkfast.estimate.fusion import DEFAULT_CAMERA, CameraConfig, FusionConfig
 from thinkfast.estimate.launch import LaunchConfig
@@ -151,6 +153,8 @@ class RunConfig:
         )
     )
     launch: LaunchConfig = spec(LaunchConfig())
+    early: EarlyConfig = spec(EarlyConfig())
+    hedge: HedgeConfig = spec(HedgeConfig())
     value: ValueConfig = spec(ValueConfig())
     throw: EpisodeConfig = spec(EpisodeConfig())
     execution: ExecutionConfig = spec(ExecutionConfig())

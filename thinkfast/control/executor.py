@@ -18,6 +18,12 @@ the setpoint of every 4 ms tick (``setpoint``), both with the time the plans run
   predicts a throw. From the confirmation on, every belief goes to the planner, which leaves
   home (``executing``) as below. No detection for ``detection_timeout`` (counted from the last
   stamp plus ``stamp_lag``) ends the episode: back to ``idle``.
+  *Hedge stage* (tree planner, ``[hedge] mode`` not ``none``; :mod:`thinkfast.control.hedge`):
+  before the confirmation, once the early belief makes a launch likely, the arm may start on a
+  move kept within ``[hedge] bound`` of home (``stage`` = ``hedge``); a hedge given up
+  (``hedge_end``: ``no_launch``, ``timeout``, ``silence``) returns home while still tracking
+  (the episode ends only once the arm is home); at the confirmation the planner takes over from
+  the commanded state (``stage`` = ``commit``, mode ``executing`` when the arm is off home).
 - ``executing``: what the planner does at every belief from the confirmation on:
   - ``tree`` (the re-rooted choice, :mod:`thinkfast.decide.choice`): the best of continuing
     the motion in progress (at home: waiting there), direct moves to goals and (``[choice]
@@ -71,6 +77,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from thinkfast.control.config import RunConfig
+from thinkfast.control.hedge import COMMIT, HEDGE, Hedger
 from thinkfast.control.segments import (
     EDGE,
     HOLD,
@@ -119,6 +126,7 @@ class EpisodeLog:
     terminal: int = -1
     chosen_value: float = math.nan
     decisions: int = 0
+    t_hedge: float = math.nan  # when the first hedge of the throw began (nan: none)
 
 
 class Executor:
@@ -158,6 +166,18 @@ class Executor:
         if self.chooser is not None and cfg.choice.branches:
             self.branches = branch_table(tree, self.chooser.geom, cfg.choice.branch_per_goal)
         self.pending: tuple[int, float] | None = None  # (child node, wall time it starts)
+        self.hedger = None  # the hedge stage (control/hedge.py): the tree planner only
+        if planner == "tree" and cfg.hedge.mode != "none" and cfg.launch.enabled:
+            h = cfg.hedge
+            self.hedger = Hedger(
+                tree, robot, self.steer, h, cfg.early, cfg.filter.gravity, self.lag
+            )
+        self.stage = ""  # "", HEDGE or COMMIT: the stage of the current throw (status)
+        self.hedge_end = ""  # why the last hedge ended: confirmed, no_launch, timeout, silence
+        self.hedge_t0 = -np.inf  # when the hedge in progress began
+        self.hedges = 0  # hedges begun since the start
+        self.hedge_off = False  # no more hedges in this episode (one timed out)
+        self.home_after = False  # a given-up hedge goes home once its move ends
         self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
         n_cam = 1 + len(cfg.cameras)
         window = cfg.fusion.launch_window if cfg.cameras else None
@@ -248,9 +268,12 @@ class Executor:
             else:  # one outlier frame costs one step, not the whole count
                 self.confirm = max(self.confirm - 1, 0)
             if self.confirm < self.cfg.throw.confirm_updates:
+                if self.hedger is not None:
+                    self._hedge(t_now, stamp)
                 return
             if math.isnan(self.episode.t_confirmed):
                 self.episode.t_confirmed = t_now
+                self._commit(t_now)
         self.episode.decisions += 1
         if self.chooser is None:  # the tree planner's choice does not need the at-rest values
             t_start = self.episode.t_start if self.mode == EXECUTING else t_now
@@ -286,6 +309,77 @@ class Executor:
         lo, hi = self.tree.goal_yz.min(axis=0), self.tree.goal_yz.max(axis=0)
         m = th.region_margin
         return lo[0] - m <= y <= hi[0] + m and lo[1] - m <= z <= hi[1] + m
+
+    # ---------------------------------------------------------------- hedge stage
+    def _hedge(self, t_now: float, stamp: float) -> None:
+        """Before the confirmation: start, re-plan or end a hedge on the early belief."""
+        if self.hedge_off or self.mode != TRACKING:
+            return
+        fit, c = self.hedger.belief(list(self.launch.points))
+        if fit is None:
+            if self.stage == HEDGE:
+                self._end_hedge(t_now, "no_launch")
+            return
+        seg = self.hedger.plan(
+            self.segment.state(t_now), self.hedger.target(c, stamp, t_now), t_now
+        )
+        if seg is None:
+            return  # the move in progress stays (it is within the bound)
+        self.home_after = False
+        if self.stage != HEDGE:
+            self.stage, self.hedge_t0 = HEDGE, t_now
+            self.hedges += 1
+            if math.isnan(self.episode.t_hedge):
+                self.episode.t_hedge = t_now
+        self.segment = seg
+        self.pending = None
+
+    def _hedge_tick(self, t: float, silent: bool) -> None:
+        """Before the confirmation, every tick: end a hedge at its time limit or when the ball is
+        lost; home from where a given-up hedge stopped."""
+        if self.stage == HEDGE and t - self.hedge_t0 > self.cfg.hedge.timeout:
+            self._end_hedge(t, "timeout")
+            self.hedge_off = True
+        elif self.stage == HEDGE and silent:
+            self._end_hedge(t, "silence")
+        if self.home_after and t >= self.segment.t_end:
+            self.home_after = False
+            state = self.segment.state(t)
+            seg = move(self.steer_home, RETURN, state, self.robot.home[:3], t)
+            self.segment = seg if seg is not None else hold(state, t)
+
+    def _commit(self, t_now: float) -> None:
+        """The launch is confirmed: the commit stage takes over from wherever the arm is."""
+        if self.hedger is None:
+            return
+        if self.stage == HEDGE or not self._at_home(t_now):
+            self.mode = EXECUTING  # the arm has left home: the episode's end brings it back
+            self.episode.t_start = t_now
+        if self.stage == HEDGE:
+            self.hedge_end = "confirmed"
+        self.stage = COMMIT
+        self.home_after = False
+
+    def _end_hedge(self, t: float, why: str) -> None:
+        """Give the hedge up, still tracking the ball: home within the return limits, or the
+        full ones, when that way stays within the bound (a faster hedge brakes later with the
+        return limits); else on to the hedge's own target (checked) and home from there."""
+        self.stage, self.hedge_end = "", why
+        state = self.segment.state(t)
+        self.pending = None
+        for steer in (self.steer_home, self.steer):
+            seg = move(steer, RETURN, state, self.robot.home[:3], t)
+            if seg is not None and self.hedger.within(seg.traj):
+                self.segment = seg
+                return
+        self.home_after = True  # the segment in progress stops within the bound
+
+    def _at_home(self, t: float) -> bool:
+        s = self.segment.state(t)
+        return bool(
+            np.all(np.abs(s[:3] - self.robot.home[:3]) < ARM_HOME)
+            and np.all(np.abs(s[3:]) < ARM_HOME)
+        )
 
     # ---------------------------------------------------------------- decisions
     def _maybe_leave_home(self, t_now: float) -> None:
@@ -513,8 +607,10 @@ class Executor:
         silent = since > th.detection_timeout
         end = self.episode.t_cross + self.lag + th.after_crossing
         crossed = t > end
-        if self.mode == TRACKING and silent:
-            self._reset_episode(IDLE)
+        if self.mode == TRACKING and self.hedger is not None:
+            self._hedge_tick(t, silent)
+        if self.mode == TRACKING and silent and (self.hedger is None or self._at_home(t)):
+            self._reset_episode(IDLE)  # with a hedge given up: once the arm is home
         elif self.mode == EXECUTING and (
             crossed or since > th.max_blind or (silent and math.isnan(end))
         ):
@@ -546,6 +642,9 @@ class Executor:
         self.confirm = 0
         self.node = 0
         self.episode = EpisodeLog()
+        self.stage = ""
+        self.hedge_off = False
+        self.home_after = False
 
     def start_from(self, q: np.ndarray, t: float) -> None:
         """Begin at the measured joints ``q`` (6,) at rest. Away from home: return there first

@@ -469,6 +469,7 @@ class Daemon:
             "node": ex.node,
             "value": value,
             "decision_ms": round(self.decision_ms, 3),
+            "stage": {"stage": ex.stage, "hedge_end": ex.hedge_end, "hedges": ex.hedges},
             "detections": self.intake.as_dict(),
             "cameras": {} if ex.check is None else ex.check.as_dict(),
             **({} if self.view is None else {"view": self.view.as_dict()}),

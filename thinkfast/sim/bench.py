@@ -8,6 +8,7 @@ processes, chunks of throws or machines (``thinkfast/sim/cluster.py``) with iden
 
 from __future__ import annotations
 
+import math
 import multiprocessing as mp
 from collections.abc import Callable
 from typing import Any
@@ -157,6 +158,11 @@ def _rates(rows: list[Outcome], feasible: np.ndarray | None) -> dict:
         "starts_before_release": int(np.sum(starts < 0.0)),  # moved with the ball in the hand
         "start_median_s": float(np.median(moved)) if len(moved) else float("nan"),
     }
+    if any(o.hedges for o in rows):  # the hedge stage ran (control/hedge.py): both starts
+        commit = np.array([o.commit_start for o in rows])
+        commit = commit[np.isfinite(commit)]
+        entry["commit_start_median_s"] = float(np.median(commit)) if len(commit) else math.nan
+        entry["hedged"] = int(sum(o.hedges > 0 for o in rows))
     if feasible is not None:
         nf, kf = int(feasible.sum()), int((blocked & feasible).sum())
         entry["feasible"] = nf
@@ -174,7 +180,9 @@ def _kind_entry(rows: list[Outcome], feasible: np.ndarray | None) -> dict:
         return _rates(rows, feasible)
     disp = np.array([o.displacement for o in rows])
     back = np.array([o.home_after for o in rows])
+    hedged = {"hedged": int(sum(o.hedges > 0 for o in rows))} if any(o.hedges for o in rows) else {}
     return {
+        **hedged,
         "feints": len(rows),
         "starts": int(sum(o.moved for o in rows)),
         "starts_before_release": int(sum(o.moved for o in rows)),
@@ -202,6 +210,8 @@ def format_summary(summary: dict) -> str:
         extra = (
             f"  false starts {e['false_starts']}, median start {1e3 * e['start_median_s']:.0f} ms"
         )
+        if "commit_start_median_s" in e:
+            extra += f" (committed {1e3 * e['commit_start_median_s']:.0f} ms, {e['hedged']} hedged)"
         feas = f"{100 * e['rate_of_feasible']:.1f} %" if "rate_of_feasible" in e else "-"
         lines.append(
             f"{p:<{w}} {e['blocked']:>8} {100 * e['rate']:>6.1f}% "

@@ -15,6 +15,7 @@ from thinkfast.sim.irc5_cli import controller as controller_cmd
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
 PLANNERS = ("tree", "tree-rest", "naive", "naive-paper", "oracle", "oracle_seen")
+PLANNERS += ("tree-hedge-none", "tree-hedge-mean", "tree-hedge-tree")  # lockstep.HEDGED
 ONLINE = ("tree", "tree-rest", "naive", "naive-paper")  # the ones the daemon runs
 
 

@@ -31,6 +31,7 @@ import numpy as np
 from thinkfast.control.config import RunConfig
 from thinkfast.control.core import ControlCore
 from thinkfast.control.executor import Executor
+from thinkfast.control.hedge import HEDGE_MODES
 from thinkfast.control.intake import Intake
 from thinkfast.control.safety import SafetySupervisor, robot_limits
 from thinkfast.control.segments import WristTracker
@@ -68,6 +69,22 @@ class Outcome(NamedTuple):
     home_again: bool = False  # feint: home again within FEINT_WINDOW of the ball stopping
     intervened: int = 0  # ticks on which the safety supervisor changed the plan's setpoint
     faults: int = 0  # deviation (or planner) faults: the supervisor braked and the arm recovered
+    commit_start: float = math.nan  # when the confirmed throw's plan took over, after release [s]
+    hedges: int = 0  # hedges begun (the hedge stage, control/hedge.py)
+
+
+HEDGED = {f"tree-hedge-{m}": m for m in HEDGE_MODES}
+"""Bench names of the tree planner with its ``[hedge] mode`` set (paired comparisons)."""
+
+
+def executor_for(world: World, planner: str) -> Executor:
+    """The executor of ``planner``: one of the executor's planners, or one of :data:`HEDGED`
+    (the tree planner with that hedge mode)."""
+    cfg = world.cfg
+    if planner in HEDGED:
+        cfg = dataclasses.replace(cfg, hedge=dataclasses.replace(cfg.hedge, mode=HEDGED[planner]))
+        planner = "tree"
+    return Executor(world.tree, world.robot, cfg, planner)
 
 
 class World:
@@ -132,7 +149,7 @@ def simulate(
         step_fn = _stay(robot.home) if feint else _oracle(world, throw, cross, t_go)
         ex = None
     else:
-        ex = Executor(world.tree, robot, cfg, planner)
+        ex = executor_for(world, planner)
         intake = Intake(cfg.camera, cfg.detections, cfg.cameras)
         core = ControlCore(ex, sup, cfg.safety, intake=intake)
     k_det, t = 0, 0.0
@@ -160,12 +177,16 @@ def simulate(
     hist = sim.history()
     decisions = 0 if ex is None else ex.episode.decisions + ex.episodes
     guard = (sup.intervened, 0 if ex is None else core.fault_count)
+    stage = (math.nan, 0)
+    if ex is not None:
+        ep = ex.last_episode if math.isnan(ex.episode.t_start) and ex.last_episode else ex.episode
+        stage = (ep.t_start - t_rel, ex.hedges)
     if feint:
         f = judge_feint(hist.t, hist.q, world.kin, robot.home, t_rel, FEINT_WINDOW)
         return Outcome(
             throw.id, planner, False, "feint", math.nan, float(throw.flight_time), math.nan,
             math.nan, decisions, moved, t_move, "feint", f.displacement, f.home_after,
-            f.home_again, *guard,
+            f.home_again, *guard, *stage,
         )  # fmt: skip
     v = judge(throw, hist.t, hist.q, world.kin, throw.plane_x, BALL_RADIUS, t_release_wall=t_rel)
     return Outcome(
@@ -183,6 +204,8 @@ def simulate(
         throw.kind,
         intervened=guard[0],
         faults=guard[1],
+        commit_start=stage[0],
+        hedges=stage[1],
     )
 
 

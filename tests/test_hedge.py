@@ -1,0 +1,138 @@
+"""The hedge stage, clock-free: the executor driven by scripted detections and 4 ms setpoint
+ticks (tests/test_executor_modes.py's driver), and feints flown in lockstep.
+
+Claims: before the launch is confirmed the shield stays within ``[hedge] bound`` of home; a
+hedge the launch detector never confirms ends and the arm is home again; at the hand-over to the
+commit stage the commanded joints are continuous in position, velocity and acceleration;
+feints leave the shield within the bound and home again within 2 s."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from tests.test_executor_modes import CFG, DT, HELD, RELEASE, THROW, Run, feed
+from thinkfast.control.executor import EXECUTING, IDLE, Executor
+from thinkfast.control.hedge import COMMIT
+from thinkfast.decide.tree_view import runtime_tree
+from thinkfast.robot.shield_path import ShieldSampler
+from thinkfast.tree.file import load_tree
+
+
+def _cfg(mode: str, **launch) -> object:
+    cfg = dataclasses.replace(CFG, hedge=dataclasses.replace(CFG.hedge, mode=mode))
+    if launch:  # a launch gate that never confirms: the throw gate needs 100 m/s
+        cfg = dataclasses.replace(
+            cfg,
+            launch=dataclasses.replace(cfg.launch, **launch),
+            throw=dataclasses.replace(cfg.throw, min_approach_speed=100.0),
+        )
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def rtree(small_tree_015, robot):
+    return runtime_tree(load_tree(small_tree_015), robot, CFG)
+
+
+class Trace:
+    """Every tick's commanded joint 1-3 state (p, v, a) and shield displacement from home."""
+
+    def __init__(self, ex: Executor, robot):
+        self.ex, self.sampler = ex, ShieldSampler(robot)
+        self.home = self.sampler.centres(np.asarray(robot.home[:3], dtype=float))
+        self.t, self.states, self.stages = [], [], []
+
+    def run(self, ball, until: float, seed: int = 7) -> Run:
+        run = Run(self.ex, seed)
+        while run.t < until - 1e-9:
+            feed(ball, run.t + DT)(run)
+            self.t.append(run.t)
+            self.states.append(self.ex.segment.state(run.t).copy())
+            self.stages.append(self.ex.stage)
+        return run
+
+    def displacement(self) -> np.ndarray:
+        q = np.array(self.states)[:, :3]
+        return np.linalg.norm(self.sampler.centres(q) - self.home, axis=-1)
+
+
+@pytest.mark.parametrize("mode", ["mean", "tree"])
+def test_an_unconfirmed_hedge_stays_within_the_bound_and_ends_at_home(mode, rtree, robot):
+    cfg = _cfg(mode, min_speed=100.0)
+    ex = Executor(rtree, robot, cfg, "tree")
+    trace = Trace(ex, robot)
+    trace.run(THROW, RELEASE + 1.8)  # the ball reaches the plane at 1.7 s; 0.8 s to come home
+    disp = trace.displacement()
+    assert math.isnan(ex.episode.t_confirmed)
+    assert ex.hedges >= 1 and ex.hedge_end in ("timeout", "no_launch", "silence")
+    if mode == "mean":  # the throw aims away from home: the mean-goal hedge leaves
+        assert disp.max() > 0.02
+    assert disp.max() <= cfg.hedge.bound + 1e-9
+    assert ex.mode == IDLE and np.allclose(trace.states[-1][:3], robot.home[:3], atol=1e-6)
+    assert np.allclose(trace.states[-1][3:], 0.0, atol=1e-9)  # at rest (Ruckig: within 1e-8)
+
+
+def test_the_commit_takes_over_from_the_hedge_without_a_jump(rtree, robot):
+    cfg = _cfg("mean")
+    ex = Executor(rtree, robot, cfg, "tree")
+    trace = Trace(ex, robot)
+    trace.run(THROW, RELEASE + 0.4)
+    ep = ex.episode
+    assert ep.t_hedge < ep.t_confirmed  # the hedge began before the confirmation
+    assert ex.stage == COMMIT and ex.hedge_end == "confirmed" and ex.mode == EXECUTING
+    s = np.array(trace.states)
+    t = np.array(trace.t)
+    before = trace.displacement()[t < ep.t_confirmed]
+    assert before.max() > 0.0 and before.max() <= cfg.hedge.bound + 1e-9
+    # every tick, hand-over included: no step larger than the limits allow over one tick
+    step = np.abs(np.diff(s, axis=0))
+    lim = np.r_[robot.v_max[:3], robot.a_max[:3], robot.j_max[:3]] * DT * 1.01 + 1e-9
+    assert np.all(step <= lim), np.argwhere(step > lim)[:5]
+    k = int(np.searchsorted(t, ep.t_confirmed))
+    assert np.any(s[k - 1, 3:6] != 0.0)  # it was moving when the commit took over
+
+
+def test_a_held_ball_never_starts_a_hedge(rtree, robot):
+    ex = Executor(rtree, robot, _cfg("mean"), "tree")
+    trace = Trace(ex, robot)
+    trace.run(HELD, 3.0)
+    assert ex.hedges == 0 and trace.displacement().max() == 0.0
+
+
+def test_no_hedge_mode_is_todays_executor(rtree, robot):
+    """``mode = none`` commands the same setpoints as an executor that knows no hedge."""
+    a = Trace(Executor(rtree, robot, CFG, "tree"), robot)
+    a.run(THROW, RELEASE + 0.5)
+    b = Trace(Executor(rtree, robot, _cfg("mean"), "tree"), robot)
+    b.ex.hedger = None  # the executor as it was: no hedge stage at all
+    b.run(THROW, RELEASE + 0.5)
+    assert a.ex.hedger is None
+    np.testing.assert_array_equal(np.array(a.states), np.array(b.states))
+
+
+@pytest.fixture(scope="module")
+def world(small_tree_015, robot):
+    from thinkfast.sim.camera import CameraModelConfig
+    from thinkfast.sim.controller import ServoConfig
+    from thinkfast.sim.lockstep import World
+
+    return World(load_tree(small_tree_015), robot, CFG, ServoConfig(), CameraModelConfig())
+
+
+def test_feints_keep_the_shield_within_the_bound_and_come_home(world):
+    from thinkfast.sim.lockstep import simulate
+    from thinkfast.sim.throws import ThrowConfig, sample_throws
+
+    feints = sample_throws(ThrowConfig(), 0, 3, 8)  # 8 feints of seed 3
+    hedged = 0
+    for k, throw in enumerate(feints):
+        out = simulate(world, throw, "tree-hedge-mean", seed=k)
+        assert out.kind == "feint"
+        assert out.displacement <= CFG.hedge.bound, out  # the arm's, measured
+        assert out.home_again, out
+        hedged += out.hedges > 0
+    assert hedged >= 1  # the forward swings do start hedges: the bound is what was tested
