@@ -143,6 +143,10 @@ def dds_type_name(msgtype: str) -> str:
 
 def type_hash(msgtype: str) -> str:
     """REP-2016 type hash ``RIHS01_<64 hex>`` of ``msgtype`` (from its type description)."""
+    if msgtype.startswith("vision_msgs/"):  # not in Jazzy's store: registered on first use
+        from thinkfast.contract.ros_vision import vision_typestore
+
+        return vision_typestore().hash_rihs01(msgtype)
     return typestore().hash_rihs01(msgtype)
 
 
