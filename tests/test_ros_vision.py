@@ -72,9 +72,10 @@ def test_key_expression_and_type_hash_of_detection3darray():
 @pytest.mark.realtime
 def test_the_daemon_takes_detection3darray_like_json(small_tree_015, robot, tmp_path):
     run = DaemonRun(small_tree_015, tmp_path / "r.h5", q0=robot.home, extra=("--ros-domain", "0"))
-    node = ros.RosNode(run.session, 0, "test_detector")
-    pub = node.publisher(detections_3d_topic("thinkfast"), DETECTION_3D_ARRAY)
-    try:
+    node = None
+    try:  # the daemon is stopped whatever fails (a leaked one talks to every later test)
+        node = ros.RosNode(run.session, 0, "test_detector")
+        pub = node.publisher(detections_3d_topic("thinkfast"), DETECTION_3D_ARRAY)
         time.sleep(0.5)
         for _ in range(20):  # a ball held still in base, then an empty array
             pub.put(array_cdr(time.time(), "base", [((5.0, 0.1, 1.2), 0.8)]))
@@ -86,7 +87,8 @@ def test_the_daemon_takes_detection3darray_like_json(small_tree_015, robot, tmp_
         time.sleep(0.3)
         st = run.status[-1]
     finally:
-        node.close()
+        if node is not None:
+            node.close()
         run.stop()
     assert st["ros"]["received"] == 21 and st["ros"]["empty"] == 1, json.dumps(st["ros"])
     assert st["detections"]["accepted"] == 20, json.dumps(st["detections"])
