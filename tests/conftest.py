@@ -143,3 +143,13 @@ def compile_small_tree(directory: Path, **kwargs) -> Path:
             os.replace(part, cached)
     shutil.copyfile(cached, path)
     return path
+
+
+@pytest.fixture(autouse=True)
+def _no_daemon_outlives_its_test():
+    """Stop any real daemon a test started and did not stop (tests/daemon_harness.py)."""
+    yield
+    for name in ("tests.daemon_harness", "daemon_harness"):  # imported either way by tests
+        harness = sys.modules.get(name)
+        for run in list(harness.DaemonRun.live) if harness is not None else ():
+            run.stop(timeout=5.0)

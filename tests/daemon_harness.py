@@ -37,7 +37,12 @@ def zenoh_session(connect: str) -> zenoh.Session:
 
 
 class DaemonRun:
-    """A daemon process with a simulated controller and a zenoh peer connected to it."""
+    """A daemon process with a simulated controller and a zenoh peer connected to it.
+
+    Every run not stopped by its test is stopped after the test (conftest.py): a daemon left
+    running would answer later tests' zenoh traffic and keep pytest from exiting."""
+
+    live: set = set()  # runs not yet stopped
 
     def __init__(
         self,
@@ -55,6 +60,8 @@ class DaemonRun:
         self.proc = start_daemon(
             tree, planner, self.egm_port, self.zport, prefix, record, None, tuple(extra)
         )
+        DaemonRun.live.add(self)
+        self.runner = None
         self.session = None
         self.status: list[dict] = []
         self.setpoints: list[dict] = []
@@ -101,16 +108,19 @@ class DaemonRun:
 
     def stop(self, timeout: float = 15.0) -> tuple[int, str]:
         """SIGINT the daemon (the controller keeps talking while it brakes), then stop all."""
+        DaemonRun.live.discard(self)
         self.proc.send_signal(signal.SIGINT)
         try:
             code = self.proc.wait(timeout)
         except subprocess.TimeoutExpired:
             self.proc.kill()
             code = -9
-        self.runner.stop()
-        self.runner.join(2.0)
+        if self.runner is not None:
+            self.runner.stop()
+            self.runner.join(2.0)
         err = daemon_log(self.proc)
-        self.session.close()
+        if self.session is not None:
+            self.session.close()
         return code, err
 
     def egm_rows(self) -> np.ndarray:
