@@ -105,7 +105,7 @@ def test_a_held_ball_never_starts_a_hedge(rtree, robot):
 
 def test_no_hedge_mode_is_todays_executor(rtree, robot):
     """``mode = none`` commands the same setpoints as an executor that knows no hedge."""
-    a = Trace(Executor(rtree, robot, CFG, "tree"), robot)
+    a = Trace(Executor(rtree, robot, _cfg("none"), "tree"), robot)
     a.run(THROW, RELEASE + 0.5)
     b = Trace(Executor(rtree, robot, _cfg("mean"), "tree"), robot)
     b.ex.hedger = None  # the executor as it was: no hedge stage at all
