@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 CONFIG ?= trees/irb1600_default.toml
 TREE   ?= trees/irb1600_default.h5
 
-.PHONY: install test demo lint bench clean
+.PHONY: install test test-quarantine demo lint bench clean
 
 $(TREE): $(STAMP) $(CONFIG)
 	$(VENV)/bin/thinkfast-compile tree $(CONFIG) -o $(TREE) --if-changed
@@ -26,8 +26,11 @@ install: $(STAMP)
 JOBS ?= auto
 
 test: $(STAMP)
-	$(PY) -m pytest -q -m "not realtime" -n $(JOBS) --dist loadscope --durations=10
-	$(PY) -m pytest -q -m realtime -p no:xdist --durations=10
+	$(PY) -m pytest -q -m "not realtime and not quarantine" -n $(JOBS) --dist loadscope --durations=10
+	$(PY) -m pytest -q -m "realtime and not quarantine" -p no:xdist --durations=10
+
+test-quarantine: $(STAMP)
+	$(PY) -m pytest -q -m quarantine -p no:xdist
 
 THROWS ?= 5
 

@@ -325,6 +325,7 @@ def test_serve_thread_replies_as_packets_arrive_and_stops_on_event(client):
     assert len(rtts) == 200 and min(rtts) > 0.0  # latency figures: bench/egm_latency.py
 
 
+@pytest.mark.quarantine  # failed once in a clean-clone run: docs/BENCHMARKS.md, The test suite
 @pytest.mark.realtime
 def test_a_request_that_arrived_before_the_last_reply_left_marks_that_reply_late(client):
     """The controller sends its next request as its next cycle begins: one that was already in
