@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import fcntl
+import functools
 import hashlib
 import os
 import shutil
@@ -98,9 +99,11 @@ def small_tree_config(
     return path
 
 
+@functools.cache
 def _compiler_sources_digest() -> str:
     """SHA-256 over everything a compiled tree depends on: the compiler's, robot's and tree
-    file's sources and the robot description (so a cached tree is never stale)."""
+    file's sources and the robot description (so a cached tree is never stale). Read once per
+    test process: the sources do not change while the tests run."""
     h = hashlib.sha256()
     roots = [ROOT / "thinkfast" / d for d in ("compile", "robot", "tree")]
     files = [f for r in roots for f in sorted(r.rglob("*.py"))]
