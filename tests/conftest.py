@@ -148,11 +148,21 @@ def compile_small_tree(directory: Path, **kwargs) -> Path:
     return path
 
 
-@pytest.fixture(autouse=True)
-def _no_daemon_outlives_its_test():
-    """Stop any real daemon a test started and did not stop (tests/daemon_harness.py)."""
-    yield
+def _live_daemons() -> list:
+    """The real daemons started through tests/daemon_harness.py and not stopped yet."""
+    runs = []
     for name in ("tests.daemon_harness", "daemon_harness"):  # imported either way by tests
         harness = sys.modules.get(name)
-        for run in list(harness.DaemonRun.live) if harness is not None else ():
+        runs += list(harness.DaemonRun.live) if harness is not None else []
+    return runs
+
+
+@pytest.fixture(autouse=True)
+def _no_daemon_outlives_its_test():
+    """Stop any real daemon a test started and did not stop (tests/daemon_harness.py). Daemons
+    of wider-scoped fixtures (set up before this one) are theirs to stop."""
+    before = {id(run) for run in _live_daemons()}
+    yield
+    for run in _live_daemons():
+        if id(run) not in before:
             run.stop(timeout=5.0)

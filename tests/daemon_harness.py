@@ -72,7 +72,7 @@ class DaemonRun:
             keys.detections(prefix), congestion_control=zenoh.CongestionControl.BLOCK
         )
 
-    def _wait_ready(self, timeout: float = 30.0) -> None:
+    def _wait_ready(self, timeout: float = 90.0) -> None:
         deadline = time.time() + timeout
         while time.time() < deadline:
             if self.proc.poll() is not None:

@@ -70,8 +70,10 @@ def test_a_throw_aimed_at_a_goal_is_blocked(tree_file, tmp_path, robot, kin, pla
     throw = make_throw(ThrowConfig(drag_coefficient=0.0), np.array(release), aim, flight, 0.0)
     verdict = judge(throw, rows[:, 0], rows[:, 2:8], kin, 0.8, 0.0335, t_release_wall=t_release)
     assert verdict.blocked, f"{planner}: {verdict}"
-    dist, pose = shield_distance_at_crossing(rows, kin, t_release + flight, aim)
-    assert dist < BLOCK_RADIUS and abs(pose.centre[0] - 0.8) < 0.06  # on the plane, in front
+    # the shield covers the aim point as the ball crosses (where the shield's centre is along
+    # x then depends on how late the host let the daemon answer: the judge above decides)
+    dist, _ = shield_distance_at_crossing(rows, kin, t_release + flight, aim)
+    assert dist < BLOCK_RADIUS
     assert max(s["throws"] for s in run.status) == 1
     _check_limits(rows, robot)
     assert np.allclose(rows[-1, 8:14], robot.home, atol=2e-3)  # back home

