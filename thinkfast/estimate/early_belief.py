@@ -30,14 +30,13 @@ or more does not. This is the hedge stage's trigger; the launch detector still c
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from typing import NamedTuple
 
 import numpy as np
-from scipy.stats import chi2
 
 from thinkfast.config import spec
+from thinkfast.estimate.chi2 import chi2_limit
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,11 +92,6 @@ class EarlyFit(NamedTuple):
     chi2: float
     n: int
     hold: np.ndarray
-
-
-@functools.lru_cache(maxsize=16)
-def _chi2_limit(alpha: float, dof: int) -> float:
-    return float(chi2.isf(alpha, dof))
 
 
 def velocity_prior(
@@ -198,4 +192,4 @@ def likely_launch(fit: EarlyFit | None, cfg: EarlyConfig) -> bool:
     prior's speeds (chi-square of the 3 n residuals and the 3 prior terms, 6 fitted)."""
     if fit is None or fit.n < cfg.trigger_points:
         return False
-    return fit.chi2 <= _chi2_limit(cfg.alpha, max(3 * fit.n - 3, 1))
+    return fit.chi2 <= chi2_limit(cfg.alpha, max(3 * fit.n - 3, 1))

@@ -35,11 +35,11 @@ import math
 from collections import deque
 
 import numpy as np
-from scipy.stats import chi2
 
 from thinkfast.config import spec
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.estimate import filter as kf
+from thinkfast.estimate.chi2 import chi2_limit
 from thinkfast.estimate.motion import process_noise, transition
 
 DEFAULT_CAMERA = "base"  # id of the run config's [camera] (a detection without ``camera``)
@@ -185,7 +185,7 @@ class CameraCheck:
         self.ref_clean = 0  # consecutive reference updates with every axis an inlier
         self.ref_last = -math.inf  # stamp of the newest reference detection
         self.cameras: dict[str, CameraState] = {}
-        self.limit = float(chi2.isf(cfg.check_alpha, 3))
+        self.limit = chi2_limit(cfg.check_alpha, 3)
 
     def state(self, camera: str) -> CameraState:
         """The record of ``camera`` (created on first use)."""

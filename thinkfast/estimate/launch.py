@@ -47,9 +47,9 @@ from collections import deque
 from typing import NamedTuple
 
 import numpy as np
-from scipy.stats import chi2
 
 from thinkfast.config import spec
+from thinkfast.estimate.chi2 import chi2_limit
 from thinkfast.estimate.filter import FilterConfig, stereo_r
 
 
@@ -127,11 +127,6 @@ HOLD_POINTS = 10  # detections kept before the window to locate the hold
 
 def _stamp(point: tuple) -> float:
     return point[0]
-
-
-@functools.lru_cache(maxsize=16)
-def _chi2_limit(alpha: float, dof: int) -> float:
-    return float(chi2.isf(alpha, dof))
 
 
 def fit_free_flight(
@@ -287,7 +282,7 @@ class LaunchDetector:
         cfg = self.cfg
         masks, dropped = _subsets(len(pts), cfg.max_drop)
         x, cov, c2 = fit_free_flight(times, pts, covs, self.fcfg.gravity, masks)
-        k = int(np.argmin(c2 + _chi2_limit(cfg.alpha, 3) * dropped))
+        k = int(np.argmin(c2 + chi2_limit(cfg.alpha, 3) * dropped))
         n = int(len(pts) - dropped[k])
         newest = bool(masks[k, -1])
         return FlightFit(float(times[-1]), x[k], cov[k], float(c2[k]), pts[-1].copy(), n, newest)
@@ -304,7 +299,7 @@ class LaunchDetector:
         return bool(hold[0] - fit.z[0] > self.cfg.sigmas * sd_x)
 
     def _consistent(self, fit: FlightFit) -> bool:
-        return fit.chi2 <= _chi2_limit(self.cfg.alpha, 3 * fit.n - 6)
+        return fit.chi2 <= chi2_limit(self.cfg.alpha, 3 * fit.n - 6)
 
     def _approaching(self, fit: FlightFit) -> bool:
         speed_lo = -fit.mean[3] - self.cfg.sigmas * float(np.sqrt(fit.cov[3, 3]))
