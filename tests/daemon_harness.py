@@ -19,7 +19,7 @@ import zenoh
 
 from thinkfast.contract import keys
 from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
-from thinkfast.sim.realtime import daemon_log, start_daemon
+from thinkfast.sim.realtime import daemon_log, start_daemon, wait_port
 
 
 def free_port(kind=socket.SOCK_DGRAM) -> int:
@@ -74,6 +74,9 @@ class DaemonRun:
 
     def _wait_ready(self, timeout: float = 90.0) -> None:
         deadline = time.time() + timeout
+        # open the session once the daemon listens: zenoh retries a refused connect after 1, 2
+        # then 4 s, which made every start take about 7 s
+        wait_port(self.proc, self.zport, timeout)
         while time.time() < deadline:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"daemon exited: {daemon_log(self.proc)}")
