@@ -67,8 +67,11 @@ class WriterPipe:
         except OSError:
             pass
         if not self.last.get("ready"):
+            late = self.proc.poll() is None  # still starting: killed here, not by itself
             self.kill()
-            why = self.last.get("error") or self.death(f"writer not ready within {timeout:g} s")
+            why = self.last.get("error") or (
+                f"writer not ready within {timeout:g} s" if late else self.death("writer exited")
+            )
             raise RecorderError(f"{path}: cannot record here: {why}")
 
     def send(self, frames: list[tuple[bytes, memoryview]]) -> int:

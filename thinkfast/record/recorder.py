@@ -37,7 +37,9 @@ SERVICE_PERIOD = 0.1  # s: service() ships batches this often
 MAX_AGE = 1.0  # s: a row method ships batches this old itself
 RETRY = 0.1  # s before trying the pipe again after it was full (rows meanwhile dropped)
 PIPE_BYTES = 1 << 20  # asked pipe capacity (Linux F_SETPIPE_SZ; 64 KiB if refused)
-START_TIMEOUT, CLOSE_TIMEOUT = 10.0, 1.5  # s
+# s: a writer process not ready after START_TIMEOUT fails the start (a loaded host may take
+# seconds to start a Python process); one not done CLOSE_TIMEOUT after close is killed
+START_TIMEOUT, CLOSE_TIMEOUT = 60.0, 1.5
 
 
 class Recorder(RowMethods):
