@@ -124,17 +124,18 @@ KINDS = ("static", "sweep_slow", "sweep_fast", "arrive_before", "arrive_after", 
 
 
 @pytest.mark.parametrize("kind", KINDS)
-def test_block_probability_matches_a_million_sample_monte_carlo_within_0005(kind, robot):
+def test_block_probability_matches_a_monte_carlo_of_the_model_within_0005(kind, robot):
     """Four seeded cases per kind; the Monte Carlo samples the same geometric model directly
-    (exact meeting time, no quadrature, no tables); its own sd is at most 5e-4. Most cases are
-    uncertain (neither 0 nor 1), so the comparison means something."""
+    (exact meeting time, no quadrature, no tables), 250,000 samples: its sd is at most 1e-3.
+    Most cases are uncertain (neither 0 nor 1), so the comparison means something."""
     rng = np.random.default_rng(zlib.crc32(kind.encode()))
+    mc = np.random.default_rng(zlib.crc32(kind.encode()) + 1)  # the cases do not hang on it
     uncertain = 0
     for _ in range(4):
         times, c, mean, cov, approach, t_start, geom = case(kind, rng, robot)
         paths = shield_paths(times, c, geom)
         got = block_probability(paths, mean, cov, geom, approach, t_start)[0]
-        ref = model_block(times, c, mean, cov, geom, approach, t_start, 1_000_000, rng)
+        ref = model_block(times, c, mean, cov, geom, approach, t_start, 250_000, mc)
         assert abs(got - ref) <= 0.005, (kind, got, ref)
         uncertain += 0.02 < ref < 0.98
     assert uncertain >= 2
