@@ -120,7 +120,13 @@ TREE_CACHE = Path(tempfile.gettempdir()) / "tftest-trees"
 
 
 def compile_small_tree(directory: Path, **kwargs) -> Path:
-    """Compile :func:`small_tree_config` into ``directory/small_tree.h5``; returns its path.
+    """Compile :func:`small_tree_config` into ``directory/small_tree.h5``; returns its path
+    (through :func:`compile_cached`)."""
+    return compile_cached(small_tree_config(directory, **kwargs), directory / "small_tree.h5")
+
+
+def compile_cached(config: Path, path: Path) -> Path:
+    """Compile the tree of the compile config file ``config`` into ``path``; returns ``path``.
 
     The same config always gives the same tree, so each one is compiled once per machine and
     source state: test processes (parallel workers, the real-time step) share a cache keyed by
@@ -131,13 +137,10 @@ def compile_small_tree(directory: Path, **kwargs) -> Path:
     from thinkfast.compile.config import load_compile_config
     from thinkfast.tree.file import save_tree
 
-    config = small_tree_config(directory, **kwargs)
-    key = hashlib.sha256((config.read_text() + _compiler_sources_digest()).encode()).hexdigest()[
-        :24
-    ]
+    key = hashlib.sha256((config.read_text() + _compiler_sources_digest()).encode()).hexdigest()
+    key = key[:24]
     TREE_CACHE.mkdir(exist_ok=True)
     cached = TREE_CACHE / f"{key}.h5"
-    path = directory / "small_tree.h5"
     with open(TREE_CACHE / f"{key}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not cached.exists():

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import ROOT, assert_one_line_error, run_cli, small_tree_config
+from tests.conftest import ROOT, assert_one_line_error, compile_cached, run_cli, small_tree_config
 
 pytest.importorskip("distributed")
 
@@ -71,18 +71,17 @@ def sweep_dir(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def reference(sweep_dir):
-    """Serial runs: every point's tree compiled with the compiler in this process and benched
-    by run_bench with one process, summarized as ``thinkfast-sim bench`` does; per point index:
-    (tree fingerprint, summary JSON without seconds)."""
-    from thinkfast.compile.build import compile_tree
-    from thinkfast.compile.config import load_compile_config
+    """Serial runs: every point's tree compiled with the compiler in a test process (once per
+    source state: the tests' tree cache) and benched by run_bench with one process, summarized
+    as ``thinkfast-sim bench`` does; per point index: (tree fingerprint, summary JSON without
+    seconds)."""
     from thinkfast.robot.model import load_robot
     from thinkfast.sim.bench import run_bench, summarize
     from thinkfast.sim.camera import CameraModelConfig
     from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.lockstep import World
     from thinkfast.sim.sweep import compile_text, load_sweep
-    from thinkfast.tree.file import load_tree, save_tree, tree_fingerprint
+    from thinkfast.tree.file import load_tree, tree_fingerprint
 
     spec = load_sweep(sweep_dir / "sweep.toml")
     d = sweep_dir / "serial"
@@ -92,9 +91,7 @@ def reference(sweep_dir):
         if p.tree_key not in trees:
             cfg = d / f"{p.tree_key[:8]}.toml"
             cfg.write_text(compile_text(p.compile_config, spec.robot_path))
-            path = d / f"{p.tree_key[:8]}.h5"
-            save_tree(compile_tree(load_compile_config(cfg), jobs=1), path)
-            trees[p.tree_key] = path
+            trees[p.tree_key] = compile_cached(cfg, d / f"{p.tree_key[:8]}.h5")
         tree = load_tree(trees[p.tree_key])
         world = World(tree, load_robot(), p.run_config, ServoConfig(), CameraModelConfig())
         rows = run_bench(lambda w=world: w, spec.throws, PLANNERS, SEED, jobs=1)
