@@ -61,7 +61,8 @@ from pathlib import Path
 
 import numpy as np
 
-from thinkfast.control.safety import SafetyConfig, SafetySupervisor, make_limits
+from thinkfast.control.safety import SafetyConfig, SafetySupervisor
+from thinkfast.control.safety_limits import make_limits
 from thinkfast.daemon.egm_server import EgmServer, parse_hostport
 from thinkfast.daemon.rt_thread import pin_thread
 from thinkfast.errors import ThinkfastError
