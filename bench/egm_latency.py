@@ -66,7 +66,8 @@ from thinkfast.control.safety_limits import make_limits
 from thinkfast.daemon.egm_server import EgmServer, parse_hostport
 from thinkfast.daemon.rt_thread import pin_thread
 from thinkfast.errors import ThinkfastError
-from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
+from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller_runner import ControllerRunner
 
 DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"
 

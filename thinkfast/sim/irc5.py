@@ -17,7 +17,8 @@ import time
 
 import numpy as np
 
-from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
+from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.rws_server import FakeRwsController, ProgramTiming
 
 log = logging.getLogger("thinkfast.sim.irc5")
