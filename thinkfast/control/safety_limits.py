@@ -180,8 +180,8 @@ class TickConstants(NamedTuple):
 
 
 def any_true(mask: np.ndarray) -> bool:
-    """``mask.any()`` without its Python-level overhead (see docs/BENCHMARKS.md, "Safety
-    supervisor: per-tick kernels")."""
+    """``mask.any()`` without its Python-level overhead (docs/BENCHMARKS.md, "Kernel figures the
+    code refers to")."""
     return _count_nonzero(mask) > 0
 
 
