@@ -18,7 +18,8 @@ import time
 
 from thinkfast.daemon.egm_server import SO_TIMESTAMPNS, arrival_age
 
-log = logging.getLogger(__name__)
+# the simulated controller's logger, as before the split (the CLIs quiet its overrun chatter)
+log = logging.getLogger("thinkfast.sim.controller")
 
 
 @dataclasses.dataclass
