@@ -34,7 +34,7 @@ def assert_admissible(q, qd, q_prev, qd_prev, dt=DT):
     assert (q >= LIM.q_min).all() and (q <= LIM.q_max).all()
     assert (np.abs(qd) <= LIM.v_max * (1 + TOL)).all()
     assert (np.abs(qd - qd_prev) / dt <= LIM.a_max * (1 + TOL)).all()
-    stop = qd * qd / (2 * LIM.a_max) + 0.5 * np.abs(qd) * dt  # braking distance, see safety.py
+    stop = qd * qd / (2 * LIM.a_max) + 0.5 * np.abs(qd) * dt  # braking distance (safety_limits.py)
     assert (q + np.where(qd > 0, stop, 0) <= LIM.q_max + 1e-12).all()
     assert (q - np.where(qd < 0, stop, 0) >= LIM.q_min - 1e-12).all()
 
