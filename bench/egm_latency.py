@@ -61,11 +61,13 @@ from pathlib import Path
 
 import numpy as np
 
-from thinkfast.control.safety import SafetyConfig, SafetySupervisor, make_limits
+from thinkfast.control.safety import SafetyConfig, SafetySupervisor
+from thinkfast.control.safety_limits import make_limits
 from thinkfast.daemon.egm_server import EgmServer, parse_hostport
 from thinkfast.daemon.rt_thread import pin_thread
 from thinkfast.errors import ThinkfastError
-from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
+from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller_runner import ControllerRunner
 
 DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"
 

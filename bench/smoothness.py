@@ -26,7 +26,8 @@ from thinkfast.machine import machine_info
 from thinkfast.robot.model import default_robot_path, load_robot
 from thinkfast.sim import realtime as rt
 from thinkfast.sim.camera import CameraModelConfig, observe
-from thinkfast.sim.controller import ControllerRunner, ServoConfig
+from thinkfast.sim.controller import ServoConfig
+from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.publisher import publish_detections
 from thinkfast.sim.throws import ThrowConfig, sample_throws
 

@@ -50,7 +50,8 @@ def _figures(x: np.ndarray, unit: float = 1e-3) -> dict:
 
 def controller_send_gap(n: int) -> dict:
     """A spinning simulated controller against a sensor process: send-gap error [ms]."""
-    from thinkfast.sim.controller import ControllerRunner, SimController
+    from thinkfast.sim.controller import SimController
+    from thinkfast.sim.controller_runner import ControllerRunner
 
     proc = subprocess.Popen(
         [sys.executable, str(HERE / "egm_latency.py"), "--serve", "127.0.0.1:0"],

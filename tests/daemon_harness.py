@@ -18,7 +18,8 @@ import numpy as np
 import zenoh
 
 from thinkfast.contract import keys
-from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
+from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.realtime import daemon_log, start_daemon, wait_port
 
 

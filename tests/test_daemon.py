@@ -239,7 +239,7 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
     supervisor's filter of it, once per cycle; the reply to that cycle's EgmRobot sends exactly
     that, without asking the executor again. A detection voids it."""
     from thinkfast.contract.egm import decode_sensor, encode_robot
-    from thinkfast.control.safety import filter_step
+    from thinkfast.control.safety_limits import filter_step
 
     d = _in_process_daemon(tree_file, robot)
     try:

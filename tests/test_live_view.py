@@ -14,14 +14,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import compile_small_tree
-from thinkfast.daemon.live_view import (
-    DEFAULT_CONNECT,
-    ENTITIES,
-    ViewSink,
-    ellipsoid,
-    matrix_quat,
-    parse_sink,
-)
+from thinkfast.daemon.live_view import DEFAULT_CONNECT, ViewSink, parse_sink
+from thinkfast.daemon.rerun_painter import ENTITIES
 from thinkfast.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,18 +40,6 @@ def test_the_rerun_option_names_a_sink(text, sink):
 def test_a_bad_rerun_option_is_one_error_naming_it(text):
     with pytest.raises(ConfigError, match="--rerun"):
         parse_sink(text)
-
-
-def test_the_ellipsoid_reproduces_the_covariance():
-    rng = np.random.default_rng(3)
-    a = rng.normal(size=(3, 3))
-    cov = a @ a.T + 0.01 * np.eye(3)
-    half, quat = ellipsoid(cov, sigmas=2.0)
-    from scipy.spatial.transform import Rotation
-
-    r = Rotation.from_quat(quat).as_matrix()
-    np.testing.assert_allclose(r @ np.diag((half / 2.0) ** 2) @ r.T, cov, atol=1e-12)
-    np.testing.assert_allclose(Rotation.from_quat(matrix_quat(r)).as_matrix(), r, atol=1e-12)
 
 
 def test_the_view_costs_nothing_when_off():
@@ -143,7 +125,8 @@ def test_a_view_step_runs_only_when_its_measured_cost_fits_the_time_left(tmp_pat
     from types import SimpleNamespace
 
     from thinkfast.control.config import RunConfig
-    from thinkfast.daemon.live_view import DaemonView, Painter, open_stream, parse_sink
+    from thinkfast.daemon.live_view import DaemonView, open_stream, parse_sink
+    from thinkfast.daemon.rerun_painter import Painter
     from thinkfast.robot.model import load_robot
 
     robot = load_robot()

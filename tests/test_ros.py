@@ -4,8 +4,6 @@ real daemon driven only by PointStamped detections."""
 
 from __future__ import annotations
 
-import json
-import struct
 import threading
 import time
 
@@ -14,7 +12,7 @@ import pytest
 
 pytest.importorskip("rosbags")
 
-from thinkfast.contract import ros  # noqa: E402
+from thinkfast.contract import ros, ros_diagnostics, ros_zenoh  # noqa: E402
 from thinkfast.contract.detection import Detection, Rejection, parse_detection  # noqa: E402
 from thinkfast.contract.zenoh_session import loopback_endpoint, open_peer  # noqa: E402
 
@@ -61,18 +59,6 @@ def test_key_expressions_follow_rmw_zenoh():
     assert ros.topics("cell/left").joint_states == "/cell/left/joint_states"
 
 
-def test_liveliness_tokens_follow_rmw_zenoh():
-    # rmw_zenoh's design document: the talker's publisher on chatter, and a node
-    tok = ros.entity_token(2, "8b20917502ee955ac4476e0266340d5c", 0, 10, "MP", "/", "talker",
-                           "/chatter", "std_msgs/msg/String")  # fmt: skip
-    assert tok == (
-        "@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
-        "std_msgs::msg::dds_::String_/" + HASHES[STRING] + "/::,10:,:,:,,"
-    )
-    node = ros.node_token(2, "aac3178e146ba6f1fc6e6a4085e77f21", 0, "/", "listener")
-    assert node == "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listener"
-
-
 @pytest.mark.parametrize("domain", [-1, 233, 1.5, True, "0"])
 def test_a_bad_domain_is_refused_naming_the_option(domain):
     with pytest.raises(ros.ConfigError, match="--ros-domain"):
@@ -98,18 +84,6 @@ def test_the_commands_refuse_bad_ros_options_in_one_line(prog, args, needle):
     from tests.conftest import assert_one_line_error, run_cli
 
     assert_one_line_error(run_cli(prog, *args, timeout=60), needle)
-
-
-# ----------------------------------------------------------------------------- attachment
-def test_attachment_is_rmw_zenohs_33_bytes():
-    gid = bytes(range(16))
-    data = ros.encode_attachment(5, 1_763_800_000_123_456_789, gid)
-    assert len(data) == 33
-    assert data == struct.pack("<qq", 5, 1_763_800_000_123_456_789) + b"\x10" + gid
-    assert ros.decode_attachment(data) == ros.Attachment(5, 1_763_800_000_123_456_789, gid)
-    for bad in (None, b"", data[:-1], data[:16] + b"\x0f" + gid):
-        with pytest.raises(ros.RosDecodeError):
-            ros.decode_attachment(bad)
 
 
 # ----------------------------------------------------------------------------- CDR round trips
@@ -142,20 +116,6 @@ def test_joint_state_round_trip_through_cdr():
     assert measured.velocity.size == 0 and np.array_equal(measured.position, q)
     with pytest.raises(ValueError):
         ros.encode_joint_state(1.0, q[:5])
-
-
-def test_diagnostics_round_trip_through_cdr():
-    status = {"stamp": 1763800000.5, "state": "idle", "throws": 3, "braking": False,
-              "detections": {"accepted": 10}, "egm_connected": True}  # fmt: skip
-    (d,) = ros.decode_diagnostics(ros.encode_diagnostics(status))
-    assert (d.level, d.name, d.message) == (ros.LEVEL_OK, "thinkfast: daemon", "idle")
-    assert d.values["state"] == "idle" and d.values["throws"] == "3"
-    assert json.loads(d.values["detections"]) == {"accepted": 10}
-    assert d.stamp == pytest.approx(1763800000.5)
-    fault = {**status, "state": "fault", "braking": True, "brake_reason": "tracking"}
-    assert ros.decode_diagnostics(ros.encode_diagnostics(fault))[0].level == ros.LEVEL_ERROR
-    lost = {**status, "egm_connected": False}
-    assert ros.decode_diagnostics(ros.encode_diagnostics(lost))[0].level == ros.LEVEL_WARN
 
 
 def test_undecodable_cdr_is_one_clear_error():
@@ -225,8 +185,8 @@ def _wait(cond, timeout=5.0):
          ros.encode_point_stamped(100.5, [1, 2, 3], "camera"),
          lambda b: ros.decode_point_stamped(b).frame_id == "camera"),
         ("/diagnostics", ros.DIAGNOSTIC_ARRAY, DIAGNOSTICS_KEY,
-         ros.encode_diagnostics({"stamp": 100.5, "state": "tracking"}),
-         lambda b: ros.decode_diagnostics(b)[0].message == "tracking"),
+         ros_diagnostics.encode_diagnostics({"stamp": 100.5, "state": "tracking"}),
+         lambda b: ros_diagnostics.decode_diagnostics(b)[0].message == "tracking"),
     ],
     ids=["JointState", "PointStamped", "DiagnosticArray"],
 )  # fmt: skip
@@ -236,14 +196,14 @@ def test_each_message_round_trips_through_zenoh_with_attachment(
 ):
     a, b = two_peers
     got, _sub = _collect(b, key)  # the documented key, written out: not derived by the code
-    node = ros.RosNode(a, 0, "test_node")
+    node = ros_zenoh.RosNode(a, 0, "test_node")
     pub = node.publisher(topic, msgtype)
     time.sleep(0.3)
     t0 = time.time_ns()
     for _ in range(3):
         pub.put(cdr)
     assert _wait(lambda: len(got) == 3), got
-    atts = [ros.decode_attachment(att) for _, _, att in got]
+    atts = [ros_zenoh.decode_attachment(att) for _, _, att in got]
     assert [x.seq for x in atts] == [1, 2, 3]
     assert all(abs(x.stamp_ns - t0) < 5e9 for x in atts)
     assert len({x.gid for x in atts}) == 1 and len(atts[0].gid) == 16
@@ -264,7 +224,7 @@ class _RosSender:
     PointStamped on the ROS detections key (with rmw_zenoh's attachment)."""
 
     def __init__(self, session):
-        self.node = ros.RosNode(session, 0, "test_thrower")
+        self.node = ros_zenoh.RosNode(session, 0, "test_thrower")
         self.pub = self.node.publisher("/thinkfast/detections", ros.POINT_STAMPED)
         self.sent = 0
 
@@ -331,12 +291,12 @@ def test_a_throw_of_point_stamped_detections_is_blocked_like_a_json_one(
     q_cmd = np.array([m.position for m in cmd])
     assert np.abs(q_cmd - robot.home).max() > 0.1  # it moved to block
     assert np.allclose(q_cmd[-1], robot.home, atol=2e-3)
-    seqs = [ros.decode_attachment(a).seq for _, _, a in commands]
+    seqs = [ros_zenoh.decode_attachment(a).seq for _, _, a in commands]
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # none lost on loopback
-    diags = [ros.decode_diagnostics(p)[0] for _, p, _ in diagnostics]
+    diags = [ros_diagnostics.decode_diagnostics(p)[0] for _, p, _ in diagnostics]
     assert len(diags) > 10 and {d.name for d in diags} == {"thinkfast: daemon"}
     assert any(d.values["state"] == "executing" for d in diags)
-    assert diags[-1].level == ros.LEVEL_STALE  # the exiting status
+    assert diags[-1].level == ros_diagnostics.LEVEL_STALE  # the exiting status
 
 
 @pytest.mark.realtime
@@ -378,4 +338,4 @@ def test_the_detector_publishes_each_detection_as_a_point_stamped_too():
     assert (p.frame_id, p.stamp) == (det.frame, det.stamp)
     assert np.allclose(p.position, det.position, atol=1e-12)
     assert np.allclose(p.position, c, atol=0.01)
-    assert ros.decode_attachment(pts[0][2]).seq == 1
+    assert ros_zenoh.decode_attachment(pts[0][2]).seq == 1

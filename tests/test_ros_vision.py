@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("rosbags")
 
 from tests.daemon_harness import DaemonRun  # noqa: E402
-from thinkfast.contract import ros  # noqa: E402
+from thinkfast.contract import ros, ros_zenoh  # noqa: E402
 from thinkfast.contract.detection import parse_detection  # noqa: E402
 from thinkfast.contract.ros_vision import (  # noqa: E402
     DETECTION_3D_ARRAY,
@@ -74,7 +74,7 @@ def test_the_daemon_takes_detection3darray_like_json(small_tree_015, robot, tmp_
     run = DaemonRun(small_tree_015, tmp_path / "r.h5", q0=robot.home, extra=("--ros-domain", "0"))
     node = None
     try:  # the daemon is stopped whatever fails (a leaked one talks to every later test)
-        node = ros.RosNode(run.session, 0, "test_detector")
+        node = ros_zenoh.RosNode(run.session, 0, "test_detector")
         pub = node.publisher(detections_3d_topic("thinkfast"), DETECTION_3D_ARRAY)
         time.sleep(0.5)
         for _ in range(20):  # a ball held still in base, then an empty array

@@ -64,7 +64,7 @@ def state(
     as_json: bool = typer.Option(False, "--json", help="print one JSON object"),
 ) -> None:
     """Motors, operation mode, RAPID execution, tasks, speed ratio and the kit's variables."""
-    from thinkfast.cell.client import format_state
+    from thinkfast.cell.state import format_state
 
     snapshot = _cell(url, user, password, task, timeout).read_state()
     if as_json:

@@ -9,13 +9,8 @@ without ROS installed on our side:
   ``0/thinkfast/joint_states/sensor_msgs::msg::dds_::JointState_/RIHS01_a13e...``;
 * **payload**: the message in CDR (XCDR1, little endian, with the 4-byte encapsulation header);
   written and read by ``rosbags`` (:func:`typestore`), never by hand;
-* **attachment** of every sample, 33 bytes in zenoh's own serialisation: sequence number (int64
-  little endian, 1 for a publisher's first sample), source timestamp (int64 little endian, ns
-  since the Unix epoch), and the publisher's 16-byte GID (one LEB128 length byte, 16, then the
-  bytes); :func:`encode_attachment`;
-* **liveliness tokens** ``@ros2_lv/...`` for the node and each publisher and subscription
-  (:class:`RosNode`), so that ``ros2 node list`` / ``ros2 topic list`` / ``ros2 topic echo``
-  find them.
+* the **attachment** of every sample and the **liveliness tokens** that announce the node and
+  its publishers and subscriptions: :mod:`thinkfast.contract.ros_zenoh`.
 
 The type hash is REP-2016's ``RIHS01_<sha256 of the type description>``, computed by rosbags
 from the message definitions of its ROS 2 Jazzy store (the tests pin the values, and the one of
@@ -34,13 +29,9 @@ this module raises a :class:`ConfigError` that says so.
 from __future__ import annotations
 
 import functools
-import hashlib
-import json
 import math
 import re
-import struct
-import time
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -57,11 +48,6 @@ DETECTION_FRAMES = ("camera", "base")  # header.frame_id of a detection
 NODE_RUN, NODE_DETECT = "thinkfast_run", "thinkfast_detect"
 
 MAX_DOMAIN = 232  # ROS_DOMAIN_ID: 0..232 is what every ROS 2 RMW accepts
-GID_SIZE = 16  # RMW_GID_STORAGE_SIZE
-ATTACHMENT_SIZE = 8 + 8 + 1 + GID_SIZE
-# QoS part of a liveliness token (rmw_zenoh's compact form): the defaults (reliable, volatile,
-# keep last) with depth 10, as rmw_zenoh writes it for a default profile of depth 10
-QOS_TOKEN = "::,10:,:,:,,"
 _NAME_TOKEN = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 
 
@@ -157,68 +143,6 @@ def topic_key(domain: int, topic: str, msgtype: str) -> str:
     return f"{check_domain(domain)}/{name}/{dds_type_name(msgtype)}/{type_hash(msgtype)}"
 
 
-def _mangle(name: str) -> str:
-    """A name inside a liveliness token: every ``/`` becomes ``%``."""
-    return name.replace("/", "%")
-
-
-def node_token(domain: int, zid: str, node_id: int, ns: str, node: str) -> str:
-    """Liveliness key of a node (entity kind ``NN``; enclave unset)."""
-    return f"@ros2_lv/{domain}/{zid}/{node_id}/{node_id}/NN/%/{_mangle(ns)}/{node}"
-
-
-def entity_token(
-    domain: int, zid: str, node_id: int, entity_id: int, kind: str, ns: str, node: str,
-    topic: str, msgtype: str,
-) -> str:  # fmt: skip
-    """Liveliness key of a publisher (``kind`` ``MP``) or subscription (``MS``) of ``topic``."""
-    return (
-        f"@ros2_lv/{domain}/{zid}/{node_id}/{entity_id}/{kind}/%/{_mangle(ns)}/{node}/"
-        f"{_mangle(topic)}/{dds_type_name(msgtype)}/{type_hash(msgtype)}/{QOS_TOKEN}"
-    )
-
-
-# ----------------------------------------------------------------------------- attachment
-class Attachment(NamedTuple):
-    """What rmw_zenoh attaches to a sample: ``seq`` (a publisher's counter, from 1), ``stamp_ns``
-    (source time [ns since the Unix epoch]) and the publisher's ``gid`` (16 bytes)."""
-
-    seq: int
-    stamp_ns: int
-    gid: bytes
-
-
-def encode_attachment(seq: int, stamp_ns: int, gid: bytes) -> bytes:
-    """The 33-byte attachment, written by zenoh's serialiser (``zenoh.ext.z_serialize``: two
-    int64 little endian, then the GID as a sequence: LEB128 length 16 and the bytes)."""
-    import zenoh.ext as zx
-
-    if len(gid) != GID_SIZE:
-        raise ValueError(f"a GID has {GID_SIZE} bytes, not {len(gid)}")
-    return zx.z_serialize((zx.Int64(seq), zx.Int64(stamp_ns), bytes(gid))).to_bytes()
-
-
-def decode_attachment(data: bytes | None) -> Attachment:
-    """Read an attachment written by :func:`encode_attachment` (or by rmw_zenoh).
-
-    Raises:
-        RosDecodeError: missing, or not 33 bytes of that layout.
-    """
-    if data is None:
-        raise RosDecodeError("the sample has no attachment (rmw_zenoh always sends one)")
-    data = bytes(data)
-    if len(data) != ATTACHMENT_SIZE or data[16] != GID_SIZE:
-        raise RosDecodeError(f"attachment of {len(data)} bytes is not rmw_zenoh's (33)")
-    seq, stamp_ns = struct.unpack_from("<qq", data)
-    return Attachment(seq, stamp_ns, data[17:])
-
-
-def publisher_gid(token: str) -> bytes:
-    """A stable 16-byte GID for the entity of liveliness key ``token`` (the first 16 bytes of its
-    SHA-256; rmw_zenoh takes an XXH3-128 of the same key, the value only has to be unique)."""
-    return hashlib.sha256(token.encode()).digest()[:GID_SIZE]
-
-
 # ----------------------------------------------------------------------------- CDR codec
 def ros_time(stamp: float):
     """``builtin_interfaces/msg/Time`` of ``stamp`` [s since the Unix epoch] (>= 0)."""
@@ -231,15 +155,18 @@ def ros_time(stamp: float):
     return typestore().types["builtin_interfaces/msg/Time"](sec=int(sec), nanosec=int(nanosec))
 
 
-def _seconds(t) -> float:
+def seconds(t) -> float:
+    """Seconds [s since the Unix epoch] of a ``builtin_interfaces/msg/Time``."""
     return t.sec + t.nanosec * 1e-9
 
 
-def _header(stamp: float, frame_id: str):
+def header(stamp: float, frame_id: str):
+    """``std_msgs/msg/Header`` at ``stamp`` [s since the Unix epoch] in ``frame_id``."""
     return typestore().types["std_msgs/msg/Header"](stamp=ros_time(stamp), frame_id=frame_id)
 
 
-def _decode(cdr: bytes, msgtype: str):
+def decode_cdr(cdr: bytes, msgtype: str):
+    """The rosbags message of type ``msgtype`` in ``cdr`` (raises :class:`RosDecodeError`)."""
     try:
         return typestore().deserialize_cdr(bytes(cdr), msgtype)
     except Exception as exc:  # rosbags raises several kinds on truncated or foreign bytes
@@ -252,7 +179,7 @@ def encode_point_stamped(stamp: float, position, frame_id: str) -> bytes:
     ts = typestore()
     x, y, z = (float(v) for v in position)
     point = ts.types["geometry_msgs/msg/Point"](x=x, y=y, z=z)
-    msg = ts.types[POINT_STAMPED](header=_header(stamp, frame_id), point=point)
+    msg = ts.types[POINT_STAMPED](header=header(stamp, frame_id), point=point)
     return bytes(ts.serialize_cdr(msg, POINT_STAMPED))
 
 
@@ -267,9 +194,9 @@ class StampedPoint(NamedTuple):
 
 def decode_point_stamped(cdr: bytes) -> StampedPoint:
     """Read a ``geometry_msgs/msg/PointStamped`` (raises :class:`RosDecodeError`)."""
-    m = _decode(cdr, POINT_STAMPED)
+    m = decode_cdr(cdr, POINT_STAMPED)
     pos = np.array([m.point.x, m.point.y, m.point.z], dtype=float)
-    return StampedPoint(_seconds(m.header.stamp), pos, m.header.frame_id)
+    return StampedPoint(seconds(m.header.stamp), pos, m.header.frame_id)
 
 
 def detection_from_point(cdr: bytes, seq: int | None = None) -> bytes:
@@ -312,7 +239,7 @@ def encode_joint_state(stamp: float, position, velocity=None, names=JOINT_NAMES)
     if len(pos) != len(names) or len(vel) not in (0, len(names)):
         raise ValueError(f"{len(names)} joints: got {len(pos)} positions, {len(vel)} velocities")
     msg = ts.types[JOINT_STATE](
-        header=_header(stamp, JOINT_FRAME),
+        header=header(stamp, JOINT_FRAME),
         name=list(names),
         position=pos,
         velocity=vel,
@@ -333,165 +260,11 @@ class JointStateMsg(NamedTuple):
 
 def decode_joint_state(cdr: bytes) -> JointStateMsg:
     """Read a ``sensor_msgs/msg/JointState`` (raises :class:`RosDecodeError`)."""
-    m = _decode(cdr, JOINT_STATE)
+    m = decode_cdr(cdr, JOINT_STATE)
     return JointStateMsg(
-        _seconds(m.header.stamp),
+        seconds(m.header.stamp),
         m.header.frame_id,
         tuple(m.name),
         np.asarray(m.position, dtype=float),
         np.asarray(m.velocity, dtype=float),
     )
-
-
-# DiagnosticStatus levels (diagnostic_msgs/msg/DiagnosticStatus: OK 0, WARN 1, ERROR 2, STALE 3)
-LEVEL_OK, LEVEL_WARN, LEVEL_ERROR, LEVEL_STALE = 0, 1, 2, 3
-DIAG_NAME = "thinkfast: daemon"
-DIAG_HARDWARE = "abb_irb1600"
-
-
-def status_level(status: dict) -> tuple[int, str]:
-    """Diagnostic level and message of a daemon status: ERROR in ``fault``, WARN while braking,
-    while the controller is not talking, or while it does not follow (standby); else OK. The
-    message is the state, and why when it is not OK."""
-    state = str(status.get("state"))
-    if status.get("exiting"):
-        return LEVEL_STALE, f"{state}: exiting"
-    if state == "fault":
-        return LEVEL_ERROR, f"fault: {status.get('brake_reason')}"
-    if status.get("braking"):
-        return LEVEL_WARN, f"{state}: braking ({status.get('brake_reason')})"
-    if not status.get("egm_connected", True):
-        return LEVEL_WARN, f"{state}: no EGM controller"
-    if (status.get("controller") or {}).get("standby"):
-        return LEVEL_WARN, f"{state}: controller standby (motors, EGM motion or RAPID stopped)"
-    return LEVEL_OK, state
-
-
-def _value_text(v: Any) -> str:
-    return v if isinstance(v, str) else json.dumps(v, separators=(",", ":"))
-
-
-def encode_diagnostics(status: dict) -> bytes:
-    """``diagnostic_msgs/msg/DiagnosticArray`` in CDR of one daemon status (stamp from
-    ``status['stamp']``): one DiagnosticStatus named ``thinkfast: daemon`` whose level and
-    message come from :func:`status_level` and whose values are the status's keys (strings as
-    they are, everything else as compact JSON)."""
-    ts = typestore()
-    T = ts.types
-    level, message = status_level(status)
-    values = [
-        T["diagnostic_msgs/msg/KeyValue"](key=str(k), value=_value_text(v))
-        for k, v in status.items()
-    ]
-    st = T["diagnostic_msgs/msg/DiagnosticStatus"](
-        level=level, name=DIAG_NAME, message=message, hardware_id=DIAG_HARDWARE, values=values
-    )
-    msg = T[DIAGNOSTIC_ARRAY](header=_header(float(status["stamp"]), ""), status=[st])
-    return bytes(ts.serialize_cdr(msg, DIAGNOSTIC_ARRAY))
-
-
-class DiagnosticMsg(NamedTuple):
-    """One decoded DiagnosticStatus of a DiagnosticArray (with the array's stamp [s])."""
-
-    stamp: float
-    level: int
-    name: str
-    message: str
-    hardware_id: str
-    values: dict[str, str]
-
-
-def decode_diagnostics(cdr: bytes) -> list[DiagnosticMsg]:
-    """Read a ``diagnostic_msgs/msg/DiagnosticArray`` (raises :class:`RosDecodeError`)."""
-    m = _decode(cdr, DIAGNOSTIC_ARRAY)
-    stamp = _seconds(m.header.stamp)
-    return [
-        DiagnosticMsg(
-            stamp, int(s.level), s.name, s.message, s.hardware_id,
-            {kv.key: kv.value for kv in s.values},
-        )
-        for s in m.status
-    ]  # fmt: skip
-
-
-# ----------------------------------------------------------------------------- zenoh entities
-class RosPublisher:
-    """A ROS 2 publisher on a zenoh session: rmw_zenoh's key, attachment and liveliness token.
-
-    Args:
-        session: an open zenoh session.
-        key: the topic's key expression (:func:`topic_key`).
-        token: the publisher's liveliness key (:func:`entity_token`).
-    """
-
-    def __init__(self, session, key: str, token: str):
-        self.key = key
-        self.pub = session.declare_publisher(key)
-        self.token = session.liveliness().declare_token(token)
-        self.gid = publisher_gid(token)
-        self.seq = 1
-
-    def put(self, cdr: bytes) -> None:
-        """Publish one CDR payload with the next sequence number and the time now."""
-        self.pub.put(cdr, attachment=encode_attachment(self.seq, time.time_ns(), self.gid))
-        self.seq += 1
-
-    def close(self) -> None:
-        for e in (self.token, self.pub):
-            try:
-                e.undeclare()
-            except Exception:  # already gone with the session
-                pass
-
-
-class RosNode:
-    """A ROS 2 node made of zenoh entities: its liveliness token, and publishers and
-    subscriptions declared with theirs (what ``ros2 node list`` / ``ros2 topic list`` read).
-
-    Args:
-        session: an open zenoh session (one node per session here).
-        domain: ROS domain id.
-        name: node name (``thinkfast_run``, ``thinkfast_detect``).
-        ns: node namespace (``/`` for none).
-    """
-
-    def __init__(self, session, domain: int, name: str, ns: str = "/"):
-        self.session, self.domain, self.name, self.ns = session, check_domain(domain), name, ns
-        self.zid = str(session.info.zid())
-        self.node_id = 0
-        self._next_id = 1
-        self.token = session.liveliness().declare_token(
-            node_token(self.domain, self.zid, self.node_id, ns, name)
-        )
-        self._entities: list = []
-
-    def _token(self, kind: str, topic: str, msgtype: str) -> str:
-        eid, self._next_id = self._next_id, self._next_id + 1
-        return entity_token(
-            self.domain, self.zid, self.node_id, eid, kind, self.ns, self.name, topic, msgtype
-        )
-
-    def publisher(self, topic: str, msgtype: str) -> RosPublisher:
-        """A publisher of ``msgtype`` on ``topic`` (fully qualified)."""
-        pub = RosPublisher(
-            self.session, topic_key(self.domain, topic, msgtype), self._token("MP", topic, msgtype)
-        )
-        self._entities.append(pub)
-        return pub
-
-    def subscriber(self, topic: str, msgtype: str, handler):
-        """A zenoh subscriber of ``msgtype`` on ``topic`` with ``handler`` (a callback or a
-        zenoh channel), announced as a ROS subscription."""
-        sub = self.session.declare_subscriber(topic_key(self.domain, topic, msgtype), handler)
-        token = self.session.liveliness().declare_token(self._token("MS", topic, msgtype))
-        self._entities += [sub, token]
-        return sub
-
-    def close(self) -> None:
-        """Undeclare every entity and the node's token (before the session closes)."""
-        for e in [*self._entities, self.token]:
-            try:
-                e.close() if isinstance(e, RosPublisher) else e.undeclare()
-            except Exception:
-                pass
-        self._entities.clear()

@@ -20,7 +20,7 @@ import functools
 import numpy as np
 
 from thinkfast.contract.detection import encode_detection
-from thinkfast.contract.ros import RosDecodeError, _seconds, namespace, typestore
+from thinkfast.contract.ros import RosDecodeError, namespace, seconds, typestore
 
 DETECTION_3D_ARRAY = "vision_msgs/msg/Detection3DArray"
 VISION_MSGS = {  # vision_msgs 4.1.1 (ROS 2 Jazzy), msg/*.msg without comments
@@ -74,7 +74,7 @@ def detection_from_array(cdr: bytes, seq: int | None = None) -> bytes | None:
     scores = [max((r.hypothesis.score for r in d.results), default=0.0) for d in msg.detections]
     best = msg.detections[int(np.argmax(scores))]
     score = max(scores)
-    stamp = _seconds(best.header.stamp) or _seconds(msg.header.stamp)
+    stamp = seconds(best.header.stamp) or seconds(msg.header.stamp)
     frame = best.header.frame_id or msg.header.frame_id
     p = best.bbox.center.position
     if seq is not None and not 0 <= seq < 2**63:

@@ -1,8 +1,9 @@
 """The hedge stage: a bounded start on the early belief, before the launch is confirmed.
 
 Two stages of commitment (issue 24). The executor's launch gate (``[launch]``) confirms a throw
-a median 80 ms after the first flight detection is delivered; until then nothing moved. With
-``[hedge] mode`` other than ``none``, the arm may start earlier:
+some frames after the first flight detection is delivered (docs/RESULTS.md, "Feints, held balls,
+starts before release"); until then nothing moved. With ``[hedge] mode`` other than ``none``,
+the arm may start earlier:
 
 - **hedge**: from the first detections that make a launch likely (the early belief,
   :mod:`thinkfast.estimate.early_belief`) the arm moves towards a target chosen under that wide

@@ -1,28 +1,11 @@
 """Safety supervisor: the last stage before the wire, independent of the planner.
 
-Every 4 ms tick it takes the planner's requested ``(q, qd)`` and the previous *commanded* state
-and returns a command that is guaranteed, whatever the request (NaN, inf, 1e300, jumps):
-
-* inside the position limits shrunk by a margin: ``q_min <= q <= q_max``;
-* ``|qd| <= v_max`` and ``|qd - qd_prev| <= a_max * dt``;
-* finite;
-* *recoverable*: from every commanded state, braking at ``a_max`` stops inside the limits.
-
-The last property is the invariant that makes the others provable. With trapezoidal integration
-``q' = q + (v + v') dt / 2`` and braking ``v' = v - sign(v) min(|v|, a dt)``, a state with
-``q + v^2 / (2a) + |v| dt / 2 <= q_max`` (for ``v > 0``; mirrored for the lower limit) keeps
-satisfying it after a braking tick, so the braking velocity is always admissible and the set of
-admissible next velocities is never empty. Requests that are admissible and consistent with the
-previous state (their position step matches some ``|acc| <= a_max`` motion) pass unchanged;
-anything else is replaced by the admissible velocity closest to one that tracks the request.
-
-Braking (on a stop signal, feedback deviation or a non-finite request)
-drives every joint's velocity to zero along the time-optimal jerk-limited stop from the commanded
-velocity and acceleration (:class:`JerkLimitedStop`, Ruckig's velocity interface), or, where
-Ruckig refuses the state, with ``|acc| <= a_max`` and the acceleration ramped at ``j_max`` (a
-sqrt law). Jerk is honoured unless the state
-when braking starts makes it impossible without reversing (then the velocity stops at zero), or
-a position limit demands a harder stop. Joints brake independently (each as fast as it may).
+Every tick (the EGM cycle, ``SafetyConfig.dt``) it takes the planner's requested ``(q, qd)`` and
+the previous *commanded* state and returns a command that is inside the position, velocity and
+acceleration limits, finite and recoverable (the admissibility kernels and their invariant:
+:mod:`thinkfast.control.safety_limits`). On a stop signal, a feedback deviation or a non-finite
+request it latches a brake and drives every joint to rest along a jerk-limited stop
+(:mod:`thinkfast.control.safety_brake`).
 """
 
 from __future__ import annotations
@@ -32,19 +15,23 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
 
 from thinkfast.config import spec
-from thinkfast.errors import ThinkfastError
+from thinkfast.control.safety_brake import JerkLimitedStop, brake_velocity
+from thinkfast.control.safety_limits import (
+    CLAMP_KINDS,
+    SafetyError,
+    SafetyLimits,
+    TickConstants,
+    any_true,
+    filter_tick,
+    finite_vector,
+    limit_step,
+)
+from thinkfast.control.safety_limits import robot_limits as robot_limits  # the daemon's import
 
-CLAMP_KINDS = ("nonfinite", "velocity", "acceleration", "position_step", "position_limit")
 BRAKE_REASONS = ("signal", "deviation", "nonfinite")
-REL_TOL = 1e-9  # a request exactly at a limit passes (a planner at the limit, rounded up)
 KINDS = CLAMP_KINDS + tuple(f"brake_{r}" for r in BRAKE_REASONS) + ("init_clamped", "resync")
-
-
-class SafetyError(ThinkfastError):
-    """Limits handed to the supervisor are unusable (shape, sign, margin larger than the range)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,253 +91,6 @@ class SafetyConfig:
     )
 
 
-class SafetyLimits(NamedTuple):
-    """Per-joint limits the supervisor enforces, each shape (n,), read-only.
-
-    Attributes:
-        q_min, q_max: position limits already shrunk by the margin [rad].
-        v_max: velocity limits [rad/s], > 0.
-        a_max: acceleration limits [rad/s^2], > 0.
-        j_max: jerk limits for braking [rad/s^3], > 0.
-    """
-
-    q_min: np.ndarray
-    q_max: np.ndarray
-    v_max: np.ndarray
-    a_max: np.ndarray
-    j_max: np.ndarray
-
-
-def make_limits(q_lower, q_upper, v_max, a_max, j_max, margin: float = 0.0) -> SafetyLimits:
-    """Validate and freeze limits; positions are shrunk by ``margin`` [rad] on both sides.
-
-    Raises:
-        SafetyError: shapes differ, a value is not finite, a v/a/j limit is not > 0, or the
-            margin leaves no room (``q_upper - q_lower <= 2 margin``).
-    """
-    arrs = [np.array(x, dtype=float).reshape(-1) for x in (q_lower, q_upper, v_max, a_max, j_max)]
-    names = ("q_lower", "q_upper", "v_max", "a_max", "j_max")
-    n = arrs[0].size
-    for name, a in zip(names, arrs, strict=True):
-        if a.size != n or not np.isfinite(a).all():
-            raise SafetyError(f"safety limits: {name} must hold {n} finite values, got {a}")
-    for name, a in zip(names[2:], arrs[2:], strict=True):
-        if (a <= 0).any():
-            raise SafetyError(f"safety limits: {name} must be > 0, got {a}")
-    lo, hi = arrs[0] + margin, arrs[1] - margin
-    if (hi <= lo).any():
-        raise SafetyError(
-            f"safety limits: margin {margin} rad leaves no range in {arrs[0]}..{arrs[1]}"
-        )
-    out = [lo, hi, *arrs[2:]]
-    for a in out:
-        a.setflags(write=False)
-    return SafetyLimits(*out)
-
-
-def robot_limits(robot, margin: float) -> SafetyLimits:
-    """:func:`make_limits` from a loaded robot's URDF and robot.toml limits."""
-    return make_limits(robot.q_lower, robot.q_upper, robot.v_max, robot.a_max, robot.j_max, margin)
-
-
-def _room_speed(r: np.ndarray, a: np.ndarray, dt: float) -> np.ndarray:
-    """Largest next speed towards a limit at distance ``r`` (after half a tick at the old speed)
-    that can still be braked at ``a`` without passing it."""
-    root = a * (np.sqrt(dt * dt + 2.0 * np.maximum(r, 0.0) / a) - dt)
-    return np.where(r >= 0.0, root, 2.0 * r / dt)
-
-
-def velocity_bounds(q_p, v_p, lim: SafetyLimits, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Admissible next velocities ``[lo, hi]`` from the commanded state ``(q_p, v_p)``.
-
-    Intersection of ``|v| <= v_max``, ``|v - v_p| <= a_max dt`` and the braking-room invariant.
-    Contains the braking velocity whenever ``(q_p, v_p)`` satisfies the invariant.
-    """
-    half = q_p + 0.5 * v_p * dt
-    hi = np.minimum(
-        np.minimum(lim.v_max, v_p + lim.a_max * dt), _room_speed(lim.q_max - half, lim.a_max, dt)
-    )
-    lo = np.maximum(
-        np.maximum(-lim.v_max, v_p - lim.a_max * dt), -_room_speed(half - lim.q_min, lim.a_max, dt)
-    )
-    return lo, hi
-
-
-def recoverable(q, v, lim: SafetyLimits, dt: float) -> np.ndarray:
-    """Per joint: inside the limits and able to brake at ``a_max`` without leaving them."""
-    return _recoverable(q, v, lim, _TickConstants.of(lim, dt))
-
-
-def _recoverable(q, v, lim: SafetyLimits, k: _TickConstants) -> np.ndarray:
-    end = q + v * (np.abs(v) / k.two_a + k.half_dt)  # where braking now would stop
-    return (np.minimum(q, end) >= lim.q_min) & (np.maximum(q, end) <= lim.q_max)
-
-
-def limit_step(q_p, v_p, v_des, lim: SafetyLimits, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """The admissible next state whose velocity is closest to ``v_des`` (finite, shape (n,)).
-
-    Returns:
-        ``(q, v)``: ``v`` clipped into :func:`velocity_bounds` (the braking velocity if rounding
-        empties them), ``q`` its trapezoidal integral.
-    """
-    lo, hi = velocity_bounds(q_p, v_p, lim, dt)
-    v_brake = v_p - np.sign(v_p) * np.minimum(np.abs(v_p), lim.a_max * dt)
-    v = np.where(lo <= hi, np.clip(v_des, lo, hi), v_brake)
-    v = np.clip(v, -lim.v_max, lim.v_max)
-    q = np.clip(q_p + 0.5 * (v_p + v) * dt, lim.q_min, lim.q_max)
-    return q, v
-
-
-def brake_velocity(v_p, a_p, lim: SafetyLimits, dt: float) -> np.ndarray:
-    """Next velocity of a jerk-limited stop from velocity ``v_p`` and acceleration ``a_p``.
-
-    Per joint, in the direction of motion ``u = |v|``: the deceleration ``b`` grows at jerk
-    ``j_max`` up to ``a_max`` as long as ramping it back to zero still ends at rest (about
-    ``b = sqrt(2 j u)``), then shrinks at ``j_max``; the velocity never changes sign.
-    """
-    s = np.sign(v_p)
-    j = lim.j_max
-    u, b = np.abs(v_p), np.clip(s * a_p, -lim.a_max, lim.a_max)
-    # Acceleration is constant over a tick (v' = v + b' dt). Strongest deceleration x = -b'
-    # such that ramping it back to zero in steps of j dt still removes no more than the speed
-    # left: u - x dt >= x^2 / (2 j) - x dt / 2 (root written without cancellation, so that
-    # tiny speeds still end at exactly zero).
-    x = 2.0 * u / (np.sqrt(0.25 * dt * dt + 2.0 * u / j) + 0.5 * dt)
-    b_new = np.clip(np.clip(-x, b - j * dt, b + j * dt), -lim.a_max, lim.a_max)
-    u_new = np.maximum(u + b_new * dt, 0.0)
-    return s * u_new
-
-
-class JerkLimitedStop:
-    """The time-optimal stop of every joint from velocity and acceleration (Ruckig's velocity
-    interface, joints independent), sampled tick by tick: the commanded velocity follows a
-    continuous jerk-limited profile, so braking honours j_max exactly (where the position
-    limits allow; :func:`limit_step` still guards them)."""
-
-    def __init__(self, traj: Trajectory, v0: np.ndarray):
-        self._traj, self._t = traj, 0.0
-        self._sign = np.sign(v0)  # a stop never reverses: a joint that reaches zero stays
-
-    @classmethod
-    def plan(cls, v0, a0, lim: SafetyLimits) -> JerkLimitedStop | None:
-        """The stop from ``v0`` [rad/s], ``a0`` [rad/s^2] (n,), or None when Ruckig refuses
-        (the supervisor then brakes with :func:`brake_velocity`)."""
-        n = lim.v_max.size
-        v0, a0 = np.asarray(v0, dtype=float), np.asarray(a0, dtype=float)
-        if not (np.isfinite(v0).all() and np.isfinite(a0).all()):
-            return None
-        inp = InputParameter(n)
-        inp.control_interface = ControlInterface.Velocity
-        inp.synchronization = Synchronization.No
-        inp.current_position = [0.0] * n
-        inp.current_velocity = v0.tolist()
-        a0 = np.clip(a0, -lim.a_max, lim.a_max)
-        # an acceleration that would carry the speed past v_max before it ramps down is the
-        # estimate's error, not the plan's: take the largest that just reaches v_max
-        room = np.maximum(lim.v_max - np.abs(v0), 0.0)
-        a_top = np.sqrt(2.0 * lim.j_max * room)
-        away = a0 * np.sign(v0) > a_top
-        a0 = np.where(away, np.sign(v0) * a_top, a0)
-        inp.current_acceleration = a0.tolist()
-        inp.target_velocity = [0.0] * n
-        inp.target_acceleration = [0.0] * n
-        inp.max_velocity = np.maximum(lim.v_max, np.abs(v0) * (1 + 1e-9)).tolist()
-        inp.max_acceleration = lim.a_max.tolist()
-        inp.max_jerk = lim.j_max.tolist()
-        traj = Trajectory(n)
-        try:
-            result = Ruckig(n).calculate(inp, traj)
-        except Exception:  # ruckig.RuckigError: a state it cannot plan from
-            return None
-        if result not in (Result.Working, Result.Finished) or not math.isfinite(traj.duration):
-            return None
-        return cls(traj, v0)
-
-    def next(self, h: float) -> np.ndarray:
-        """The stop's velocity [rad/s] (n,) ``h`` seconds after the previous call."""
-        self._t = min(self._t + h, self._traj.duration)
-        v = np.array(self._traj.at_time(self._t)[1])
-        v = np.where((v * self._sign > 0.0) & (np.abs(v) >= 1e-9), v, 0.0)
-        self._sign = np.where(v == 0.0, 0.0, self._sign)
-        return v
-
-
-class StepResult(NamedTuple):
-    """One filtered command: ``q`` [rad], ``qd`` [rad/s], shape (n,), and the kinds applied."""
-
-    q: np.ndarray
-    qd: np.ndarray
-    kinds: tuple[str, ...]
-
-
-def filter_step(q_p, v_p, q_req, v_req, lim: SafetyLimits, dt: float) -> StepResult:
-    """Make the requested next state admissible (pure; the non-braking path of the supervisor).
-
-    Args:
-        q_p, v_p: previous commanded state [rad], [rad/s], shape (n,), recoverable.
-        q_req, v_req: requested state, shape (n,), finite.
-        lim: limits. dt: tick [s].
-
-    Returns:
-        The request itself when admissible, else the closest admissible state; ``kinds`` lists
-        which checks the request failed (empty when it passed).
-    """
-    with np.errstate(over="ignore", invalid="ignore"):  # 1e300-sized requests: inf compares fine
-        return _filter_step(q_p, v_p, q_req, v_req, lim, dt, _TickConstants.of(lim, dt))
-
-
-class _TickConstants(NamedTuple):
-    """Products of the limits and the tick that every step uses (computed once, same floats)."""
-
-    a_dt: np.ndarray  # a_max dt (1 + REL_TOL): largest velocity change of a request per tick
-    v_tol: np.ndarray  # v_max (1 + REL_TOL): largest speed of a request
-    step_tol: np.ndarray  # largest position error of an admissible request
-    two_a: np.ndarray
-    half_dt: float
-
-    @classmethod
-    def of(cls, lim: SafetyLimits, dt: float) -> _TickConstants:
-        a_dt = lim.a_max * dt
-        return cls(
-            a_dt * (1.0 + REL_TOL),
-            lim.v_max * (1.0 + REL_TOL),
-            0.25 * a_dt * dt * (1.0 + REL_TOL),
-            2.0 * lim.a_max,
-            0.5 * dt,
-        )
-
-
-def _any(mask: np.ndarray) -> bool:
-    """``mask.any()`` without its Python-level overhead (a sixth of the time on 6 joints)."""
-    return _count_nonzero(mask) > 0
-
-
-_count_nonzero = np.count_nonzero
-
-
-def _filter_step(
-    q_p, v_p, q_req, v_req, lim: SafetyLimits, dt: float, k: _TickConstants
-) -> StepResult:
-    kinds = []
-    if _any(np.abs(v_req) > k.v_tol):
-        kinds.append("velocity")
-    if _any(np.abs(v_req - v_p) > k.a_dt):
-        kinds.append("acceleration")
-    err = q_req - (q_p + 0.5 * (v_p + v_req) * dt)
-    if _any(np.abs(err) > k.step_tol):
-        kinds.append("position_step")
-    if _any(~_recoverable(q_req, v_req, lim, k)):
-        kinds.append("position_limit")
-    if not kinds:
-        return StepResult(np.array(q_req, dtype=float), np.array(v_req, dtype=float), ())
-    # Track the request: its velocity plus a correction that closes the position error at a
-    # rate a_max/2 could stop (sqrt law), linear near zero so it settles without chatter.
-    err = np.clip(err, -1e3, 1e3)
-    fix = np.sign(err) * np.minimum(np.abs(err) / (4.0 * dt), np.sqrt(lim.a_max * np.abs(err)))
-    q, v = limit_step(q_p, v_p, np.clip(v_req, -lim.v_max, lim.v_max) + fix, lim, dt)
-    return StepResult(q, v, tuple(kinds))
-
-
 class SafeCommand(NamedTuple):
     """The supervisor's output for one tick.
 
@@ -408,7 +148,7 @@ class SafetySupervisor:
         self.ticks = 0  # ticks stepped
         self.state = 0  # counts changes of the commanded state (steps, resets): see Ahead
         self.intervened = 0  # ticks whose request was changed (clamped) or braked
-        self._k = _TickConstants.of(limits, config.dt)
+        self._k = TickConstants.of(limits, config.dt)
         self._window = max(1, math.ceil(config.tracking_lag / config.dt - 1e-9)) + 1
         self.reset(q0)
 
@@ -483,7 +223,7 @@ class SafetySupervisor:
         """Per joint [rad], how far ``q_meas`` lies outside the range commanded over the last
         ``tracking_lag``, less the overshoot a following servo may have at the speeds commanded
         then (``servo_time_constant`` times the largest); None when ``q_meas`` is unusable."""
-        q = _vector(q_meas, self.q.size)
+        q = finite_vector(q_meas, self.q.size)
         if q is None:
             return None
         recent = self._recent
@@ -500,11 +240,11 @@ class SafetySupervisor:
         previous command); otherwise it steps afresh.
         """
         n = self.q.size
-        q_r, v_r = _vector(q_req, n), _vector(qd_req, n)
+        q_r, v_r = finite_vector(q_req, n), finite_vector(qd_req, n)
         if q_r is None or v_r is None:
             return Ahead(q_req, qd_req, self.state, None)
         with np.errstate(over="ignore", invalid="ignore"):  # as in filter_step
-            res = _filter_step(self.q, self.qd, q_r, v_r, self.limits, self.config.dt, self._k)
+            res = filter_tick(self.q, self.qd, q_r, v_r, self.limits, self.config.dt, self._k)
         return Ahead(q_req, qd_req, self.state, res)
 
     def step_ahead(self, ahead: Ahead, q_meas=None, dt: float | None = None) -> SafeCommand:
@@ -537,9 +277,9 @@ class SafetySupervisor:
         kinds: tuple[str, ...] = ()
         self._check_feedback(q_meas)
         nominal = dt is None or dt == cfg.dt
-        k = self._k if nominal else _TickConstants.of(lim, dt)
+        k = self._k if nominal else TickConstants.of(lim, dt)
         h = cfg.dt if nominal else dt
-        q_r, v_r = _vector(q_req, n), _vector(qd_req, n)
+        q_r, v_r = finite_vector(q_req, n), finite_vector(qd_req, n)
         if not self.braking and (q_r is None or v_r is None):
             kinds = ("nonfinite",)
             self.request_brake("nonfinite")
@@ -554,14 +294,14 @@ class SafetySupervisor:
             v = np.where(np.abs(v) < 1e-9, 0.0, v)
         else:
             with np.errstate(over="ignore", invalid="ignore"):  # as in filter_step
-                q, v, kinds = _filter_step(self.q, self.qd, q_r, v_r, lim, h, k)
+                q, v, kinds = filter_tick(self.q, self.qd, q_r, v_r, lim, h, k)
         return self._commit(q, v, kinds, h)
 
     def _check_feedback(self, q_meas) -> None:
         """Brake on feedback outside the envelope of recent commands (None: no feedback)."""
         if q_meas is not None:
             dev = self.deviation(q_meas)
-            if dev is None or _any(dev > self.config.max_deviation):
+            if dev is None or any_true(dev > self.config.max_deviation):
                 self.request_brake("deviation")
 
     def _commit(
@@ -582,14 +322,3 @@ class SafetySupervisor:
         self._recent[self._head] = q
         self._recent_v[self._head] = v
         return SafeCommand(q, v, self.braking, self.braking and not v.any(), kinds)
-
-
-def _vector(x, n: int) -> np.ndarray | None:
-    """``x`` as a finite float array of shape (n,), or None (bad shape, type or value)."""
-    try:
-        a = np.array(x, dtype=float).reshape(-1)
-    except (TypeError, ValueError, OverflowError):
-        return None
-    if a.size != n or _count_nonzero(np.isfinite(a)) != n:
-        return None
-    return a

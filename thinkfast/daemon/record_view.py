@@ -1,7 +1,7 @@
 """A flight record in the Rerun viewer: the live view's entities, offline (docs/LIVE_VIEW.md).
 
 ``thinkfast-sim replay RECORD --rerun ...`` and ``thinkfast-sim record view``. What the record
-holds is drawn with the live view's :class:`~thinkfast.daemon.live_view.Painter` on the same
+holds is drawn with the live view's :class:`~thinkfast.daemon.rerun_painter.Painter` on the same
 ``time`` timeline (the record's Unix times): raw and accepted detections, beliefs and their
 plane crossings, decisions (mode, node, value, best goal; a record keeps no motion, so no
 shield path), the arm at the commanded and measured joints (EGM rows, at most ``joint_rate``
@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from thinkfast.daemon.live_view import Painter, ViewSink, open_stream
+from thinkfast.daemon.live_view import ViewSink, open_stream
+from thinkfast.daemon.rerun_painter import Painter
 from thinkfast.record.format import MODES, Record
 from thinkfast.record.tables import (
     columns,

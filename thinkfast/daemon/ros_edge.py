@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import zenoh
 
-from thinkfast.contract import ros, ros_vision
+from thinkfast.contract import ros, ros_diagnostics, ros_vision, ros_zenoh
 from thinkfast.contract.zenoh_session import drain_samples
 from thinkfast.daemon.zenoh_edge import QUEUE, ZenohIO
 
@@ -42,7 +42,7 @@ class RosIO(ZenohIO):
         self.topics = ros.topics(prefix)
         super().__init__(conf, prefix)
         self.domain = domain
-        self.node = ros.RosNode(self.session, domain, ros.NODE_RUN)
+        self.node = ros_zenoh.RosNode(self.session, domain, ros.NODE_RUN)
         self.sub_ros = self.node.subscriber(
             self.topics.detections, ros.POINT_STAMPED, zenoh.handlers.FifoChannel(QUEUE)
         )
@@ -80,7 +80,7 @@ class RosIO(ZenohIO):
         cdr = sample.payload.to_bytes()
         att = sample.attachment
         try:
-            seq = ros.decode_attachment(None if att is None else att.to_bytes()).seq
+            seq = ros_zenoh.decode_attachment(None if att is None else att.to_bytes()).seq
         except ros.RosDecodeError:
             seq = None  # the attachment only helps ordering; a detection does not need it
         try:
@@ -101,7 +101,7 @@ class RosIO(ZenohIO):
     def publish_status(self, status: dict) -> None:
         status = {**status, "ros": self.as_dict()}
         super().publish_status(status)
-        self.pub_diagnostics.put(ros.encode_diagnostics(status))
+        self.pub_diagnostics.put(ros_diagnostics.encode_diagnostics(status))
 
     def as_dict(self) -> dict:
         """ROS counters for the status."""

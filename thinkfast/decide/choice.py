@@ -131,7 +131,8 @@ class Chooser:
         self.steer = steer
         self.cfg = cfg
         self.quadrature = quadrature
-        iso_disk.warm_up()  # its table (~0.1 s) now, not in the first decision (26 EGM cycles)
+        iso_disk.warm_up()  # its table now, not in the first decision (docs/BENCHMARKS.md,
+        # "Path values: moving shields": many EGM cycles)
 
     # ------------------------------------------------------------------ candidates
     def candidate_goals(self, mean_yz: np.ndarray, cov_yz: np.ndarray) -> np.ndarray:

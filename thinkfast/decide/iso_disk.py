@@ -6,7 +6,8 @@ For ``X ~ N(0, sigma^2 I_2)``, a disk of radius ``rho`` and an offset ``d`` of i
 
 (Marcum Q; the non-central chi-square CDF with 2 degrees of freedom, ``scipy.special.chndtr``).
 It depends on ``b = rho / sigma`` and the distance from the rim in sigmas, ``xi = (d - rho) /
-sigma``. One table of ``F(xi; b)`` is built once per process (about 0.1 s, cached):
+sigma``. One table of ``F(xi; b)`` is built once per process and cached (its cost:
+docs/BENCHMARKS.md, "Path values: moving shields"):
 
 - columns: ``xi`` in [-8, 8] every 0.025 (beyond, F is 1 or 0 within 1e-15 for b >= 8; for
   smaller b, ``xi >= -b`` always);
@@ -55,7 +56,7 @@ def _tables() -> tuple[np.ndarray, np.ndarray]:
 
 
 def warm_up() -> None:
-    """Build the cached table now (about 0.1 s) rather than at the first use."""
+    """Build the cached table now rather than at the first use (a decision's worth of time)."""
     _tables()
 
 

@@ -48,14 +48,14 @@ inside every disk are 0 or 1 without a lookup; paths whose bounding box stays ou
 
 Accuracy (tests/test_path_value.py): 40 seeded cases (static, sweeping at 0.5 and 3 m/s, arriving
 just before and after, narrow and wide tau, off the plane through the touch depth, Ruckig moves
-through the FK, a delta-method belief) against a 10^6-sample Monte Carlo of this model: bound
-0.005, worst 0.0010 measured; shields at rest within 5e-4 of the disk masses of :mod:`values`;
-a shield appearing at its goal at t within 0.005 of today's terminal value for arrival t; the
-judge's sphere-cylinder geometry within its sampling noise. Converged to 0.0016 (worst over
-154 sets of real tree edges and synthetic paths). Node counts are capped (``max_time_nodes``,
+through the FK, a delta-method belief) against a 10^6-sample Monte Carlo of this model within
+0.005; shields at rest within 5e-4 of the disk masses of :mod:`values`; a shield appearing at its
+goal at t within 0.005 of today's terminal value for arrival t; the judge's sphere-cylinder
+geometry within its sampling noise. Node counts are capped (``max_time_nodes``,
 ``max_lateral_nodes``): full accuracy while ``sigma_tau (v_shield + |k|) <= 16 sigma_a`` and
-``sigma_e <= 5 sigma_a``; beyond, coarser and bounded in time. Filter beliefs of simulated throws
-reach about 11 and 2. Speed: bench/path_value.py.
+``sigma_e <= 5 sigma_a``; beyond, coarser and bounded in time. The errors measured, and how far
+the beliefs of simulated throws reach into those caps: docs/BENCHMARKS.md, "Path values: moving
+shields". Speed: bench/path_value.py.
 """
 
 from __future__ import annotations

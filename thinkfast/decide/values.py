@@ -32,12 +32,10 @@ formula). Time profile: the cell model and the grid interpolation, ~1e-3. The wo
 thin, strongly tau-correlated belief (|rho| > 0.99) with a disk tip in its core: ``F_g`` then has
 a kink (slope jump ``a_g(u_tip) / beta``) between grid points, and linear interpolation errs by up
 to a quarter of that jump times the step, bounded by ``2.5 / ((K - 3) sqrt(2 pi)) = 0.016`` for
-``k_time = 5`` and observed up to 0.007. Measured: against a 10^6-sample Monte Carlo on the
-test set of ``tests/test_values.py`` (strong Y-tau and Z-tau correlation, 5 mm and 0.5 m beliefs,
-mean on a shield edge, a delta-method belief) the worst error is 0.0025; against a converged
-reference (K = 1024, 300 nodes) on 300 random beliefs (sigma 3 mm - 0.6 m, correlations up to
-0.9999, a third centred on a shield edge) the median is 0.0013, 99 % are within 0.005, the worst
-0.0068. ``time_points = 96`` brings the worst to 0.005 for about 40 us more per update.
+``k_time = 5``. ``tests/test_values.py`` holds every value within 0.005 of a 10^6-sample Monte
+Carlo on its test set (strong Y-tau and Z-tau correlation, 5 mm and 0.5 m beliefs, mean on a
+shield edge, a delta-method belief). The errors measured against a converged reference, and what
+a finer time grid costs: docs/BENCHMARKS.md, "Kernel figures the code refers to".
 """
 
 from __future__ import annotations

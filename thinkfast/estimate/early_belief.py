@@ -1,9 +1,10 @@
 """The early, wide belief: where a ball that has just left the hold will cross the plane.
 
 The launch detector (:mod:`thinkfast.estimate.launch`) declares a launch only once two windows
-of at least four detections fit a free flight, a median 80 ms after the first flight detection
-is delivered. Before that, the first one to three detections that left the hold already say a
-little: where the ball is, roughly how fast it moves laterally. Alone they say almost nothing
+of at least four detections fit a free flight, some frames after the first flight detection is
+delivered (docs/RESULTS.md, "Feints, held balls, starts before release"). Before that, the first
+one to three detections that left the hold already say a little: where the ball is, roughly how
+fast it moves laterally. Alone they say almost nothing
 about the approach speed (the stereo depth noise at 6-8 m is 8-19 cm per frame, the ball moves
 17-35 cm per frame), so they are combined with a **prior over the throws the cell expects**
 (``[early]``): the ball crosses the plane inside the goal grid's box widened by

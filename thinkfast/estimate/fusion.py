@@ -17,7 +17,7 @@ noise model and ``check_floor``). It is tested only while the reference filter i
 last ``check_settle`` updates all inliers) and its ball slower than ``check_speed``: the ball in
 the hand, or a slow wind-up. At a release the reference filter lags the ball for a few frames
 while still calling them inliers, and a good camera would look wrong (found on simulated
-wind-ups: a good side camera refused in 2 of 16 throws when tested in flight too). A camera is
+wind-ups: docs/RESULTS.md, "Two cameras (issue 16)", "The camera check in flight"). A camera is
 fused once ``trust_after`` of its detections passed; it is inconsistent while ``check_fail`` of
 its last ``check_window`` tests failed, and every detection of it is then counted
 ``inconsistent_camera`` and dropped (it is still tested: a camera whose detections agree again
@@ -123,10 +123,9 @@ class FusionConfig:
         lo=4,
         hi=12,
         doc="TUNED: detections per launch fit (for [launch] window) when several cameras are "
-        "fused; chosen on 1000 throws + 100 feints with the side camera (seed 1): 6 moved the "
-        "arm for 1 feint, 8 for none, 12 blocked 1.8 points fewer; not confirmed on seeds 2-3: "
-        "8 blocked 2.2 points fewer than 6 on 1000 paired throws, moved for no fewer feints "
-        "(docs/RESULTS.md)",
+        "fused; chosen on the seed-1 throws with the side camera to stop one feint, not "
+        'confirmed on other seeds (docs/RESULTS.md, "Two cameras (issue 16)": the launch '
+        "window checked on other seeds)",
     )
     check_alpha: float = spec(
         0.001, lo=1e-9, hi=0.5, doc="false-failure rate of one consistency test (3 dof)"

@@ -90,7 +90,8 @@ def find_blobs(image: np.ndarray, cfg: ColourConfig) -> list[Blob]:
     """
     h, w = image.shape[:2]
     s = min(cfg.search_step, w, h)
-    if s > 1:  # nearest neighbour: every s-th pixel, like image[::s, ::s] but 5x faster
+    if s > 1:  # nearest neighbour: every s-th pixel, like image[::s, ::s] but faster
+        # (docs/BENCHMARKS.md, "Kernel figures the code refers to")
         image_s = cv2.resize(image, (w // s, h // s), interpolation=cv2.INTER_NEAREST)
     else:
         image_s = image

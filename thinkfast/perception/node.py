@@ -118,9 +118,9 @@ class DetectorNode:
         self.pub_status = self.session.declare_publisher(keys.detector_status(prefix))
         self.ros_node = self.ros_pub = None
         if ros_domain is not None:
-            from thinkfast.contract import ros
+            from thinkfast.contract import ros, ros_zenoh
 
-            self.ros_node = ros.RosNode(self.session, ros_domain, ros.NODE_DETECT)
+            self.ros_node = ros_zenoh.RosNode(self.session, ros_domain, ros.NODE_DETECT)
             self.ros_pub = self.ros_node.publisher(ros.topics(prefix).detections, ros.POINT_STAMPED)
         self.alone = warn_if_alone(
             self.session, f"{prefix}/detections (and no frames arrive)", ALONE_AFTER

@@ -1,8 +1,8 @@
 """Flight recorder: every detection (raw and accepted), belief, decision, EGM exchange and event.
 
 The daemon's real-time thread calls the row methods (:mod:`~thinkfast.record.rows`;
-:meth:`Recorder.egm` on every reply): each copies its row into a preallocated batch (2-4 us
-warm, no system call). Batches
+:meth:`Recorder.egm` on every reply): each copies its row into a preallocated batch (no system
+call; its cost: docs/BENCHMARKS.md, "Flight recorder"). Batches
 go as frames (:mod:`~thinkfast.record.wire`) through a non-blocking pipe to a writer
 process (:mod:`~thinkfast.record.writer`) that appends them to chunked HDF5 datasets and
 commits the file every half second: the file on disk is a complete record at any moment

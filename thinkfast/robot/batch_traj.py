@@ -1,7 +1,8 @@
 """Positions of many Ruckig trajectories at many times, in numpy, bit for bit ``at_time``.
 
-``Trajectory.at_time`` costs about 1 us per call from Python, and the compiler samples tens of
-thousands of primitives at hundreds of times each. A state-to-state trajectory is, per joint, an
+``Trajectory.at_time`` is one call from Python per sample (its cost: docs/BENCHMARKS.md, "Kernel
+figures the code refers to"), and the compiler samples tens of thousands of primitives at
+hundreds of times each. A state-to-state trajectory is, per joint, an
 optional two-phase brake followed by seven constant-jerk phases; this module reads those phases
 once per trajectory (``Trajectory.profiles``) and evaluates Ruckig's own formula,
 

@@ -142,8 +142,9 @@ class CoplanarWrist:
     def solve_one(self, q123, q_prev, normal=None) -> np.ndarray:
         """Wrist angles [rad] (3,) for one configuration of joints 1-3 [rad] (3,).
 
-        Bit for bit ``solve(q123[None], q_prev, normal)[0]``, on Python floats: a few
-        microseconds instead of the batch path's tens, for the 4 ms control loop. (Arms whose
+        Bit for bit ``solve(q123[None], q_prev, normal)[0]``, on Python floats: much cheaper
+        than the batch path for one configuration, for the 4 ms control loop
+        (docs/BENCHMARKS.md, "Kernel figures the code refers to"). (Arms whose
         joints 1-3 are not frame-axis rotations without origin rotations take the batch path.)
 
         Args:

@@ -4,7 +4,7 @@
 RWS side is :class:`~thinkfast.sim.rws_server.FakeRwsController` (motors, operating mode, the
 kit's RAPID program ``ThinkfastEGM.mod`` as a state machine, its persistent variables), the EGM
 side a :class:`~thinkfast.sim.controller.SimController` (servo model) run by a
-:class:`~thinkfast.sim.controller.ControllerRunner`. As on the real controller, ``EgmRobot``
+:class:`~thinkfast.sim.controller_runner.ControllerRunner`. As on the real controller, ``EgmRobot``
 packets flow only while the program is in an EGM session (``tf_status`` "session", started
 by ``thinkfast-cell start``), they report the motors and RAPID state RWS shows, and a session
 whose sensor stays silent for ``comm_timeout`` is lost (the program stops, "lost").
@@ -17,7 +17,8 @@ import time
 
 import numpy as np
 
-from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
+from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.rws_server import FakeRwsController, ProgramTiming
 
 log = logging.getLogger("thinkfast.sim.irc5")

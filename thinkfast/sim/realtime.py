@@ -27,7 +27,8 @@ from thinkfast.errors import ThinkfastError
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.sim.camera import CameraModelConfig, observe
-from thinkfast.sim.controller import ControllerRunner, ServoConfig, SimController
+from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.publisher import publish_detections
 from thinkfast.sim.throws import Throw, plane_crossing

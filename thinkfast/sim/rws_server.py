@@ -4,10 +4,11 @@
 For tests and rehearsals on loopback, without RobotStudio. It speaks what
 ``abb_robot_client.rws.RWS`` (0.4.0) sends and parses: HTTP/1.1 with digest authentication
 (RFC 7616, MD5, ``qop=auth``; the client answers the first 401 challenge and then sends its
-``Authorization`` header with every request), ``?json=1`` on every resource, answers as
-``application/json`` with the RWS 1.0 shape ``{"_embedded": {"_state": [...]}}``, actions as
-``POST ...?action=NAME`` with form data and ``204 No Content``, errors as ``400``/``403``/``404``
-with ``{"_embedded": {"status": {"code": N, "msg": "..."}}}``.
+``Authorization`` header with every request; :mod:`thinkfast.sim.rws_http`), ``?json=1`` on
+every resource, answers as ``application/json`` with the RWS 1.0 shape
+``{"_embedded": {"_state": [...]}}``, actions as ``POST ...?action=NAME`` with form data and
+``204 No Content``, errors as ``400``/``403``/``404`` with
+``{"_embedded": {"status": {"code": N, "msg": "..."}}}``.
 
 Resources: ``rw/panel/ctrlstate`` (GET; POST ``setctrlstate``), ``rw/panel/opmode``,
 ``rw/panel/speedratio``, ``rw/rapid/execution`` (GET; POST ``start``, ``stop``, ``resetpp``),
@@ -30,15 +31,12 @@ are the fake's, in the ``-1073...`` range only for their look), and XHTML answer
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
-import secrets
 import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from urllib.parse import parse_qs, urlsplit
+from http.server import ThreadingHTTPServer
 
-REALM = "validusers@robapi.abb"  # the realm RobotWare 6 announces (ASSUMED, from public traces)
+from thinkfast.sim.rws_http import DigestAuth, make_handler
+
 DEFAULT_USER = "Default User"
 DEFAULT_PASSWORD = "robotics"
 KIT_VARIABLES = ("tf_start_request", "tf_stop_request", "tf_status")
@@ -90,8 +88,7 @@ class FakeRwsController:
         host: str = "127.0.0.1",
         port: int = 0,
     ):
-        self.username = username
-        self.password = password
+        self.auth = DigestAuth(username, password)
         self.timing = timing or ProgramTiming()
         self.lock = threading.RLock()
         self.ctrlstate = "motoron"  # init motoroff motoron guardstop emergencystop ...
@@ -107,9 +104,8 @@ class FakeRwsController:
         self.pp_at_main = True  # program pointer at main (after load or resetpp)
         self.requests: list[tuple[str, str]] = []  # (method, path) of every authorised request
         self._until = 0.0  # end of the current timed phase (monotonic)
-        self._nonces: set[str] = set()
         self._stop = threading.Event()
-        self.server = ThreadingHTTPServer((host, port), _make_handler(self))
+        self.server = ThreadingHTTPServer((host, port), make_handler(self))
         self.server.daemon_threads = True
         self._threads = [
             threading.Thread(target=self.server.serve_forever, name="fake-rws", daemon=True),
@@ -297,62 +293,6 @@ class FakeRwsController:
             return 204, None
         return _error(400, ERR_NOT_FOUND, f"rw/rapid/execution?action={action}: not supported")
 
-    # ------------------------------------------------------------------ digest authentication
-    def challenge(self, stale: bool = False) -> str:
-        """A fresh ``WWW-Authenticate: Digest ...`` header value."""
-        nonce = secrets.token_hex(16)
-        with self.lock:
-            self._nonces.add(nonce)
-        extra = ", stale=true" if stale else ""
-        return f'Digest realm="{REALM}", nonce="{nonce}", qop="auth", algorithm=MD5{extra}'
-
-    def authorised(self, method: str, header: str | None) -> bool:
-        """True when ``header`` is a digest answer for our user, password and one of our nonces."""
-        if not header or not header.lower().startswith("digest "):
-            return False
-        fields = _digest_fields(header[7:])
-        with self.lock:
-            known = fields.get("nonce") in self._nonces
-        if not known or fields.get("username") != self.username or fields.get("realm") != REALM:
-            return False
-        ha1 = _md5(f"{self.username}:{REALM}:{self.password}")
-        ha2 = _md5(f"{method}:{fields.get('uri', '')}")
-        if fields.get("qop") == "auth":
-            parts = (ha1, fields["nonce"], fields.get("nc", ""), fields.get("cnonce", ""), "auth")
-            expected = _md5(":".join((*parts, ha2)))
-        else:
-            expected = _md5(f"{ha1}:{fields['nonce']}:{ha2}")
-        return secrets.compare_digest(expected, fields.get("response", ""))
-
-
-def _md5(text: str) -> str:
-    return hashlib.md5(text.encode()).hexdigest()
-
-
-def _digest_fields(text: str) -> dict[str, str]:
-    """``a="x, y", b=z`` -> {a: "x, y", b: "z"} (quoted values may hold commas)."""
-    out: dict[str, str] = {}
-    i, n = 0, len(text)
-    while i < n:
-        while i < n and text[i] in " ,":
-            i += 1
-        eq = text.find("=", i)
-        if eq < 0:
-            break
-        key = text[i:eq].strip().lower()
-        i = eq + 1
-        if i < n and text[i] == '"':
-            end = text.find('"', i + 1)
-            end = n if end < 0 else end
-            out[key] = text[i + 1 : end]
-            i = end + 1
-        else:
-            end = text.find(",", i)
-            end = n if end < 0 else end
-            out[key] = text[i:end].strip()
-            i = end
-    return out
-
 
 def _state(type_: str, title: str, **fields: str):
     return 200, {"_embedded": {"_state": [{"_type": type_, "_title": title, **fields}]}}
@@ -373,46 +313,3 @@ def _task_json(t: Task) -> dict[str, str]:
         "active": "On" if t.active else "Off",
         "motiontask": "TRUE" if t.motion else "FALSE",
     }
-
-
-def _make_handler(ctrl: FakeRwsController) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"  # keep-alive, as the client's requests.Session expects
-        disable_nagle_algorithm = True  # headers and body leave at once (no 40 ms ACK wait)
-
-        def log_message(self, fmt: str, *args) -> None:
-            pass
-
-        def do_GET(self) -> None:  # noqa: N802 (stdlib name)
-            self._serve("GET")
-
-        def do_POST(self) -> None:  # noqa: N802
-            self._serve("POST")
-
-        def _serve(self, method: str) -> None:
-            length = int(self.headers.get("Content-Length") or 0)
-            body = self.rfile.read(length).decode() if length else ""
-            if not ctrl.authorised(method, self.headers.get("Authorization")):
-                self._send(401, b"401 Unauthorized", "text/plain", ctrl.challenge())
-                return
-            parts = urlsplit(self.path)
-            query = {k: v[0] for k, v in parse_qs(parts.query).items()}
-            form = {k: v[0] for k, v in parse_qs(body).items()}
-            status, payload = ctrl.handle(method, parts.path.strip("/"), query, form)
-            if payload is None:
-                self._send(status, b"", None)
-            else:
-                self._send(status, json.dumps(payload).encode(), "application/json")
-
-        def _send(self, status: int, data: bytes, ctype: str | None, auth: str | None = None):
-            self.send_response(status)
-            if ctype is not None:
-                self.send_header("Content-Type", ctype)
-            if auth is not None:
-                self.send_header("WWW-Authenticate", auth)
-            self.send_header("Content-Length", str(len(data)))
-            self.end_headers()
-            if data:
-                self.wfile.write(data)
-
-    return Handler

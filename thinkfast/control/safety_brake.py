@@ -1,0 +1,93 @@
+"""Braking: the jerk-limited stop the safety supervisor commands once a brake is latched.
+
+Every joint's velocity is driven to zero along the time-optimal jerk-limited stop from the
+commanded velocity and acceleration (:class:`JerkLimitedStop`, Ruckig's velocity interface), or,
+where Ruckig refuses the state, with ``|acc| <= a_max`` and the acceleration ramped at ``j_max``
+(a sqrt law, :func:`brake_velocity`). Jerk is honoured unless the state when braking starts
+makes it impossible without reversing (then the velocity stops at zero), or a position limit
+demands a harder stop (:func:`thinkfast.control.safety_limits.limit_step` still guards them).
+Joints brake independently (each as fast as it may). Pure: no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
+
+from thinkfast.control.safety_limits import SafetyLimits
+
+
+def brake_velocity(v_p, a_p, lim: SafetyLimits, dt: float) -> np.ndarray:
+    """Next velocity of a jerk-limited stop from velocity ``v_p`` and acceleration ``a_p``.
+
+    Per joint, in the direction of motion ``u = |v|``: the deceleration ``b`` grows at jerk
+    ``j_max`` up to ``a_max`` as long as ramping it back to zero still ends at rest (about
+    ``b = sqrt(2 j u)``), then shrinks at ``j_max``; the velocity never changes sign.
+    """
+    s = np.sign(v_p)
+    j = lim.j_max
+    u, b = np.abs(v_p), np.clip(s * a_p, -lim.a_max, lim.a_max)
+    # Acceleration is constant over a tick (v' = v + b' dt). Strongest deceleration x = -b'
+    # such that ramping it back to zero in steps of j dt still removes no more than the speed
+    # left: u - x dt >= x^2 / (2 j) - x dt / 2 (root written without cancellation, so that
+    # tiny speeds still end at exactly zero).
+    x = 2.0 * u / (np.sqrt(0.25 * dt * dt + 2.0 * u / j) + 0.5 * dt)
+    b_new = np.clip(np.clip(-x, b - j * dt, b + j * dt), -lim.a_max, lim.a_max)
+    u_new = np.maximum(u + b_new * dt, 0.0)
+    return s * u_new
+
+
+class JerkLimitedStop:
+    """The time-optimal stop of every joint from velocity and acceleration (Ruckig's velocity
+    interface, joints independent), sampled tick by tick: the commanded velocity follows a
+    continuous jerk-limited profile, so braking honours j_max exactly (where the position
+    limits allow; :func:`limit_step` still guards them)."""
+
+    def __init__(self, traj: Trajectory, v0: np.ndarray):
+        self._traj, self._t = traj, 0.0
+        self._sign = np.sign(v0)  # a stop never reverses: a joint that reaches zero stays
+
+    @classmethod
+    def plan(cls, v0, a0, lim: SafetyLimits) -> JerkLimitedStop | None:
+        """The stop from ``v0`` [rad/s], ``a0`` [rad/s^2] (n,), or None when Ruckig refuses
+        (the supervisor then brakes with :func:`brake_velocity`)."""
+        n = lim.v_max.size
+        v0, a0 = np.asarray(v0, dtype=float), np.asarray(a0, dtype=float)
+        if not (np.isfinite(v0).all() and np.isfinite(a0).all()):
+            return None
+        inp = InputParameter(n)
+        inp.control_interface = ControlInterface.Velocity
+        inp.synchronization = Synchronization.No
+        inp.current_position = [0.0] * n
+        inp.current_velocity = v0.tolist()
+        a0 = np.clip(a0, -lim.a_max, lim.a_max)
+        # an acceleration that would carry the speed past v_max before it ramps down is the
+        # estimate's error, not the plan's: take the largest that just reaches v_max
+        room = np.maximum(lim.v_max - np.abs(v0), 0.0)
+        a_top = np.sqrt(2.0 * lim.j_max * room)
+        away = a0 * np.sign(v0) > a_top
+        a0 = np.where(away, np.sign(v0) * a_top, a0)
+        inp.current_acceleration = a0.tolist()
+        inp.target_velocity = [0.0] * n
+        inp.target_acceleration = [0.0] * n
+        inp.max_velocity = np.maximum(lim.v_max, np.abs(v0) * (1 + 1e-9)).tolist()
+        inp.max_acceleration = lim.a_max.tolist()
+        inp.max_jerk = lim.j_max.tolist()
+        traj = Trajectory(n)
+        try:
+            result = Ruckig(n).calculate(inp, traj)
+        except Exception:  # ruckig.RuckigError: a state it cannot plan from
+            return None
+        if result not in (Result.Working, Result.Finished) or not math.isfinite(traj.duration):
+            return None
+        return cls(traj, v0)
+
+    def next(self, h: float) -> np.ndarray:
+        """The stop's velocity [rad/s] (n,) ``h`` seconds after the previous call."""
+        self._t = min(self._t + h, self._traj.duration)
+        v = np.array(self._traj.at_time(self._t)[1])
+        v = np.where((v * self._sign > 0.0) & (np.abs(v) >= 1e-9), v, 0.0)
+        self._sign = np.where(v == 0.0, 0.0, self._sign)
+        return v
