@@ -37,6 +37,7 @@ from thinkfast.sim.realtime import (
     judge_throw,
     publish_throw,
     start_daemon,
+    stop_daemon,
     throw_rng,
     wait_port,
 )
@@ -206,13 +207,8 @@ class Cell:
         """Signal the daemon (the controller keeps talking while it brakes); wait; stop the rest."""
         if self.proc is not None and self.exit_code is None:
             if self.alive():
-                self.send_signal(sig)
-            try:
-                self.exit_code = self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-                self.exit_code = None
+                self.signalled = True  # its exit is then no crash
+            self.exit_code = stop_daemon(self.proc, sig, timeout)
             self.t_exit = time.time()
         self.close()
         return self.exit_code
