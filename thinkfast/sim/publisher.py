@@ -27,23 +27,16 @@ class PublishReport(NamedTuple):
 
 
 def publish_detections(
-    session: zenoh.Session,
-    key: str,
-    detections: Iterable[SimDetection],
-    t0_wall: float = 0.0,
-    clock: Callable[[], float] = time.time,
-    sleep: Callable[[float], None] = time.sleep,
-    with_covariance: bool = False,
-    stop: threading.Event | None = None,
+    session: zenoh.Session, key: str, detections: Iterable[SimDetection], **schedule
 ) -> PublishReport:
     """Publish each detection on ``key`` at ``t0_wall + delivery_time`` with stamp
-    ``t0_wall + capture_stamp``: :func:`send_detections` through a publisher of ``session``
-    (an open zenoh session; ``key`` normally :func:`thinkfast.contract.keys.detections`)."""
+    ``t0_wall + capture_stamp``: :func:`send_detections` (``schedule``: its keyword arguments,
+    ``t0_wall``, ``clock``, ``sleep``, ``with_covariance``, ``stop``) through a publisher of
+    ``session`` (an open zenoh session; ``key`` normally
+    :func:`thinkfast.contract.keys.detections`)."""
     publisher = session.declare_publisher(key)
     try:
-        return send_detections(
-            publisher.put, detections, t0_wall, clock, sleep, with_covariance, stop
-        )
+        return send_detections(publisher.put, detections, **schedule)
     finally:
         publisher.undeclare()
 
