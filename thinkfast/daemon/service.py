@@ -28,6 +28,7 @@ to one core (and zenoh's threads to the others), ``fifo`` puts it under SCHED_FI
 from __future__ import annotations
 
 import collections
+import functools
 import gc
 import json
 import logging
@@ -94,7 +95,7 @@ class Daemon:
         parts = CoreAssembly(tree, robot, cfg)
         self.executor = parts.executor(planner)
         self.executor.home_on_start = False  # the way home is checked first (--go-home)
-        way = lambda: parts.executor("naive")  # noqa: E731 (plans the way home)
+        way = functools.partial(parts.executor, "naive")  # plans the way home
         self.home = HomeWatch(robot, modes.go_home, cfg.safety.dt, way, self._event)
         self.limits = parts.limits
         self.control = parts.core(self.executor, self._event, modes.shadow)
