@@ -15,7 +15,6 @@ its parts (both with the repository root on ``sys.path``).
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -26,10 +25,9 @@ ROOT = Path(__file__).resolve().parents[2]  # the repository: ``bench`` and ``th
 def spawn(module: str, *args: str, **popen) -> subprocess.Popen:
     """Run ``bench.faultkit.<module>`` as a child process (``python -m``) with ``args``.
 
-    The child finds this package as the parent did: the repository root leads its
-    ``PYTHONPATH``. ``popen``: more :class:`subprocess.Popen` arguments (pipes, text).
+    The child runs in the repository root, which ``-m`` puts first on its ``sys.path``: it finds
+    this package as the parent did, whatever else is called ``bench`` where the parent runs.
+    ``popen``: more :class:`subprocess.Popen` arguments (pipes, text).
     """
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
     cmd = [sys.executable, "-m", f"{__name__}.{module}", *args]
-    return subprocess.Popen(cmd, env=env, **popen)
+    return subprocess.Popen(cmd, cwd=ROOT, **popen)
