@@ -1,7 +1,7 @@
 """Fault campaign: the real ``thinkfast-run`` daemon against a hostile or faulty ABB cell.
 
 Each scenario starts the daemon (``thinkfast.sim.realtime.start_daemon``, loopback ports), a
-simulated controller with injected faults on its own 250 Hz clock (``thinkfast.sim.faults``),
+simulated controller with injected faults on its own 250 Hz clock (``bench.faultkit``),
 zenoh peers and throws seen by the camera model, then checks every command the controller applied
 with an independent protobuf decoder (velocity, acceleration, braking jerk, resync after a
 silence, limits, finiteness), the daemon's process (no crash, no traceback, exit 0 on
@@ -27,10 +27,13 @@ import tempfile
 import time
 from pathlib import Path
 
-from thinkfast.sim.faults.campaign import ORDER, as_json, line, make_context, run_campaign
-from thinkfast.sim.faults.scenario import REGISTRY, Options
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # bench.faultkit
 
-DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"
+from bench.faultkit.campaign import ORDER, as_json, line, make_context, run_campaign  # noqa: E402
+from bench.faultkit.scenario import REGISTRY, Options  # noqa: E402
+
+DEFAULT_TREE = ROOT / "trees" / "irb1600_default.h5"
 DEPLOY = ("--spin-ahead-ms", "1", "--cpu", str(max(os.sched_getaffinity(0))))
 
 

@@ -7,9 +7,7 @@ Everything is real: the daemon process, its UDP socket with protobuf EGM message
 from __future__ import annotations
 
 import json
-import signal
 import socket
-import subprocess
 import time
 from pathlib import Path
 
@@ -18,23 +16,18 @@ import numpy as np
 import zenoh
 
 from thinkfast.contract import keys
+from thinkfast.contract.zenoh_session import open_peer
+from thinkfast.sim.camera import SimDetection
 from thinkfast.sim.controller import ServoConfig, SimController
 from thinkfast.sim.controller_runner import ControllerRunner
-from thinkfast.sim.realtime import daemon_log, start_daemon, wait_port
+from thinkfast.sim.publisher import send_detections
+from thinkfast.sim.realtime import daemon_log, start_daemon, stop_daemon, wait_port
 
 
 def free_port(kind=socket.SOCK_DGRAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def zenoh_session(connect: str) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/endpoints", json.dumps([connect]))
-    return zenoh.open(conf)
 
 
 class DaemonRun:
@@ -78,14 +71,7 @@ class DaemonRun:
         # open the session once the daemon listens: zenoh retries a refused connect after 1, 2
         # then 4 s, which made every start take about 7 s
         wait_port(self.proc, self.zport, timeout)
-        while time.time() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"daemon exited: {daemon_log(self.proc)}")
-            try:
-                self.session = zenoh_session(f"tcp/127.0.0.1:{self.zport}")
-                break
-            except Exception:
-                time.sleep(0.2)
+        self.session = open_peer(connect=[f"tcp/127.0.0.1:{self.zport}"])
         self.session.declare_subscriber(
             keys.status(self.prefix), lambda s: self.status.append(json.loads(s.payload.to_bytes()))
         )
@@ -113,19 +99,14 @@ class DaemonRun:
     def stop(self, timeout: float = 15.0) -> tuple[int, str]:
         """SIGINT the daemon (the controller keeps talking while it brakes), then stop all."""
         DaemonRun.live.discard(self)
-        self.proc.send_signal(signal.SIGINT)
-        try:
-            code = self.proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            code = -9
+        code = stop_daemon(self.proc, timeout=timeout)
         if self.runner is not None:
             self.runner.stop()
             self.runner.join(2.0)
         err = daemon_log(self.proc)
         if self.session is not None:
             self.session.close()
-        return code, err
+        return -9 if code is None else code, err
 
     def egm_rows(self) -> np.ndarray:
         """Recorded EGM exchanges: t, seqno, q_fb (6), q_cmd (6), qd_cmd (6), braking."""
@@ -170,20 +151,18 @@ def publish_throw(
     latency: float = 0.04,
     seed: int = 0,
 ) -> None:
-    """Publish 50 Hz detections (camera frame) of the ball: held still, then in flight."""
+    """Publish 50 Hz detections (camera frame) of the ball: held still, then in flight, each
+    ``latency`` [s] after its capture, through ``run.publish`` (or any sender's ``publish``) on
+    the package's real-time schedule (:func:`thinkfast.sim.publisher.send_detections`)."""
     rng = np.random.default_rng(seed)
     cam = np.asarray(camera)
-    seq = 0
-    t = t_release - hold
+    dets, t = [], t_release - hold
     while t <= t_release + flight + 0.06:
-        while time.time() < t + latency:
-            time.sleep(0.0005)
-        seq += 1
         z = at(t) - cam + rng.normal(0.0, noise, 3)
-        run.publish(
-            json.dumps({"stamp": t, "position": z.tolist(), "frame": "camera", "seq": seq}).encode()
-        )
+        cov = np.eye(3) * noise**2
+        dets.append(SimDetection(t, t + latency, z, len(dets) + 1, at(t), False, cov, None))
         t += 0.02
+    send_detections(run.publish, dets)
 
 
 def shield_distance_at_crossing(rows: np.ndarray, kin, t_cross: float, aim_yz, lag: float = 0.0):

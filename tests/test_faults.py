@@ -15,14 +15,14 @@ import time
 import numpy as np
 import pytest
 
+from bench.faultkit import rows as R
+from bench.faultkit.checker import ReplyChecker
+from bench.faultkit.controller import FaultController
+from bench.faultkit.egm_pb import EgmRobot, decode_reply, robot_message
+from bench.faultkit.fuzz import KINDS
+from bench.faultkit.probe import stalls_near
+from bench.faultkit.senders import MALFORMED_KINDS
 from thinkfast.contract import egm
-from thinkfast.sim.faults import rows as R
-from thinkfast.sim.faults.checker import ReplyChecker
-from thinkfast.sim.faults.controller import FaultController
-from thinkfast.sim.faults.egm_pb import EgmRobot, decode_reply, robot_message
-from thinkfast.sim.faults.fuzz import KINDS
-from thinkfast.sim.faults.probe import stalls_near
-from thinkfast.sim.faults.senders import MALFORMED_KINDS
 
 DT = 0.004
 
@@ -274,8 +274,8 @@ def test_stalls_near_attributes_events_to_overlapping_stalls():
 # ---------------------------------------------------------------------- the real daemon
 @pytest.fixture(scope="module")
 def campaign_ctx(tmp_path_factory):
+    from bench.faultkit.campaign import make_context
     from tests.conftest import compile_small_tree
-    from thinkfast.sim.faults.campaign import make_context
 
     tree = compile_small_tree(tmp_path_factory.mktemp("faults"), spacing=0.3)
     return make_context(tree, seed=1, log=lambda m: None)
@@ -288,7 +288,7 @@ def campaign_ctx(tmp_path_factory):
 )
 def test_scenario_passes_against_the_real_daemon(campaign_ctx, name):
     """The scenario's checks (see bench/faults.py --list) hold for thinkfast-run, quick mode."""
-    from thinkfast.sim.faults.scenario import REGISTRY, Options
+    from bench.faultkit.scenario import REGISTRY, Options
 
     result = REGISTRY[name][0](campaign_ctx, Options(quick=True))
     assert result.passed is not None, result.failures  # the harness itself ran

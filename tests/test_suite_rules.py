@@ -17,7 +17,13 @@ import pytest
 
 TESTS = Path(__file__).resolve().parent
 # Names that start something running on its own real-time schedule.
-WALL_CLOCK_DRIVERS = {"DaemonRun", "ControllerRunner", "publish_throw", "publish_detections"}
+WALL_CLOCK_DRIVERS = {
+    "DaemonRun",
+    "ControllerRunner",
+    "publish_throw",
+    "publish_detections",
+    "send_detections",
+}
 CLOCKS = {"perf_counter", "monotonic", "time", "perf_counter_ns", "monotonic_ns"}
 # Variables that, in this suite, hold wall-clock durations.
 WALL_NAMES = {"elapsed", "rtt", "rtts", "late", "lateness", "latency", "gaps", "close_s"}

@@ -28,6 +28,7 @@ to one core (and zenoh's threads to the others), ``fifo`` puts it under SCHED_FI
 from __future__ import annotations
 
 import collections
+import functools
 import gc
 import json
 import logging
@@ -36,22 +37,20 @@ import os
 import select
 import signal
 import time
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from thinkfast.config import to_dict
+from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
-from thinkfast.control.core import FAULT_REASONS, ControlCore
-from thinkfast.control.executor import EXECUTING, FAULT, IDLE, Executor
-from thinkfast.control.intake import Intake
-from thinkfast.control.safety import SafetySupervisor, robot_limits
-from thinkfast.control.way_home import WayHome
+from thinkfast.control.executor import EXECUTING, IDLE
 from thinkfast.daemon.cycle import Cycle
 from thinkfast.daemon.egm_server import EgmServer
+from thinkfast.daemon.home_watch import HomeWatch
+from thinkfast.daemon.options import Endpoints, Modes
 from thinkfast.daemon.rt_thread import pin_thread, set_fifo
+from thinkfast.daemon.status_text import episode_text, peer_text, status_message, summary
 from thinkfast.daemon.zenoh_edge import ZenohIO
-from thinkfast.decide.tree_view import runtime_tree
 from thinkfast.record.recorder import Recorder
 from thinkfast.robot.model import Robot
 from thinkfast.tree.action_tree import ActionTree
@@ -59,36 +58,6 @@ from thinkfast.tree.file import tree_fingerprint
 
 log = logging.getLogger("thinkfast.run")
 STATUS_COST = 0.001  # s set aside for a status message (JSON, timing percentiles)
-
-
-@dataclass(frozen=True)
-class Endpoints:
-    """I/O options of the daemon (from the command line)."""
-
-    egm_bind: str = "0.0.0.0:6510"
-    egm_controller: str | None = None
-    egm_handover: float = 1.0
-    key_prefix: str = "thinkfast"
-    record: Path | None = None
-    ros_domain: int | None = None  # also the ROS 2 topics (daemon/ros_edge.py) on this domain
-
-
-@dataclass(frozen=True)
-class Modes:
-    """First-light options (from the command line; docs/CELL.md).
-
-    Attributes:
-        shadow: plan and publish everything, command the position measured at the start.
-        go_home: away from home at start-up, move home once the way is checked against the cell
-            (without it, or when the way is blocked, the arm holds where it stands, balls are
-            ignored and the status says ``fault``: the cell needs an operator).
-        speed_scale: the robot's velocity, acceleration and jerk limits are scaled by this
-            (already applied to the robot the daemon is given; reported here).
-    """
-
-    shadow: bool = False
-    go_home: bool = True
-    speed_scale: float = 1.0
 
 
 class Daemon:
@@ -119,23 +88,18 @@ class Daemon:
                 "planner": planner,
                 "tree_config_sha256": tree.meta.get("config_sha256", ""),
                 "tree_fingerprint": self.tree_fingerprint,
-                "run_config": json.dumps(_plain(cfg)),
+                "run_config": json.dumps(to_dict(cfg)),
                 "started": time.time(),
             },
         )  # first: a record target that cannot be written stops the start, before serving
-        rt = runtime_tree(tree, robot, cfg)
-        self.executor = Executor(rt, robot, cfg, planner)
+        parts = CoreAssembly(tree, robot, cfg)
+        self.executor = parts.executor(planner)
         self.executor.home_on_start = False  # the way home is checked first (--go-home)
-        self._new_executor = lambda: Executor(rt, robot, cfg, "naive")
-        self._checker = None  # collision model of the cell, built for the first way home
-        self.way_home: WayHome | None = None
-        self._away_logged: tuple | None = None
-        self.limits = robot_limits(robot, cfg.safety.position_margin)
-        self.supervisor = SafetySupervisor(self.limits, cfg.safety, robot.home)
-        self.intake = Intake(cfg.camera, cfg.detections, cfg.cameras)
-        self.control = ControlCore(
-            self.executor, self.supervisor, cfg.safety, self._event, modes.shadow, self.intake
-        )
+        way = functools.partial(parts.executor, "naive")  # plans the way home
+        self.home = HomeWatch(robot, modes.go_home, cfg.safety.dt, way, self._event)
+        self.limits = parts.limits
+        self.control = parts.core(self.executor, self._event, modes.shadow)
+        self.supervisor, self.intake = self.control.sup, self.control.intake
         self.controller_state: dict | None = None  # motors, MCI, RAPID as last reported
         self._controller_key: tuple | None = None  # the same three, to compare per reply
         self.planned: tuple[np.ndarray, np.ndarray, str] | None = None  # shadow: virtual arm
@@ -244,7 +208,7 @@ class Daemon:
                 "ticks": sup.ticks - ticks0,
                 "intervened": sup.intervened - intervened0,
             }
-            self._event(t, "throw_end", {**_episode_text(self.executor), **self.last_throw})
+            self._event(t, "throw_end", {**episode_text(self.executor), **self.last_throw})
 
     # -------------------------------------------------------------- main loop
     def run(self) -> int:
@@ -281,7 +245,7 @@ class Daemon:
                 self._flush_outbox()
                 self._watch_peer()
                 self._take_detections(replied)
-                self._watch_home()
+                self.home.service(self.control, self._time_left, self._plan_time)
                 now = time.time()
                 if now >= next_status and self._time_left(now) > STATUS_COST:
                     self.zio.publish_status(self.status(now))
@@ -309,70 +273,21 @@ class Daemon:
         self.stop_reason = signal.Signals(signum).name
 
     def _may_exit(self, now: float) -> bool:
-        return not self._connected(now) or (self.supervisor.braking and self.supervisor.stopped)
+        return not self.connected(now) or (self.supervisor.braking and self.supervisor.stopped)
 
-    def _connected(self, now: float) -> bool:
+    def connected(self, now: float) -> bool:
         """The controller talks to the daemon (a packet within the last 0.1 s)."""
         return now - self.last_rx < max(0.1, 5.0 * self.cfg.safety.resync_after)
 
     def _watch_peer(self) -> None:
         if self.egm.peer != self._peer:
             self._peer = self.egm.peer
-            self._event(self.control.clock.t, "egm_peer", {"peer": _peer_text(self._peer)})
-        connected = self._connected(time.time())
+            self._event(self.control.clock.t, "egm_peer", {"peer": peer_text(self._peer)})
+        connected = self.connected(time.time())
         if connected != self._was_connected:
             self._was_connected = connected
             kind = "egm_connected" if connected else "egm_lost"
-            self._event(self.control.clock.t, kind, {"peer": _peer_text(self.egm.peer)})
-
-    def _watch_home(self) -> None:
-        """Away from home: hold and say so; with ``go_home``, check the way home between
-        replies and command it once clear (:mod:`thinkfast.control.way_home`)."""
-        ex = self.executor
-        if not ex.away or self.control.standby or self.control.last is None:
-            return
-        q0 = np.array(self.supervisor.q)
-        key = tuple(np.round(q0, 4))
-        if self._away_logged != key:
-            self._away_logged = key
-            far = np.abs(q0 - self.robot.home)
-            joint = int(np.argmax(far))
-            self._event(
-                self.control.clock.t,
-                "away_from_home",
-                {
-                    "q": np.round(q0, 4).tolist(),
-                    "furthest": f"joint_{joint + 1} {far[joint]:.3f} rad",
-                    "action": "checking the way home" if self.modes.go_home else "holding here "
-                    "(balls ignored): jog the arm home, or restart without --hold-away",
-                },
-            )  # fmt: skip
-            self.way_home = None
-        if not self.modes.go_home:
-            return
-        if self.way_home is None:
-            if self._checker is None:
-                from thinkfast.robot.collision import CollisionChecker
-
-                self._checker = CollisionChecker(self.robot)
-            self.way_home = WayHome(self._new_executor, self._checker, q0, self.cfg.safety.dt)
-        if self.way_home.result is not None:
-            return
-        now = time.time()
-        budget = min(0.002, self._time_left(now) - 0.0005)
-        if budget <= 0.0:
-            return
-        r = self.way_home.step(time.perf_counter() + budget)
-        if r is None:
-            return
-        detail = {"clear": r.clear, "duration": round(r.duration, 3), "samples": r.samples}
-        if r.clear:
-            ex.go_home(self._plan_time(time.time()))
-            self.control.invalidate()
-            self._event(self.control.clock.t, "way_home", detail)
-        else:
-            log.error("the way home collides (%s): holding; jog the arm home", r.detail)
-            self._event(self.control.clock.t, "way_home", {**detail, "collision": r.detail})
+            self._event(self.control.clock.t, kind, {"peer": peer_text(self.egm.peer)})
 
     def _flush_outbox(self) -> None:
         for stamp, q, qd, mode, q_meas in self.outbox:
@@ -413,7 +328,7 @@ class Daemon:
         """When a plan made now takes effect: the controller time of the next cycle (plans live
         on the controller's clock; one starting later than the cycle it is first sampled at
         would jump), or now when the controller is silent."""
-        return self.control.t_next if self._connected(now) else now
+        return self.control.t_next if self.connected(now) else now
 
     def _take(self, payload: bytes, now: float) -> None:
         """One detection payload received at ``now``: intake, recorder, filter and planner."""
@@ -457,124 +372,8 @@ class Daemon:
 
     def status(self, now: float) -> dict:
         """The status message (docs/INTERFACES.md: at least stamp and state)."""
-        ex, ctl, sup = self.executor, self.control, self.supervisor
-        vg = ex.current_value()
-        value = None if vg is None else vg[0]
-        fault = ctl.latched or (sup.braking and sup.brake_reason in FAULT_REASONS)
-        return {
-            "stamp": now,
-            "state": FAULT if fault or self._held_away() else ex.mode,
-            "planner": self.planner,
-            "throws": ex.episodes,
-            "node": ex.node,
-            "value": value,
-            "decision_ms": round(self.decision_ms, 3),
-            "stage": {"stage": ex.stage, "hedge_end": ex.hedge_end, "hedges": ex.hedges},
-            "detections": self.intake.as_dict(),
-            "cameras": {} if ex.check is None else ex.check.as_dict(),
-            **({} if self.view is None else {"view": self.view.as_dict()}),
-            "egm": {**vars(self.egm.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},
-            "loop": {  # the reply loop's own counters (docs/ARCHITECTURE.md, The EGM path)
-                "missed_cycles": ctl.held,
-                "catch_ups": ctl.catch_ups,
-                "late_replies": self.egm.counters.behind,
-            },
-            "egm_peer": _peer_text(self.egm.peer),
-            "egm_foreign": dict(self.egm.foreign_sources),
-            "egm_connected": self._connected(now),
-            "safety": {k: v for k, v in sup.counts.items() if v},
-            "interventions": {
-                "ticks": sup.ticks,
-                "intervened": sup.intervened,
-                "last_throw": self.last_throw,
-            },
-            "faults": {"count": ctl.fault_count, "recent": len(ctl.faults), "latched": ctl.latched},
-            "braking": sup.braking,
-            "brake_reason": sup.brake_reason,
-            "planner_errors": self.planner_errors,
-            "recorder": self.recorder.status(),
-            "egm_timing": self.egm.timing.summary(),
-            "controller": {
-                **(self.controller_state or {}),
-                "standby": ctl.standby,
-                "standby_replies": ctl.standby_replies,
-            },
-            "away_from_home": ex.away,
-            "way_home": None if self.way_home is None else _way_text(self.way_home.result),
-            "shadow": None if not self.modes.shadow else _planned(self.planned),
-            "speed_scale": self.modes.speed_scale,
-        }
-
-    def _held_away(self) -> bool:
-        """Held away from home for good (``--hold-away``, or the way home is blocked): not idle,
-        which the contract defines as at home and ready."""
-        if not self.executor.away:
-            return False
-        return not self.modes.go_home or (
-            self.way_home is not None and self.way_home.result is not None
-        )
+        return status_message(self, now)
 
     def summary(self) -> dict:
         """What the daemon runs with (logged at start-up)."""
-        cfg, robot, meta = self.cfg, self.robot, self.tree_meta
-        return {
-            "tree_fingerprint": self.tree_fingerprint[:16],
-            "tree_config_sha256": str(meta.get("config_sha256", ""))[:16],
-            "tree_urdf_sha256": str(meta.get("urdf_sha256", ""))[:16],
-            "planner": self.planner,
-            "plane_x": float(self.executor.tree.plane_x),
-            "camera": {"xyz": list(cfg.camera.xyz), "rpy": list(cfg.camera.rpy)},
-            "egm": _peer_text(self.egm.address),
-            "zenoh": self.zio.describe(),
-            "limits": {
-                "v_max": np.round(robot.v_max, 3).tolist(),
-                "a_max": np.round(robot.a_max, 2).tolist(),
-                "j_max": np.round(robot.j_max, 1).tolist(),
-                "position_margin": cfg.safety.position_margin,
-            },
-            "controller_lag": cfg.execution.controller_lag,
-            "shadow": self.modes.shadow,
-            "go_home": self.modes.go_home,
-            "speed_scale": self.modes.speed_scale,
-            "record": str(self.recorder.path) if self.recorder.enabled else None,
-        }
-
-
-def _episode_text(ex) -> dict:
-    """What the daemon knows of the throw that just ended (whether it was blocked, it cannot)."""
-    ep = ex.last_episode
-    out: dict = {"throws": ex.episodes, "executed": False}
-    if ep is None or math.isnan(ep.t_start):
-        return out
-    value = None if math.isnan(ep.chosen_value) else round(ep.chosen_value, 3)
-    return {
-        **out,
-        "executed": True,
-        "start_after_confirm": round(ep.t_start - ep.t_confirmed, 4),
-        "cross_after_start": None if math.isnan(ep.t_cross) else round(ep.t_cross - ep.t_start, 3),
-        "value": value,
-        "decisions": ep.decisions,
-    }
-
-
-def _way_text(result) -> str:
-    if result is None:
-        return "checking"
-    return "clear" if result.clear else f"blocked: {result.detail}"
-
-
-def _planned(planned) -> dict | None:
-    if planned is None:
-        return None
-    q, qd, mode = planned
-    return {"q": np.round(q, 6).tolist(), "qd": np.round(qd, 6).tolist(), "mode": mode}
-
-
-def _peer_text(peer) -> str | None:
-    return None if peer is None else f"{peer[0]}:{peer[1]}"
-
-
-def _plain(obj):
-    from thinkfast.config import to_dict
-
-    return to_dict(obj)
+        return summary(self)

@@ -28,14 +28,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
-from thinkfast.control.core import ControlCore
 from thinkfast.control.executor import Executor
 from thinkfast.control.hedge import HEDGE_MODES
-from thinkfast.control.intake import Intake
-from thinkfast.control.safety import SafetySupervisor, robot_limits
 from thinkfast.control.segments import WristTracker
-from thinkfast.decide.tree_view import BALL_RADIUS, runtime_tree
+from thinkfast.decide.tree_view import BALL_RADIUS
 from thinkfast.robot.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
@@ -103,11 +101,12 @@ class World:
         clock: ClockJitter | None = None,
     ):
         self.clock = clock
-        self.tree = runtime_tree(tree, robot, cfg)
+        self.parts = CoreAssembly(tree, robot, cfg)  # the daemon's assembly of the control core
+        self.tree = self.parts.tree
         self.robot, self.cfg, self.servo, self.camera = robot, cfg, servo, camera
         self.cameras = sim_cameras(cfg, camera) if cameras is None else tuple(cameras)
         self.kin = Kinematics(robot)
-        self.limits = robot_limits(robot, cfg.safety.position_margin)
+        self.limits = self.parts.limits
 
 
 def sim_cameras(cfg: RunConfig, model: CameraModelConfig) -> tuple[SimCamera, ...]:
@@ -140,8 +139,8 @@ def simulate(
     if clock is not None:
         clock = dataclasses.replace(clock, seed=clock.seed * 1_000_003 + seed)
     sim = SimController(world.servo, q0=robot.home, clock=clock)
-    sup = SafetySupervisor(world.limits, cfg.safety, robot.home)
     if planner in ("oracle", "oracle_seen"):
+        sup = world.parts.supervisor()
         t_go = t_rel + oracle_start
         if planner == "oracle_seen":
             seen = [d.delivery_time for d in dets if d.capture_stamp > t_rel]
@@ -150,8 +149,8 @@ def simulate(
         ex = None
     else:
         ex = executor_for(world, planner)
-        intake = Intake(cfg.camera, cfg.detections, cfg.cameras)
-        core = ControlCore(ex, sup, cfg.safety, intake=intake)
+        core = world.parts.core(ex)
+        sup = core.sup
     k_det, t = 0, 0.0
     moved, t_move = False, math.nan
     while t <= t_end:

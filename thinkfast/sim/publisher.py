@@ -27,8 +27,22 @@ class PublishReport(NamedTuple):
 
 
 def publish_detections(
-    session: zenoh.Session,
-    key: str,
+    session: zenoh.Session, key: str, detections: Iterable[SimDetection], **schedule
+) -> PublishReport:
+    """Publish each detection on ``key`` at ``t0_wall + delivery_time`` with stamp
+    ``t0_wall + capture_stamp``: :func:`send_detections` (``schedule``: its keyword arguments,
+    ``t0_wall``, ``clock``, ``sleep``, ``with_covariance``, ``stop``) through a publisher of
+    ``session`` (an open zenoh session; ``key`` normally
+    :func:`thinkfast.contract.keys.detections`)."""
+    publisher = session.declare_publisher(key)
+    try:
+        return send_detections(publisher.put, detections, **schedule)
+    finally:
+        publisher.undeclare()
+
+
+def send_detections(
+    put: Callable[[bytes], object],
     detections: Iterable[SimDetection],
     t0_wall: float = 0.0,
     clock: Callable[[], float] = time.time,
@@ -36,7 +50,9 @@ def publish_detections(
     with_covariance: bool = False,
     stop: threading.Event | None = None,
 ) -> PublishReport:
-    """Publish each detection at ``t0_wall + delivery_time`` with stamp ``t0_wall + capture_stamp``.
+    """Hand each detection's payload to ``put`` at ``t0_wall + delivery_time`` with stamp
+    ``t0_wall + capture_stamp``: the one real-time detection schedule (the lockstep simulator
+    delivers the same detections on simulated time).
 
     Detections made with ``t_release_wall`` set to a real wall time go out with ``t0_wall = 0``;
     detections made on a clock starting at 0 (``t_release_wall = 0``, e.g. a precomputed throw
@@ -44,8 +60,8 @@ def publish_detections(
     order; one already due is sent at once.
 
     Args:
-        session: an open zenoh session.
-        key: key expression, normally :func:`thinkfast.contract.keys.detections`.
+        put: sends one payload (a zenoh publisher's ``put``, or another sender's, e.g. a ROS 2
+            one).
         detections: what to send.
         t0_wall: offset added to delivery times and stamps [s].
         clock: wall clock [s] (same clock as the stamps).
@@ -54,21 +70,17 @@ def publish_detections(
         stop: if set, return early (checked before each sample).
     """
     pending = sorted(detections, key=lambda d: d.delivery_time)
-    publisher = session.declare_publisher(key)
     late = []
-    try:
-        for sd in pending:
-            if stop is not None and stop.is_set():
-                break
-            due = t0_wall + sd.delivery_time
-            wait = due - clock()
-            if wait > 0.0:
-                sleep(wait)
-            shifted = sd._replace(capture_stamp=sd.capture_stamp + t0_wall)
-            publisher.put(detection_payload(shifted, with_covariance))
-            late.append(max(0.0, clock() - due))
-    finally:
-        publisher.undeclare()
+    for sd in pending:
+        if stop is not None and stop.is_set():
+            break
+        due = t0_wall + sd.delivery_time
+        wait = due - clock()
+        if wait > 0.0:
+            sleep(wait)
+        shifted = sd._replace(capture_stamp=sd.capture_stamp + t0_wall)
+        put(detection_payload(shifted, with_covariance))
+        late.append(max(0.0, clock() - due))
     if not late:
         return PublishReport(0, 0.0, 0.0)
     return PublishReport(len(late), max(late), sum(late) / len(late))

@@ -186,11 +186,10 @@ def run_throws(
                 t0 = time.time() + 0.3 + th.t_release
                 frames.publish_throw(th, extrinsic, throw_rng(seed, i), t0)
             else:
-                dets = observe(th, camera, extrinsic, throw_rng(seed, i), 0.0)
                 # a swing is seen in real time from the ball's appearance; still throws keep
                 # their timing (hold frames older than 0.3 s before the release go out at once)
                 t0 = time.time() + 0.3 + (th.t_release if th.kind != "still" else 0.0)
-                publish_detections(session, keys.detections(prefix), dets, t0_wall=t0)
+                publish_throw(session, prefix, th, throw_rng(seed, i), extrinsic, t0, camera)
             if th.kind == "feint":
                 dog.sleep_until(t0 + FEINT_WINDOW + 0.3, i, len(throws))
                 t_hist, q_hist = sim.joint_history(t0 - th.t_release - 0.5)
@@ -234,7 +233,8 @@ def publish_throw(
     stop=None,
 ):
     """Publish what the camera sees of ``th`` in real time, released at wall time ``t0`` [s]
-    (detections already due go out at once); blocks until the last one is out."""
+    (detections already due go out at once); blocks until the last one is out. The schedule is
+    :func:`~thinkfast.sim.publisher.send_detections` (the tests' hand-made throws use it too)."""
     dets = observe(th, camera, extrinsic, rng, 0.0)
     return publish_detections(session, keys.detections(prefix), dets, t0_wall=t0, stop=stop)
 
@@ -303,11 +303,26 @@ def run_with_daemon(
     finally:
         if pipeline is not None:
             report(f"thinkfast-detect: {pipeline.close()}")
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        stop_daemon(proc)
+
+
+def stop_daemon(
+    proc: subprocess.Popen, sig: int = signal.SIGINT, timeout: float = 10.0
+) -> int | None:
+    """Stop a daemon started by :func:`start_daemon`: ``sig`` (SIGINT or SIGTERM: it brakes
+    while the controller still talks to it, then exits 0), killed after ``timeout`` [s].
+
+    Returns:
+        its exit status; None when it had to be killed.
+    """
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        return proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        return None
 
 
 def wait_port(proc: subprocess.Popen, port: int, timeout: float = 30.0) -> None:

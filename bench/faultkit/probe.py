@@ -20,6 +20,8 @@ import time
 
 import numpy as np
 
+from bench.faultkit import spawn
+
 SLEEP = 0.001
 
 
@@ -44,8 +46,7 @@ class StallProbe:
     """The probe in a child process (see the module doc)."""
 
     def __init__(self, threshold_ms: float = 2.0):
-        cmd = [sys.executable, "-m", "thinkfast.sim.faults.probe", str(threshold_ms)]
-        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self.proc = spawn("probe", str(threshold_ms), stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         self.t_start = time.time()
 
     def stop(self) -> np.ndarray:

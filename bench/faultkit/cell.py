@@ -1,12 +1,12 @@
 """A simulated cell around the real daemon: ``thinkfast-run``, a fault controller, zenoh peers.
 
 :class:`Cell` starts the daemon through :func:`thinkfast.sim.realtime.start_daemon` (loopback
-ports picked free), a :class:`~thinkfast.sim.faults.monitor.Monitor` on a zenoh session of its
+ports picked free), a :class:`~bench.faultkit.monitor.Monitor` on a zenoh session of its
 own, a detection publisher on another session (it may close and reopen), and the
-:class:`~thinkfast.sim.faults.controller.FaultController`. Throws come from
+:class:`~bench.faultkit.controller.FaultController`. Throws come from
 :mod:`thinkfast.sim.throws`, seen by the camera model and published in real time by
 :func:`thinkfast.sim.realtime.publish_throw`; each is judged against the controller's arm.
-:meth:`Cell.check` runs the :class:`~thinkfast.sim.faults.checker.ReplyChecker` over every cycle
+:meth:`Cell.check` runs the :class:`~bench.faultkit.checker.ReplyChecker` over every cycle
 and :meth:`Cell.process_failures` checks the process (alive, stderr, exit status).
 """
 
@@ -23,20 +23,21 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bench.faultkit import rows as R
+from bench.faultkit.checker import ReplyChecker
+from bench.faultkit.monitor import Monitor
+from bench.faultkit.probe import StallProbe, attribute, rss_mb
+from bench.faultkit.remote import RemoteController
+from bench.faultkit.senders import free_udp_port
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.sim.controller import ServoConfig
-from thinkfast.sim.faults import rows as R
-from thinkfast.sim.faults.checker import ReplyChecker
-from thinkfast.sim.faults.monitor import Monitor
-from thinkfast.sim.faults.probe import StallProbe, attribute, rss_mb
-from thinkfast.sim.faults.remote import RemoteController
-from thinkfast.sim.faults.senders import free_udp_port
 from thinkfast.sim.realtime import (
     RealtimeResult,
     daemon_log,
     judge_throw,
     publish_throw,
     start_daemon,
+    stop_daemon,
     throw_rng,
     wait_port,
 )
@@ -206,13 +207,8 @@ class Cell:
         """Signal the daemon (the controller keeps talking while it brakes); wait; stop the rest."""
         if self.proc is not None and self.exit_code is None:
             if self.alive():
-                self.send_signal(sig)
-            try:
-                self.exit_code = self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-                self.exit_code = None
+                self.signalled = True  # its exit is then no crash
+            self.exit_code = stop_daemon(self.proc, sig, timeout)
             self.t_exit = time.time()
         self.close()
         return self.exit_code

@@ -1,6 +1,6 @@
 """The campaign: every scenario in order, one line each, or one JSON object.
 
-from thinkfast.sim.faults.campaign import make_context, run_campaign
+from bench.faultkit.campaign import make_context, run_campaign
 results = run_campaign(make_context(tree), ["malformed", "sigint"], Options())
 """
 
@@ -12,9 +12,9 @@ import platform
 import time
 from pathlib import Path
 
-from thinkfast.sim.faults import sc_egm, sc_motion, sc_process, sc_record  # noqa: F401 (register)
-from thinkfast.sim.faults.cell import Context
-from thinkfast.sim.faults.scenario import REGISTRY, Options, Result
+from bench.faultkit import sc_egm, sc_motion, sc_process, sc_record  # noqa: F401 (register)
+from bench.faultkit.cell import Context
+from bench.faultkit.scenario import REGISTRY, Options, Result
 
 ORDER = (
     "malformed", "duplicated", "second_sender", "flood", "absurd_feedback", "seqno_reset",

@@ -5,7 +5,7 @@ rate, bounded three ways: loopback only, at most ``max_packets`` datagrams, at m
 Its own process keeps the flood from competing with the fault controller for the GIL. It prints
 one JSON line: datagrams sent (valid-looking ones among them) and replies its socket received.
 
-    python -m thinkfast.sim.faults.flood --port 6510 --rate 20000 --seconds 3
+    python -m bench.faultkit.flood --port 6510 --rate 20000 --seconds 3
 """
 
 from __future__ import annotations
@@ -19,8 +19,9 @@ import time
 
 import numpy as np
 
-from thinkfast.sim.faults.egm_pb import robot_message
-from thinkfast.sim.faults.senders import malformed_datagram, recv_stamped
+from bench.faultkit import spawn
+from bench.faultkit.egm_pb import robot_message
+from bench.faultkit.senders import malformed_datagram, recv_stamped
 
 MAX_RATE = 100_000  # datagrams per second
 MAX_PACKETS = 500_000
@@ -70,10 +71,10 @@ class Flood:
 
     def __init__(self, port: int, rate=20_000.0, seconds=3.0, max_packets=60_000, valid_share=0.3,
                  seed=0):  # fmt: skip
-        cmd = [sys.executable, "-m", "thinkfast.sim.faults.flood", "--port", str(port),
-               "--rate", str(rate), "--seconds", str(seconds), "--max-packets", str(max_packets),
-               "--valid-share", str(valid_share), "--seed", str(seed)]  # fmt: skip
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        args = ("--port", str(port), "--rate", str(rate), "--seconds", str(seconds),
+                "--max-packets", str(max_packets), "--valid-share", str(valid_share),
+                "--seed", str(seed))  # fmt: skip
+        self.proc = spawn("flood", *args, stdout=subprocess.PIPE, text=True)
 
     def result(self, timeout: float = MAX_SECONDS + 10) -> dict:
         try:

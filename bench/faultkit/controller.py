@@ -17,7 +17,7 @@ Each cycle: read the replies that arrived during the previous cycle (kernel arri
 late read of this process never moves a reply to another cycle), apply the last valid one to the
 servo (the controller's rule: a cycle without a reply keeps the previous command), step the servo,
 then send the next ``EgmRobot``. One row per cycle goes to :attr:`rows` (columns in
-:mod:`thinkfast.sim.faults.rows`) for the independent checker.
+:mod:`bench.faultkit.rows`) for the independent checker.
 
 Faults (set from any thread, applied from the next cycle): ``duplicate`` (each ``EgmRobot``
 sent twice), ``malformed`` (extra malformed datagrams from the peer's socket, per cycle),
@@ -38,11 +38,11 @@ import time
 
 import numpy as np
 
+from bench.faultkit import rows as R
+from bench.faultkit.egm_pb import decode_reply, robot_message
+from bench.faultkit.senders import malformed_datagram, recv_stamped
 from thinkfast.daemon.egm_server import SO_TIMESTAMPNS
 from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController, Stamps
-from thinkfast.sim.faults import rows as R
-from thinkfast.sim.faults.egm_pb import decode_reply, robot_message
-from thinkfast.sim.faults.senders import malformed_datagram, recv_stamped
 
 
 class FaultController:

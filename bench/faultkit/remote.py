@@ -2,8 +2,8 @@
 
 A controller thread that shares its interpreter with zenoh callbacks, publishers and the checker
 waits for the GIL and misses its 4 ms cycles; a real controller does not. :class:`RemoteController`
-runs a :class:`~thinkfast.sim.faults.controller.FaultController` in a child process (a fresh
-interpreter: ``python -m thinkfast.sim.faults.remote``; nothing of the parent's zenoh threads is
+runs a :class:`~bench.faultkit.controller.FaultController` in a child process (a fresh
+interpreter: ``python -m bench.faultkit.remote``; nothing of the parent's zenoh threads is
 inherited) and offers the same controls; every call is one round trip of pickled frames on the
 child's stdin/stdout (about 0.1 ms).
 """
@@ -18,7 +18,8 @@ import threading
 
 import numpy as np
 
-from thinkfast.sim.faults.controller import FaultController
+from bench.faultkit import spawn
+from bench.faultkit.controller import FaultController
 
 _SETTABLE = ("duplicate", "malformed")
 _READABLE = ("last_cmd", "malformed_sent", "gap_log", "address", "realtime")
@@ -113,8 +114,7 @@ class RemoteController:
         self.proc: subprocess.Popen | None = None
 
     def start(self, timeout: float = 60.0) -> RemoteController:
-        cmd = [sys.executable, "-m", "thinkfast.sim.faults.remote"]
-        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self.proc = spawn("remote", stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         self._conn = _Conn(self.proc.stdout, self.proc.stdin)
         self._conn.send(self._args)
         try:

@@ -1,7 +1,7 @@
 """What every scenario shares: the result type, the registry, throws, triggers and the verdict.
 
 A scenario is a function ``fn(ctx, opts) -> Result`` registered with :func:`scenario`. It builds a
-:class:`~thinkfast.sim.faults.cell.Cell`, injects its faults, and ends with :func:`finish`, which
+:class:`~bench.faultkit.cell.Cell`, injects its faults, and ends with :func:`finish`, which
 stops the daemon and applies the common checks (commands, process, latched faults, replies).
 """
 
@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from thinkfast.sim.faults.cell import Cell, Context
+from bench.faultkit.cell import Cell, Context
 from thinkfast.sim.throws import ThrowConfig, make_throw, sample_throws
 
 MIN_ANSWERED_PCT = 99.0  # replies to the peer's EgmRobot, in percent of its cycles

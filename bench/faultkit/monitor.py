@@ -17,8 +17,8 @@ import time
 
 import numpy as np
 
+from bench.faultkit import rows as R
 from thinkfast.contract import keys
-from thinkfast.sim.faults import rows as R
 
 
 def latched(status: dict) -> bool:

@@ -6,7 +6,7 @@ within 100 m, covariance entries within 1e4 m^2, stamps within 1 s past / 0.5 s 
 daemon must count each as rejected or dropped and accept none. A payload is built around a
 plausible ball (5 m in front of the camera, stamped now), with one thing wrong.
 
-:func:`fuzz_stream` runs in a process of its own (``python -m thinkfast.sim.faults.fuzz``) so that
+:func:`fuzz_stream` runs in a process of its own (``python -m bench.faultkit.fuzz``) so that
 its bursts of several kHz do not steal the fault controller's time.
 """
 

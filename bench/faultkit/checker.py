@@ -1,6 +1,6 @@
 """Independent checks of the commands a controller applied, cycle by cycle on its own clock.
 
-Input: the fault controller's rows (:mod:`thinkfast.sim.faults.rows`): per 4 ms cycle, what it
+Input: the fault controller's rows (:mod:`bench.faultkit.rows`): per 4 ms cycle, what it
 sent and the last valid ``EgmSensor`` that arrived during the cycle (decoded with the campaign's
 own protobuf classes). A cycle without a reply keeps the previous command. Finite differences
 (``dt`` = 4 ms) are taken only inside runs of consecutive cycles (``tm`` steps of exactly 4 ms: a
@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from thinkfast.sim.faults import rows as R
+from bench.faultkit import rows as R
 
 SETTLE = 4  # cycles after a missed one whose replies may be stale
 RESYNC_WAIT = 2  # cycles after a silence that may go unanswered by design

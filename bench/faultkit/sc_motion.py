@@ -8,10 +8,9 @@ import time
 
 import numpy as np
 
-from thinkfast.sim.controller import ServoConfig
-from thinkfast.sim.faults import rows as R
-from thinkfast.sim.faults.cell import Cell
-from thinkfast.sim.faults.scenario import (
+from bench.faultkit import rows as R
+from bench.faultkit.cell import Cell
+from bench.faultkit.scenario import (
     blocked_summary,
     easy_throw,
     error_result,
@@ -21,6 +20,7 @@ from thinkfast.sim.faults.scenario import (
     scenario,
     when_moving,
 )
+from thinkfast.sim.controller import ServoConfig
 
 ABANDON = ("brake", "returning", "fault")
 SILENCES = (0.1, 0.5, 2.0)

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from thinkfast.sim.faults.egm_pb import EgmRobot, robot_message
+from bench.faultkit.egm_pb import EgmRobot, robot_message
 
 _TIMESPEC = struct.Struct("@qq")
 SCM_TIMESTAMPNS = 35  # = SO_TIMESTAMPNS on Linux

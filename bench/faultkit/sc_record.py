@@ -20,10 +20,9 @@ import threading
 import time
 from pathlib import Path
 
-from thinkfast.contract.zenoh_session import free_tcp_port
-from thinkfast.sim.faults.cell import Cell
-from thinkfast.sim.faults.egm_pb import robot_message
-from thinkfast.sim.faults.scenario import (
+from bench.faultkit.cell import Cell
+from bench.faultkit.egm_pb import robot_message
+from bench.faultkit.scenario import (
     Result,
     blocked_summary,
     easy_throw,
@@ -32,7 +31,8 @@ from thinkfast.sim.faults.scenario import (
     sampled_throws,
     scenario,
 )
-from thinkfast.sim.faults.senders import free_udp_port, recv_stamped
+from bench.faultkit.senders import free_udp_port, recv_stamped
+from thinkfast.contract.zenoh_session import free_tcp_port
 from thinkfast.sim.realtime import daemon_log, start_daemon
 
 FSIZE_LIMIT = 64 * 1024  # bytes a "full disk" lets the daemon write
@@ -163,7 +163,7 @@ def record_full(ctx, opts):
 def soak(ctx, opts, minutes: float):
     """Throws every 3 s, the fuzz stream running, for ``minutes``; the daemon's RSS every 10 s
     (growth after the first fifth of the run: the warm-up)."""
-    from thinkfast.sim.faults.sc_process import fuzz_result, start_fuzz
+    from bench.faultkit.sc_process import fuzz_result, start_fuzz
 
     t_start = time.time()
     tmp = Path(tempfile.mkdtemp(prefix="faults-soak-"))

@@ -7,10 +7,10 @@ import time
 
 import numpy as np
 
-from thinkfast.sim.faults import rows as R
-from thinkfast.sim.faults.cell import Cell
-from thinkfast.sim.faults.flood import Flood
-from thinkfast.sim.faults.scenario import (
+from bench.faultkit import rows as R
+from bench.faultkit.cell import Cell
+from bench.faultkit.flood import Flood
+from bench.faultkit.scenario import (
     blocked_summary,
     easy_throw,
     error_result,
@@ -18,7 +18,7 @@ from thinkfast.sim.faults.scenario import (
     scenario,
     when_moving,
 )
-from thinkfast.sim.faults.senders import SecondSender
+from bench.faultkit.senders import SecondSender
 
 
 def _throws(cell: Cell, opts, hooks=lambda i: ()) -> list:

@@ -5,15 +5,15 @@ from __future__ import annotations
 
 import signal
 import subprocess
-import sys
 import threading
 import time
 
 import numpy as np
 
-from thinkfast.sim.faults import rows as R
-from thinkfast.sim.faults.cell import Cell
-from thinkfast.sim.faults.scenario import (
+from bench.faultkit import rows as R
+from bench.faultkit import spawn
+from bench.faultkit.cell import Cell
+from bench.faultkit.scenario import (
     blocked_summary,
     easy_throw,
     error_result,
@@ -26,23 +26,10 @@ from thinkfast.sim.faults.scenario import (
 
 
 def start_fuzz(cell: Cell, n: int, seconds: float, seed: int) -> subprocess.Popen:
-    """The fuzz stream (:mod:`thinkfast.sim.faults.fuzz`) in a process of its own."""
-    cmd = [
-        sys.executable,
-        "-m",
-        "thinkfast.sim.faults.fuzz",
-        "--connect",
-        cell.endpoint,
-        "--prefix",
-        cell.prefix,
-        "--n",
-        str(n),
-        "--seconds",
-        str(seconds),
-        "--seed",
-        str(seed),
-    ]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)  # fmt: skip
+    """The fuzz stream (:mod:`bench.faultkit.fuzz`) in a process of its own."""
+    args = ("--connect", cell.endpoint, "--prefix", cell.prefix, "--n", str(n),
+            "--seconds", str(seconds), "--seed", str(seed))  # fmt: skip
+    return spawn("fuzz", *args, stdout=subprocess.PIPE, text=True)
 
 
 def fuzz_result(proc: subprocess.Popen, timeout: float) -> dict:

@@ -1,0 +1,132 @@
+"""The daemon's status message and start-up summary, read off its parts.
+
+:func:`status_message` is what ``thinkfast-run`` publishes at ``status_rate`` on
+``<prefix>/status`` (docs/INTERFACES.md "Status"; read back by ``thinkfast-run status``,
+:mod:`thinkfast.daemon.status_view`); :func:`summary` is logged (and recorded) at start-up;
+:func:`episode_text` ends a throw's ``throw_end`` event. Plain JSON-able data; nothing here
+changes the daemon.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from thinkfast.control.core import FAULT_REASONS
+from thinkfast.control.executor import FAULT
+
+if TYPE_CHECKING:
+    from thinkfast.daemon.service import Daemon
+
+
+def status_message(d: Daemon, now: float) -> dict:
+    """The status message (docs/INTERFACES.md: at least stamp and state)."""
+    ex, ctl, sup = d.executor, d.control, d.supervisor
+    vg = ex.current_value()
+    value = None if vg is None else vg[0]
+    fault = ctl.latched or (sup.braking and sup.brake_reason in FAULT_REASONS)
+    return {
+        "stamp": now,
+        "state": FAULT if fault or d.home.held(ex) else ex.mode,
+        "planner": d.planner,
+        "throws": ex.episodes,
+        "node": ex.node,
+        "value": value,
+        "decision_ms": round(d.decision_ms, 3),
+        "stage": {"stage": ex.stage, "hedge_end": ex.hedge_end, "hedges": ex.hedges},
+        "detections": d.intake.as_dict(),
+        "cameras": {} if ex.check is None else ex.check.as_dict(),
+        **({} if d.view is None else {"view": d.view.as_dict()}),
+        "egm": {**vars(d.egm.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},
+        "loop": {  # the reply loop's own counters (docs/ARCHITECTURE.md, The EGM path)
+            "missed_cycles": ctl.held,
+            "catch_ups": ctl.catch_ups,
+            "late_replies": d.egm.counters.behind,
+        },
+        "egm_peer": peer_text(d.egm.peer),
+        "egm_foreign": dict(d.egm.foreign_sources),
+        "egm_connected": d.connected(now),
+        "safety": {k: v for k, v in sup.counts.items() if v},
+        "interventions": {
+            "ticks": sup.ticks,
+            "intervened": sup.intervened,
+            "last_throw": d.last_throw,
+        },
+        "faults": {"count": ctl.fault_count, "recent": len(ctl.faults), "latched": ctl.latched},
+        "braking": sup.braking,
+        "brake_reason": sup.brake_reason,
+        "planner_errors": d.planner_errors,
+        "recorder": d.recorder.status(),
+        "egm_timing": d.egm.timing.summary(),
+        "controller": {
+            **(d.controller_state or {}),
+            "standby": ctl.standby,
+            "standby_replies": ctl.standby_replies,
+        },
+        "away_from_home": ex.away,
+        "way_home": None if d.home.way_home is None else way_text(d.home.way_home.result),
+        "shadow": None if not d.modes.shadow else planned_text(d.planned),
+        "speed_scale": d.modes.speed_scale,
+    }
+
+
+def summary(d: Daemon) -> dict:
+    """What the daemon runs with (logged at start-up)."""
+    cfg, robot, meta = d.cfg, d.robot, d.tree_meta
+    return {
+        "tree_fingerprint": d.tree_fingerprint[:16],
+        "tree_config_sha256": str(meta.get("config_sha256", ""))[:16],
+        "tree_urdf_sha256": str(meta.get("urdf_sha256", ""))[:16],
+        "planner": d.planner,
+        "plane_x": float(d.executor.tree.plane_x),
+        "camera": {"xyz": list(cfg.camera.xyz), "rpy": list(cfg.camera.rpy)},
+        "egm": peer_text(d.egm.address),
+        "zenoh": d.zio.describe(),
+        "limits": {
+            "v_max": np.round(robot.v_max, 3).tolist(),
+            "a_max": np.round(robot.a_max, 2).tolist(),
+            "j_max": np.round(robot.j_max, 1).tolist(),
+            "position_margin": cfg.safety.position_margin,
+        },
+        "controller_lag": cfg.execution.controller_lag,
+        "shadow": d.modes.shadow,
+        "go_home": d.modes.go_home,
+        "speed_scale": d.modes.speed_scale,
+        "record": str(d.recorder.path) if d.recorder.enabled else None,
+    }
+
+
+def episode_text(ex) -> dict:
+    """What the daemon knows of the throw that just ended (whether it was blocked, it cannot)."""
+    ep = ex.last_episode
+    out: dict = {"throws": ex.episodes, "executed": False}
+    if ep is None or math.isnan(ep.t_start):
+        return out
+    value = None if math.isnan(ep.chosen_value) else round(ep.chosen_value, 3)
+    return {
+        **out,
+        "executed": True,
+        "start_after_confirm": round(ep.t_start - ep.t_confirmed, 4),
+        "cross_after_start": None if math.isnan(ep.t_cross) else round(ep.t_cross - ep.t_start, 3),
+        "value": value,
+        "decisions": ep.decisions,
+    }
+
+
+def way_text(result) -> str:
+    if result is None:
+        return "checking"
+    return "clear" if result.clear else f"blocked: {result.detail}"
+
+
+def planned_text(planned) -> dict | None:
+    if planned is None:
+        return None
+    q, qd, mode = planned
+    return {"q": np.round(q, 6).tolist(), "qd": np.round(qd, 6).tolist(), "mode": mode}
+
+
+def peer_text(peer) -> str | None:
+    return None if peer is None else f"{peer[0]}:{peer[1]}"
