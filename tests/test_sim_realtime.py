@@ -40,3 +40,36 @@ def test_sim_run_exits_non_zero_when_its_daemon_dies(small_tree_015):
     assert line.startswith("thinkfast-sim: error: the daemon at EGM 127.0.0.1:")
     assert "stopped (no " in line and " of 6 throws" in line
     assert "blocked" not in out.split("\n")[-2]  # no summary of throws that never ran
+
+
+def test_two_daemons_on_one_host_with_one_key_prefix_never_hear_each_other(
+    small_tree_015, tmp_path, robot
+):
+    """Daemons started by the simulators and tests scout no peers by multicast: detections
+    published to one reach only that one, though both use the key prefix ``thinkfast``."""
+    import json
+
+    from tests.daemon_harness import DaemonRun
+
+    a = DaemonRun(small_tree_015, tmp_path / "a.h5", q0=robot.home)
+    b = DaemonRun(small_tree_015, tmp_path / "b.h5", q0=robot.home)
+    try:
+        stamp = time.time() - 0.5
+        for k in range(20):  # a ball standing still
+            a.publish(json.dumps({"stamp": stamp + 0.02 * k, "position": [5.0, 0.1, 1.0],
+                                  "frame": "camera", "seq": k + 1}).encode())  # fmt: skip
+        deadline = time.time() + 20.0
+        while time.time() < deadline and _counted(a.status[-1]["detections"]) < 20:
+            time.sleep(0.05)
+        time.sleep(0.5)  # what b would have heard has arrived by now
+        heard_a, heard_b = a.status[-1]["detections"], b.status[-1]["detections"]
+    finally:
+        a.stop()
+        b.stop()
+    assert _counted(heard_a) == 20 and heard_a["accepted"] > 0
+    assert _counted(heard_b) == 0
+
+
+def _counted(d: dict) -> int:
+    """Detections a daemon's status says it took, refused or dropped."""
+    return d["accepted"] + sum(d["rejected"].values()) + sum(d["dropped"].values())

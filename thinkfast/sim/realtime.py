@@ -35,6 +35,7 @@ from thinkfast.sim.throws import Throw, plane_crossing
 
 GAP = 3.5  # s between throws: crossing + return home + the contract's 3 s
 SILENCE = 3.0  # s without an EGM reply or a status: the daemon is gone (status comes at 20 Hz)
+LOOPBACK_ZENOH = Path(__file__).with_name("loopback_zenoh.json5")  # the daemon's zenoh session
 
 
 class DaemonGone(ThinkfastError):
@@ -119,7 +120,8 @@ def start_daemon(
     extra: tuple[str, ...] = (),
     preexec_fn=None,
 ) -> subprocess.Popen:
-    """Start ``thinkfast-run`` with loopback endpoints (``extra``: more options).
+    """Start ``thinkfast-run`` with loopback endpoints (``extra``: more options), its zenoh
+    session without multicast scouting unless ``extra`` gives a ``--zenoh-config``.
 
     Its stderr goes to ``proc.log`` (a temporary file), read back when it fails. ``preexec_fn``
     runs in the child before the daemon starts (e.g. resource limits).
@@ -142,6 +144,8 @@ def start_daemon(
         cmd += ["--record", str(record)]
     if config:
         cmd += ["--config", str(config)]
+    if "--zenoh-config" not in extra:  # no multicast scouting: see loopback_zenoh.json5
+        cmd += ["--zenoh-config", str(LOOPBACK_ZENOH)]
     cmd += list(extra)
     log = tempfile.TemporaryFile(mode="w+")  # its log: read back only if it fails
     proc = subprocess.Popen(cmd, stderr=log, text=True, preexec_fn=preexec_fn)
