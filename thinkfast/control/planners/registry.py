@@ -53,7 +53,7 @@ class Entry(NamedTuple):
     def configure(self, cfg: RunConfig) -> RunConfig:
         """``cfg`` with this entry's settings."""
         for key, value in self.settings:
-            cfg = _replace(cfg, key.split("."), value)
+            cfg = _replace(cfg, key.split("."), value, key)
         return cfg
 
 
@@ -111,10 +111,11 @@ def unregister(name: str) -> None:
     _ENTRIES.pop(name, None)
 
 
-def _replace(obj: Any, path: list[str], value: Any) -> Any:
-    """The frozen dataclass ``obj`` with the field at ``path`` set to ``value``."""
+def _replace(obj: Any, path: list[str], value: Any, key: str) -> Any:
+    """The frozen dataclass ``obj`` with the field at ``path`` (of the dotted ``key``) set to
+    ``value``."""
     head = path[0]
     if not dataclasses.is_dataclass(obj) or head not in {f.name for f in dataclasses.fields(obj)}:
-        raise ValueError(f"no runtime setting {'.'.join(path)!r}")
-    inner = value if len(path) == 1 else _replace(getattr(obj, head), path[1:], value)
+        raise ValueError(f"no runtime setting {key!r}")
+    inner = value if len(path) == 1 else _replace(getattr(obj, head), path[1:], value, key)
     return dataclasses.replace(obj, **{head: inner})
