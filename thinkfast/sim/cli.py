@@ -26,9 +26,6 @@ from thinkfast.sim.planners import check_planners, online_planners
 from thinkfast.sim.record_cli import convert, record_app
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
-app.command("bench")(bench_cmd)  # lockstep statistics, thinkfast/sim/bench_cli.py
-app.command("controller")(controller_cmd)  # the simulated IRC5 (EGM + RWS), thinkfast/sim/irc5.py
-app.add_typer(record_app, name="record")  # thinkfast/sim/record_cli.py
 
 
 @app.callback()
@@ -150,6 +147,9 @@ def run(
         )
 
 
+app.command("bench")(bench_cmd)  # lockstep statistics, thinkfast/sim/bench_cli.py
+
+
 @app.command()
 def sweep(
     sweep_file: Path = typer.Argument(..., help="sweep file (TOML, docs/SWEEPS.md)"),
@@ -262,6 +262,10 @@ def replay(
             "--zenoh-connect to its endpoint)",
             file=sys.stderr,
         )
+
+
+app.command("controller")(controller_cmd)  # the simulated IRC5 (EGM + RWS), thinkfast/sim/irc5.py
+app.add_typer(record_app, name="record")  # thinkfast/sim/record_cli.py
 
 
 def main(argv: list[str] | None = None) -> None:
