@@ -232,13 +232,15 @@ def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) 
 def _watch_hedge(ex) -> list[bool]:
     """A flag set whenever ``ex`` runs its hedge stage (for the timing above)."""
     flag = [False]
-    run = ex._hedge
+    if ex.hedge is None:
+        return flag
+    run = ex.hedge.on_belief
 
     def hedge(*args):
         flag[0] = True
         return run(*args)
 
-    ex._hedge = hedge
+    ex.hedge.on_belief = hedge
     return flag
 
 
@@ -250,10 +252,7 @@ def _planner_config(cfg, name: str):
     if name == "tree+branches":
         choice = dataclasses.replace(cfg.choice, branches=True)
         return dataclasses.replace(cfg, choice=choice), "tree"
-    if name.startswith("tree-hedge-"):  # the tree planner with that [hedge] mode
-        hedge = dataclasses.replace(cfg.hedge, mode=name.removeprefix("tree-hedge-"))
-        return dataclasses.replace(cfg, hedge=hedge), "tree"
-    return cfg, name
+    return cfg, name  # a registered planner (the hedge variants set their own [hedge] mode)
 
 
 def planner_rows(times: dict) -> list[dict]:

@@ -19,7 +19,7 @@ from thinkfast.control.config import RunConfig
 from thinkfast.control.executor import EXECUTING, Executor
 from thinkfast.control.segments import EDGE, STEER, hold
 from thinkfast.decide.branches import BranchTable, continuation_paths
-from thinkfast.decide.choice import BRANCH, DIRECT, BranchPoint, Chooser, Option
+from thinkfast.decide.choice import BRANCH, DIRECT, BranchPoint, Chooser
 from thinkfast.decide.path_value import block_probability
 from thinkfast.decide.tree_view import runtime_tree
 from thinkfast.tree.file import load_tree
@@ -37,7 +37,7 @@ def rtree(small_tree_015, robot):
 @pytest.fixture(scope="module")
 def chooser(rtree, robot):
     ex = Executor(rtree, robot, ON, "tree")
-    return ex.chooser
+    return ex.planner.chooser
 
 
 @pytest.fixture(scope="module")
@@ -157,7 +157,7 @@ def _executor(rtree, robot):
     ex = Executor(rtree, robot, ON, "tree")
     ex.start_from(robot.home, 0.0)
     ex.mode = EXECUTING
-    ex.t_last_det = 10.0  # the ball is still seen and its crossing ahead: no return
+    ex.gate.t_last_det = 10.0  # the ball is still seen and its crossing ahead: no return
     ex.episode.t_cross = 10.0
     return ex
 
@@ -166,16 +166,16 @@ def test_the_executor_follows_a_chosen_edge_and_the_child_chosen_for_its_end(rtr
     t = rtree.compiled
     ex = _executor(rtree, robot)
     eps = rtree.eps
-    at = ex._branch_point(0.2)
+    at = ex.planner.branch_point(0.2)
     assert at == BranchPoint(0, 0.2)  # home at rest: the root
     child = int(t.child_start[0] + 1)
-    ex._take_branch(Option(BRANCH, 0, None, 0.5, child), at, 0.2)
+    ex.planner.take_branch(child, at, 0.2, ex.episode)
     assert ex.segment.kind == EDGE and ex.segment.ref == child and ex.episode.path == [child]
     grand = int(t.child_start[child] + t.child_count[child] - 1)
-    at = ex._branch_point(0.25)
+    at = ex.planner.branch_point(0.25)
     assert at == BranchPoint(child, 0.2 + eps)  # the end of the edge in progress
-    ex._take_branch(Option(BRANCH, 0, None, 0.6, grand), at, 0.25)
-    assert ex.pending == (grand, 0.2 + eps) and ex.segment.ref == child  # not yet
+    ex.planner.take_branch(grand, at, 0.25, ex.episode)
+    assert ex.timeline.pending == (grand, 0.2 + eps) and ex.segment.ref == child  # not yet
     states, times = [], 0.2 + np.arange(0, 2 * eps + 1e-9, 0.004)
     for tick in times:
         q, qd = ex.setpoint(float(tick))
@@ -185,27 +185,29 @@ def test_the_executor_follows_a_chosen_edge_and_the_child_chosen_for_its_end(rtr
     i1, i2 = int(round(eps / 0.004)), int(round(2 * eps / 0.004))
     assert np.max(np.abs(states[i1] - t.node_state[child])) < 1e-9
     assert np.max(np.abs(states[i2] - t.node_state[grand])) < 1e-9
-    assert ex.segment.kind == EDGE and ex.segment.ref == grand and ex.pending is None
+    assert ex.segment.kind == EDGE and ex.segment.ref == grand and ex.timeline.pending is None
     assert ex.episode.path == [child, grand]
     jump = np.abs(np.diff(states[:, 3:6], axis=0)).max()  # velocity continuous at the switch
     assert jump < 0.004 * robot.a_max[:3].max() * 1.01
     # past the node of a depth-2 tree's leaf no edge can start: off the tree
-    assert ex._branch_point(0.2 + 2 * eps + 0.01) is None
+    assert ex.planner.branch_point(0.2 + 2 * eps + 0.01) is None
 
 
 def test_no_branch_point_off_the_tree_and_a_replaced_edge_drops_its_pending_child(rtree, robot):
     t = rtree.compiled
     ex = _executor(rtree, robot)
     child = int(t.child_start[0])
-    ex._take_branch(Option(BRANCH, 0, None, 0.5, child), ex._branch_point(0.0), 0.0)
-    at = ex._branch_point(0.05)
+    ex.planner.take_branch(child, ex.planner.branch_point(0.0), 0.0, ex.episode)
+    at = ex.planner.branch_point(0.05)
     grand = int(t.child_start[child])
-    ex._take_branch(Option(BRANCH, 0, None, 0.5, grand), at, 0.05)
-    assert ex.pending is not None
-    ex._steer_to(3, 0.06)  # a direct move replaces the edge: its switch is void
-    assert ex.segment.kind == STEER and ex.pending is None
-    assert ex._branch_point(0.07) is None  # moving off the tree: no compiled edge can start
+    ex.planner.take_branch(grand, at, 0.05, ex.episode)
+    assert ex.timeline.pending is not None
+    # a direct move replaces the edge: its switch is void
+    ex.timeline.steer_to(rtree.goal_q[3, :3], 3, 0.06)
+    assert ex.segment.kind == STEER and ex.timeline.pending is None
+    assert ex.planner.branch_point(0.07) is None  # moving off the tree: no compiled edge can start
     ex.resync(np.r_[ex.segment.state(0.08)[:3], robot.home[3:]], np.zeros(6), np.zeros(6), 0.08)
-    assert ex._branch_point(0.09) is None
+    assert ex.planner.branch_point(0.09) is None
     off = Executor(rtree, robot, CFG, "tree")
-    assert off.branches is None and off._branch_point(0.0) is None  # switched off by default
+    off = off.planner  # switched off by default
+    assert off.branches is None and off.branch_point(0.0) is None

@@ -73,7 +73,7 @@ def test_a_throw_blind_for_max_blind_ends_even_with_its_crossing_ahead(world):
     """A crossing predicted far ahead (a belief gone wrong) does not keep the arm out forever."""
     ex = Executor(world.tree, world.robot, CFG, "naive")
     ex.start_from(world.robot.home, 0.0)
-    ex.mode, ex.t_last_det = EXECUTING, 1.0
+    ex.mode, ex.gate.t_last_det = EXECUTING, 1.0
     ex.episode.t_cross = 10.0
     ex.setpoint(1.0 + CFG.throw.detection_timeout + 0.1)
     assert ex.mode == EXECUTING
@@ -94,7 +94,7 @@ def test_a_return_whose_way_home_was_replaced_by_a_hold_still_ends_at_home(world
     ex.start_from(robot.home, 0.0)
     q = np.array(robot.home[:3], dtype=float) + [away, -away / 2, away / 3]
     ex.mode = RETURNING
-    ex.segment = hold(np.r_[q, np.zeros(6)], 1.0)
+    ex.timeline.segment = hold(np.r_[q, np.zeros(6)], 1.0)
     t = 1.0
     while ex.mode == RETURNING and t < 8.0:
         q_cmd, _ = ex.setpoint(t)

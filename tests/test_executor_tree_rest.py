@@ -34,13 +34,13 @@ def test_tree_rest_takes_the_next_edge_when_the_one_in_progress_ends(rtree, robo
     )
     c = rtree.crossing(belief.mean, belief.cov, CFG.filter.gravity)
     assert c.ok
-    ex.belief = belief
-    ex.decision = rtree.decide(c, 0.0, 0.0, ex.lag)
+    ex.gate.belief = belief
+    ex.planner.decision = rtree.decide(c, 0.0, 0.0, ex.lag)
     ex.mode = EXECUTING
-    ex.t_last_det = rtree.eps  # the ball is still seen and still coming
+    ex.gate.t_last_det = rtree.eps  # the ball is still seen and still coming
     ex.episode.t_cross = 5.0
-    traj = ex.steer.to_rest(t.node_state[0], rtree.subgoal_q[t.edge_target[child], :3])
-    ex.segment = Segment(EDGE, 0.0, traj, t.node_state[child], rtree.eps, child)
+    traj = ex.timeline.steer.to_rest(t.node_state[0], rtree.subgoal_q[t.edge_target[child], :3])
+    ex.timeline.segment = Segment(EDGE, 0.0, traj, t.node_state[child], rtree.eps, child)
     ex.setpoint(rtree.eps + 0.004)
     assert ex.node == child and ex.episode.path == [child]
     assert ex.segment.ref != child or ex.segment.kind != EDGE  # it moved on from the node

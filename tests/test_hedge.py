@@ -108,9 +108,9 @@ def test_no_hedge_mode_is_todays_executor(rtree, robot):
     a = Trace(Executor(rtree, robot, _cfg("none"), "tree"), robot)
     a.run(THROW, RELEASE + 0.5)
     b = Trace(Executor(rtree, robot, _cfg("mean"), "tree"), robot)
-    b.ex.hedger = None  # the executor as it was: no hedge stage at all
+    b.ex.hedge = None  # the executor as it was: no hedge stage at all
     b.run(THROW, RELEASE + 0.5)
-    assert a.ex.hedger is None
+    assert a.ex.hedge is None
     np.testing.assert_array_equal(np.array(a.states), np.array(b.states))
 
 

@@ -26,10 +26,12 @@ def test_runtime_edges_are_the_compiled_edges(executor):
     motion is exactly the stored child state."""
     rt = executor.tree
     t, eps = rt.compiled, rt.eps
-    assert isinstance(executor.steer, Steering)
+    assert isinstance(executor.timeline.steer, Steering)
     for child in range(1, t.n_nodes):
         parent = t.node_parent[child]
-        traj = executor.steer.to_rest(t.node_state[parent], rt.subgoal_q[t.edge_target[child], :3])
+        traj = executor.timeline.steer.to_rest(
+            t.node_state[parent], rt.subgoal_q[t.edge_target[child], :3]
+        )
         assert traj is not None
         end = state_at(traj, min(traj.duration, eps))
         assert np.array_equal(end, t.node_state[child]), child

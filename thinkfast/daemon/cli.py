@@ -20,6 +20,7 @@ from thinkfast.cli_util import (
     make_app,
     run_app,
 )
+from thinkfast.control.planners import registry
 
 app = make_app("thinkfast runtime daemon: ball detections over zenoh in, EGM setpoints out.")
 
@@ -38,12 +39,7 @@ def run(
     check_config: Path | None = typer.Option(
         None, "--check-config", help="load and validate this runtime config, print OK and exit"
     ),
-    planner: str = typer.Option(
-        "tree",
-        "--planner",
-        help="tree (belief-space), tree-rest (the paper's at-rest values), "
-        "naive or naive-paper (baselines)",
-    ),
+    planner: str = typer.Option("tree", "--planner", help=registry.describe(online=True)),
     egm_bind: str = typer.Option(EGM_BIND_DEFAULT, "--egm-bind", help="UDP HOST:PORT to serve EGM"),
     egm_controller: str | None = typer.Option(
         None,
@@ -81,7 +77,7 @@ def run(
         1.0,
         "--speed-scale",
         help="scale the velocity, acceleration and jerk limits by this (0 < S <= 1; not with "
-        "--planner tree-rest, whose compiled edges use the full limits)",
+        "a planner that follows compiled edges at the full limits, tree-rest)",
     ),
     go_home: bool = typer.Option(
         True,
@@ -122,7 +118,6 @@ def run(
     """Run until SIGINT/SIGTERM, then brake smoothly and exit 0."""
     from thinkfast.contract.zenoh_session import session_config
     from thinkfast.control.config import load_run_config
-    from thinkfast.control.executor import PLANNERS
     from thinkfast.daemon.egm_server import parse_controller, parse_hostport
     from thinkfast.daemon.service import Daemon, Endpoints, Modes
     from thinkfast.errors import ConfigError, RobotModelError
@@ -136,16 +131,18 @@ def run(
         raise typer.BadParameter(
             "missing (required unless --print-config or --check-config)", param_hint="'--tree'"
         )
-    if planner not in PLANNERS:
-        raise ConfigError("--planner", None, f"{planner!r} is not one of {', '.join(PLANNERS)}")
+    try:
+        entry = registry.get(planner, online=True)
+    except ValueError as e:
+        raise ConfigError("--planner", None, str(e)) from None
     if log_level.upper() not in ("DEBUG", "INFO", "WARNING", "ERROR"):
         raise ConfigError("--log-level", None, f"{log_level!r} is not one of debug, info, ...")
     if not 0.0 < speed_scale <= 1.0:
         raise ConfigError("--speed-scale", None, f"{speed_scale} is not in (0, 1]")
-    if speed_scale < 1.0 and planner == "tree-rest":
+    if speed_scale < 1.0 and entry.load().full_limits:
         raise ConfigError(
-            "--speed-scale", None, "not with --planner tree-rest (its compiled edges use the full "
-            "limits); use tree, naive or naive-paper",
+            "--speed-scale", None, f"not with --planner {planner} (its compiled edges use the "
+            "full limits)",
         )  # fmt: skip
     setup_logging(log_level, log_format)
     if rerun is not None:

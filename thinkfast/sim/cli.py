@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -11,86 +10,27 @@ import typer
 
 from thinkfast.cli_util import make_app, run_app
 from thinkfast.contract import keys
+from thinkfast.sim.bench_cli import WorldFactory as _WorldFactory  # noqa: F401 (bench/ scripts)
+from thinkfast.sim.bench_cli import bench as bench_cmd
+from thinkfast.sim.cli_options import (
+    FEINTS_HELP,
+    MIX_HELP,
+    RERUN_HELP,
+    SCHEDULER_HELP,
+    with_cameras,  # noqa: F401 (bench/ scripts, tests)
+)
+from thinkfast.sim.cli_options import load_throws as _throws
+from thinkfast.sim.cli_options import throw_config as _throw_config
 from thinkfast.sim.irc5_cli import controller as controller_cmd
+from thinkfast.sim.planners import check_planners, online_planners
+from thinkfast.sim.record_cli import convert, record_app
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
-PLANNERS = ("tree", "tree-rest", "naive", "naive-paper", "oracle", "oracle_seen")
-PLANNERS += ("tree-hedge-none", "tree-hedge-mean", "tree-hedge-tree")  # lockstep.HEDGED
-ONLINE = ("tree", "tree-rest", "naive", "naive-paper")  # the ones the daemon runs
 
 
 @app.callback()
 def _group() -> None:
     """Simulated throws, camera and ABB controller for thinkfast."""
-
-
-MIX_HELP = (
-    "kinds of throw drawn, KIND=WEIGHT,... of still, windup, feint (default: "
-    "thinkfast/sim/thrower.py DEFAULT_MIX: half still holds, half wind-ups)"
-)
-FEINTS_HELP = "feints appended to the drawn throws (ids s<seed>-f<j>)"
-SCHEDULER_HELP = (
-    "run as Dask tasks (docs/SWEEPS.md): local (an embedded cluster on this machine), serial "
-    "(this process, no Dask) or a running scheduler's address, tcp://HOST:8786; same results"
-)
-RERUN_HELP = (
-    "live view with Rerun: spawn, connect[=URL] or save=FILE.rrd (docs/LIVE_VIEW.md; needs the "
-    "view extra)"
-)
-
-
-CAMERAS_HELP = (
-    "cameras that see the throws, comma separated: base (the run config's [camera]) first, then "
-    "ids of its [[cameras]] or side (the default side camera, docs/CAMERAS.md); default: the "
-    "run config's. Compare two set-ups by running the same --seed with each"
-)
-
-
-def with_cameras(cfg, cameras: str | None):
-    """``cfg`` seeing with the cameras ``cameras`` names (None: unchanged); see CAMERAS_HELP."""
-    import dataclasses
-
-    from thinkfast.errors import ConfigError
-    from thinkfast.estimate.fusion import DEFAULT_CAMERA, SIDE_CAMERA
-
-    if cameras is None:
-        return cfg
-    names = [c.strip() for c in cameras.split(",") if c.strip()]
-    if not names or names[0] != DEFAULT_CAMERA or len(set(names)) != len(names):
-        raise ConfigError("--cameras", None, f"{cameras!r}: base first, each camera once")
-    known = {c.id: c for c in cfg.cameras}
-    known.setdefault(SIDE_CAMERA.id, SIDE_CAMERA)
-    bad = [n for n in names[1:] if n not in known]
-    if bad:
-        raise ConfigError("--cameras", None, f"{bad[0]!r} is not one of base, {', '.join(known)}")
-    return dataclasses.replace(cfg, cameras=tuple(known[n] for n in names[1:]))
-
-
-def _throw_config(mix: str | None):
-    import dataclasses
-
-    from thinkfast.sim.thrower import parse_mix
-    from thinkfast.sim.throws import ThrowConfig
-
-    cfg = ThrowConfig()
-    if mix is None:
-        return cfg
-    return dataclasses.replace(cfg, thrower=dataclasses.replace(cfg.thrower, mix=parse_mix(mix)))
-
-
-def _throws(n: int, seed: int, throw_set: Path | None, mix: str | None = None, feints: int = 0):
-    from thinkfast.errors import ConfigError
-    from thinkfast.sim.throws import sample_throws
-    from thinkfast.sim.throwset import load_throw_set
-
-    if feints < 0:
-        raise ConfigError("--feints", None, f"must be >= 0, got {feints}")
-    if throw_set is not None:
-        if mix is not None or feints:
-            raise ConfigError("--mix/--feints", None, "not with --throw-set (the set is given)")
-        ts = load_throw_set(throw_set)
-        return ts.throws[:n] if n else ts.throws
-    return sample_throws(_throw_config(mix), n, seed, feints)
 
 
 @app.command()
@@ -118,7 +58,7 @@ def run(
     tree: Path = typer.Option(..., "--tree", help="compiled action tree (HDF5)"),
     n: int = typer.Option(5, "--throws", "-n", help="number of throws"),
     seed: int = typer.Option(1, "--seed", help="throw and camera-noise seed"),
-    planner: str = typer.Option("tree", "--planner", help="tree, tree-rest, naive or naive-paper"),
+    planner: str = typer.Option("tree", "--planner", help=", ".join(online_planners())),
     throw_set: Path | None = typer.Option(None, "--throw-set", help="throws from this file"),
     mix: str | None = typer.Option(None, "--mix", help=MIX_HELP),
     feints: int = typer.Option(0, "--feints", help=FEINTS_HELP),
@@ -153,8 +93,7 @@ def run(
         from thinkfast.daemon.live_view import parse_sink
 
         parse_sink(rerun)  # fail here, not in the daemon
-    if planner not in ONLINE:
-        raise ConfigError("--planner", None, f"{planner!r} is not one of {', '.join(ONLINE)}")
+    check_planners([planner], "--planner", None, online=True)
     if frames_resolution not in ("hd720", "vga"):
         raise ConfigError("--frames-resolution", None, f"{frames_resolution!r}: hd720 or vga")
     if frames and detect_config is not None:
@@ -208,113 +147,7 @@ def run(
         )
 
 
-@app.command()
-def bench(
-    tree: Path = typer.Option(..., "--tree", help="compiled action tree (HDF5)"),
-    n: int = typer.Option(500, "--throws", "-n", help="throws per planner"),
-    seed: int = typer.Option(1, "--seed", help="throw and camera-noise seed"),
-    planners: str = typer.Option(
-        "tree,naive,naive-paper,oracle,oracle_seen", "--planners", help="comma separated"
-    ),
-    reference: str | None = typer.Option(
-        None,
-        "--reference",
-        help="planner every other one is compared with, paired (default: tree, or the first "
-        "planner when tree does not run)",
-    ),
-    throw_set: Path | None = typer.Option(None, "--throw-set", help="throws from this file"),
-    mix: str | None = typer.Option(None, "--mix", help=MIX_HELP),
-    feints: int = typer.Option(
-        -1, "--feints", help=FEINTS_HELP + "; default: a tenth of --throws (none with --throw-set)"
-    ),
-    jobs: int = typer.Option(
-        0, "--jobs", "-j", help="processes (0: all cores); with --scheduler local: Dask workers"
-    ),
-    config: Path | None = typer.Option(None, "--config", help="runtime config (TOML)"),
-    as_json: bool = typer.Option(False, "--json", help="print one JSON object"),
-    png: Path | None = typer.Option(None, "--png", help="plot success by flight time"),
-    scheduler: str | None = typer.Option(None, "--scheduler", help=SCHEDULER_HELP),
-    chunk: int = typer.Option(25, "--chunk", help="throws per task (with --scheduler)"),
-    cameras: str | None = typer.Option(None, "--cameras", help=CAMERAS_HELP),
-) -> None:
-    """Lockstep statistics: the daemon's kernels in simulated time, every planner, same throws.
-
-    Each kind of throw (--mix, --feints) is also reported on its own; feints by how far the
-    shield left home and whether it was home again within 2 s. Every planner is compared with
-    the --reference planner on the same throws: counts of throws both / only one / neither
-    blocked, the difference in rate with a 95 % interval (Newcombe) and an exact McNemar p.
-    """
-    from thinkfast.compile.grow import default_jobs
-    from thinkfast.control.config import load_run_config
-    from thinkfast.errors import ConfigError
-    from thinkfast.sim.bench import format_summary, plot_summary, run_bench, summarize
-    from thinkfast.tree.file import load_tree
-
-    names = [p.strip() for p in planners.split(",") if p.strip()]
-    bad = [p for p in names if p not in PLANNERS]
-    if bad or not names:
-        raise ConfigError("--planners", None, f"{bad or names} not in {', '.join(PLANNERS)}")
-    if reference is not None and reference not in names:
-        raise ConfigError("--reference", None, f"{reference!r} is not one of --planners {names}")
-    cfg = with_cameras(load_run_config(config), cameras)
-    load_tree(tree)  # fail here, with the file's name, not in a worker
-    if feints == -1:
-        feints = 0 if throw_set is not None else n // 10
-    if chunk < 1:
-        raise ConfigError("--chunk", None, f"must be >= 1, got {chunk}")
-    balls = _throws(n, seed, throw_set, mix, feints)
-    start = time.perf_counter()
-    if scheduler is not None:
-        from thinkfast.sim.cluster import bench_on_client, open_client
-
-        with open_client(scheduler, jobs or default_jobs()) as client:
-            out = bench_on_client(
-                client, tree, cfg, balls, names, seed, chunk, None if as_json else _progress
-            )
-    else:
-        out = run_bench(
-            _WorldFactory(tree, cfg),
-            balls,
-            names,
-            seed,
-            jobs or default_jobs(),
-            None if as_json else _progress,
-        )
-    summary = summarize(out, names, reference)
-    summary["seconds"] = round(time.perf_counter() - start, 1)
-    summary["seed"] = seed
-    if cameras is not None:
-        summary["cameras"] = ["base", *(c.id for c in cfg.cameras)]
-    if as_json:
-        print(json.dumps(summary))
-    else:
-        print(format_summary(summary))
-        print(f"({summary['seconds']} s)")
-    if png is not None:
-        plot_summary(summary, str(png))
-
-
-class _WorldFactory:
-    """Picklable builder of the lockstep world (one per worker process)."""
-
-    def __init__(self, tree: Path, cfg):
-        self.tree, self.cfg = tree, cfg
-
-    def __call__(self):
-        from thinkfast.robot.model import load_robot
-        from thinkfast.sim.camera import CameraModelConfig
-        from thinkfast.sim.controller import ServoConfig
-        from thinkfast.sim.lockstep import World
-        from thinkfast.tree.file import load_tree
-
-        return World(
-            load_tree(self.tree), load_robot(), self.cfg, ServoConfig(), CameraModelConfig()
-        )
-
-
-def _progress(done: int, total: int) -> None:
-    if done == total or done % 25 == 0:
-        print(f"  {done}/{total} throws", file=sys.stderr, flush=True)
+app.command("bench")(bench_cmd)  # lockstep statistics, thinkfast/sim/bench_cli.py
 
 
 @app.command()
@@ -407,7 +240,7 @@ def replay(
     if speed <= 0:
         raise ConfigError("--speed", None, "must be > 0")
     if rerun is not None or mcap is not None:
-        _convert(record, rerun, mcap, tree)
+        convert(record, rerun, mcap, tree)
         if not zenoh_connect:
             return
     t, payloads = read_detections(record)  # RecordFileError: one line naming the file
@@ -431,83 +264,8 @@ def replay(
         )
 
 
-def _convert(record: Path, rerun: str | None, mcap: Path | None, tree: Path | None) -> None:
-    """``--rerun`` and ``--mcap`` of replay and the record commands."""
-    from thinkfast.record.format import read_record
-
-    sink = None
-    if rerun is not None:
-        from thinkfast.daemon.live_view import parse_sink
-
-        sink = parse_sink(rerun)  # before reading: a bad option fails at once
-    rec = read_record(record)
-    if mcap is not None:
-        from thinkfast.record.mcap import write_mcap
-        from thinkfast.record.tables import run_config
-        from thinkfast.robot.model import load_robot
-
-        cfg = run_config(rec)
-        robot = load_robot(Path(cfg.robot) if cfg.robot else None)
-        counts = write_mcap(rec, mcap, robot.joint_names)
-        print(f"wrote {sum(counts.values())} messages on {len(counts)} topics to {mcap}")
-    if sink is not None:
-        from thinkfast.daemon.record_view import record_to_rerun
-
-        counts = record_to_rerun(rec, sink, tree)
-        what = ", ".join(f"{n} {k}" for k, n in counts.items())
-        print(f"rerun ({sink.kind}{' ' + sink.target if sink.target else ''}): {what}")
-
-
-record_app = typer.Typer(
-    help="Flight records of thinkfast-run: summary, plot, MCAP, Rerun.",
-    no_args_is_help=True,
-    rich_markup_mode=None,
-)
-app.add_typer(record_app, name="record")
 app.command("controller")(controller_cmd)  # the simulated IRC5 (EGM + RWS), thinkfast/sim/irc5.py
-
-
-@record_app.command("info")
-def record_info_cmd(
-    record: Path = typer.Argument(..., help="flight record (HDF5)"),
-) -> None:
-    """Attributes, streams, span, EGM rate and events of a flight record."""
-    from thinkfast.record.format import read_record
-    from thinkfast.record.plot import record_info
-
-    print("\n".join(record_info(read_record(record))))
-
-
-@record_app.command("plot")
-def record_plot_cmd(
-    record: Path = typer.Argument(..., help="flight record (HDF5)"),
-    output: Path = typer.Option(..., "-o", "--output", help="PNG to write"),
-) -> None:
-    """Joints, ball track against the belief, crossing prediction and decisions, as PNG."""
-    from thinkfast.record.format import read_record
-    from thinkfast.record.plot import plot_record
-
-    plot_record(read_record(record), output)
-    print(f"wrote {output}", flush=True)
-
-
-@record_app.command("mcap")
-def record_mcap_cmd(
-    record: Path = typer.Argument(..., help="flight record (HDF5)"),
-    output: Path = typer.Option(..., "-o", "--output", help="MCAP file to write"),
-) -> None:
-    """The record as MCAP with ROS 2 messages (sensor_msgs/JointState, PointStamped, ...)."""
-    _convert(record, None, output, None)
-
-
-@record_app.command("view")
-def record_view_cmd(
-    record: Path = typer.Argument(..., help="flight record (HDF5)"),
-    rerun: str = typer.Option("spawn", "--rerun", help=RERUN_HELP),
-    tree: Path | None = typer.Option(None, "--tree", help="draw its goal grid"),
-) -> None:
-    """The record in the Rerun viewer (the live view's entities, offline)."""
-    _convert(record, rerun, None, tree)
+app.add_typer(record_app, name="record")  # thinkfast/sim/record_cli.py
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -7,7 +7,8 @@ on the controller's clock, checked against the measured joints) answers with the
 follows; detections reach the core between ticks, exactly as in the daemon's loop. The judge
 decides from the controller's joint history.
 
-Planners: ``tree`` and ``naive`` (the daemon's executor) and ``oracle``: it knows the true crossing
+Planners: every one of the executor's registry (``tree``, ``naive``, ...: the daemon's
+executor, :mod:`thinkfast.control.planners.registry`) and ``oracle``: it knows the true crossing
 point at release and goes there as fast as the arm allows, so the throws it blocks are the ones
 this arm can block at all ("feasible"). ``oracle_seen`` knows the same but leaves only when the
 first detection of the flight is delivered (by any camera): no planner that waits for evidence of
@@ -30,8 +31,6 @@ import numpy as np
 
 from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
-from thinkfast.control.executor import Executor
-from thinkfast.control.hedge import HEDGE_MODES
 from thinkfast.control.segments import WristTracker
 from thinkfast.decide.tree_view import BALL_RADIUS
 from thinkfast.robot.ik import solve_shield_ik
@@ -41,6 +40,7 @@ from thinkfast.robot.steering import Steering
 from thinkfast.sim.camera import CameraModelConfig, SimCamera, detection_payload, observe_cameras
 from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
+from thinkfast.sim.planners import ORACLES
 from thinkfast.sim.throws import Throw, plane_crossing
 
 DT = 0.004
@@ -69,20 +69,6 @@ class Outcome(NamedTuple):
     faults: int = 0  # deviation (or planner) faults: the supervisor braked and the arm recovered
     commit_start: float = math.nan  # when the confirmed throw's plan took over, after release [s]
     hedges: int = 0  # hedges begun (the hedge stage, control/hedge.py)
-
-
-HEDGED = {f"tree-hedge-{m}": m for m in HEDGE_MODES}
-"""Bench names of the tree planner with its ``[hedge] mode`` set (paired comparisons)."""
-
-
-def executor_for(world: World, planner: str) -> Executor:
-    """The executor of ``planner``: one of the executor's planners, or one of :data:`HEDGED`
-    (the tree planner with that hedge mode)."""
-    cfg = world.cfg
-    if planner in HEDGED:
-        cfg = dataclasses.replace(cfg, hedge=dataclasses.replace(cfg.hedge, mode=HEDGED[planner]))
-        planner = "tree"
-    return Executor(world.tree, world.robot, cfg, planner)
 
 
 class World:
@@ -139,7 +125,7 @@ def simulate(
     if clock is not None:
         clock = dataclasses.replace(clock, seed=clock.seed * 1_000_003 + seed)
     sim = SimController(world.servo, q0=robot.home, clock=clock)
-    if planner in ("oracle", "oracle_seen"):
+    if planner in ORACLES:
         sup = world.parts.supervisor()
         t_go = t_rel + oracle_start
         if planner == "oracle_seen":
@@ -148,7 +134,7 @@ def simulate(
         step_fn = _stay(robot.home) if feint else _oracle(world, throw, cross, t_go)
         ex = None
     else:
-        ex = executor_for(world, planner)
+        ex = world.parts.executor(planner)  # the registry's planner
         core = world.parts.core(ex)
         sup = core.sup
     k_det, t = 0, 0.0

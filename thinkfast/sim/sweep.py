@@ -32,9 +32,7 @@ from thinkfast.compile.config import CompileConfig, check_compile_config
 from thinkfast.config import from_dict, include_table, load_toml, spec, to_dict, to_toml
 from thinkfast.control.config import CameraExtrinsic, RunConfig
 from thinkfast.errors import ConfigError
-
-PLANNERS = ("tree", "tree-rest", "naive", "naive-paper", "oracle", "oracle_seen")
-DEFAULT_PLANNERS = ("tree", "naive", "naive-paper", "oracle", "oracle_seen")  # as bench
+from thinkfast.sim.planners import DEFAULT, check_planners
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,8 +41,8 @@ class SweepSettings:
 
     compile_config: str = spec(doc="base compile config (TOML), relative to the sweep file")
     run_config: str = spec("", doc="base runtime config (TOML), relative; empty: the defaults")
-    planners: tuple[str, ...] = spec(DEFAULT_PLANNERS, doc="planners run on every throw",
-                                     choices=PLANNERS)  # fmt: skip
+    planners: tuple[str, ...] = spec(DEFAULT, doc="planners run on every throw (any that "
+                                     "thinkfast-sim bench --planners takes)")  # fmt: skip
     reference: str = spec("", doc="planner the others are compared with (empty: as bench)")
     throws: int = spec(200, lo=1, doc="throws per point (the same throws at every point)")
     seed: int = spec(1, lo=0, doc="throw and camera-noise seed")
@@ -223,8 +221,7 @@ def load_sweep(path: str | Path) -> Sweep:
     if "sweep" not in data:
         raise ConfigError(src, "sweep", "missing [sweep] table (compile_config is required)")
     settings = from_dict(SweepSettings, data["sweep"], src, "sweep")
-    if not settings.planners:
-        raise ConfigError(src, "sweep.planners", "name at least one planner")
+    check_planners(settings.planners, src, "sweep.planners")
     reference = settings.reference or ("tree" if "tree" in settings.planners
                                        else settings.planners[0])  # fmt: skip
     if reference not in settings.planners:

@@ -1,0 +1,166 @@
+"""The throw gate: detections into the ball filter, and when a tracked ball is a throw.
+
+Clock-free (times are arguments [s]). The filter follows the ball (started afresh when the
+previous detection is older than ``throw.detection_timeout``); with several cameras
+(docs/CAMERAS.md) each one's origin and noise model is used and a camera whose detections
+disagree with the reference camera's is kept out. Two gates (the planner names its own,
+:mod:`thinkfast.control.planners.base`):
+
+- ``confirm``: a belief *predicts a throw* when the ball approaches the plane faster than
+  ``min_approach_speed`` at ``approach_sigmas``, its crossing is due within ``max_tau`` and lies
+  within ``region_margin`` of the goal grid; a ball held still never does. Once the filter has
+  absorbed ``settle_updates`` updates since its last (re)start, each belief that predicts a
+  throw adds one to a count and each one that does not takes one off (never below zero: one
+  outlier frame costs one step, not the whole count); the throw is confirmed when the count
+  reaches ``confirm_updates``. A launch found by the launch detector (``[launch]``) restarts the
+  filter from its fit, and confirms at once when that belief predicts a throw.
+- ``first`` (the paper's baseline): the first belief that predicts a throw at zero sigmas (mean
+  approach speed) confirms it, with neither the launch detector, the settling nor the count.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.control.config import RunConfig
+from thinkfast.control.planners.base import CONFIRM, FIRST
+from thinkfast.decide.tree_view import RuntimeTree
+from thinkfast.estimate import filter as kf
+from thinkfast.estimate.crossing import Crossing
+from thinkfast.estimate.fusion import DEFAULT_CAMERA, CameraCheck, camera_filter
+from thinkfast.estimate.launch import LaunchDetector
+
+
+class Fused(NamedTuple):
+    """What became of one detection.
+
+    Attributes:
+        ok: it updated the filter (False: refused, or too late for it).
+        launched: the launch detector restarted the filter from its fit.
+        refusal: ``"inconsistent_camera"`` when its camera's detections are refused.
+    """
+
+    ok: bool
+    launched: bool = False
+    refusal: str | None = None
+
+
+class ThrowGate:
+    """Ball filter, cameras, launch detector and the throw confirmation (module doc).
+
+    Args:
+        tree: the runtime tree (crossings, the goal grid).
+        cfg: runtime configuration.
+        kind: ``confirm`` or ``first`` (module doc).
+
+    Attributes:
+        belief: the ball filter's state.
+        confirm: the confirmation count.
+        settled: updates absorbed since the filter last (re)started.
+        t_last_det: newest detection stamp fused [s].
+        check: the cameras' consistency check (None with the default camera alone).
+    """
+
+    def __init__(self, tree: RuntimeTree, cfg: RunConfig, kind: str = CONFIRM):
+        if kind not in (CONFIRM, FIRST):
+            raise ValueError(f"throw gate {kind!r} is not one of {CONFIRM}, {FIRST}")
+        self.tree, self.cfg, self.first = tree, cfg, kind == FIRST
+        self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
+        n_cam = 1 + len(cfg.cameras)
+        window = cfg.fusion.launch_window if cfg.cameras else None
+        self.launch = LaunchDetector(cfg.launch, cfg.filter, self.sensor, n_cam, window)
+        self.sensors: dict[str | None, tuple[np.ndarray, kf.FilterConfig]] = {
+            None: (self.sensor, cfg.filter)
+        }
+        self.check: CameraCheck | None = None
+        self.reference: str | None = None
+        if cfg.cameras:
+            for c in cfg.cameras:
+                self.sensors[c.id] = (np.array(c.xyz, dtype=float), camera_filter(cfg.filter, c))
+            ref = None if cfg.fusion.reference == DEFAULT_CAMERA else cfg.fusion.reference
+            self.reference = ref
+            origin, fcfg = self.sensors[ref]
+            self.check = CameraCheck(cfg.fusion, fcfg, origin, cfg.throw.detection_timeout)
+        self.belief = kf.empty(cfg.filter)
+        self.confirm = 0
+        self.settled = 0
+        self.t_last_det = -np.inf
+
+    def fuse(self, stamp: float, p_base: np.ndarray, camera: str | None, armed: bool) -> Fused:
+        """Fuse the ball centre ``p_base`` (3,) [m] in ``base`` captured at ``stamp`` by
+        ``camera`` (None: the default camera); ``armed``: no throw is under way (the launch
+        detector looks for one)."""
+        sensor, fcfg = self.sensors[camera]
+        if self.check is not None:
+            if camera == self.reference:
+                self.check.reference(stamp, p_base)
+            elif not self.check.admit(camera, stamp, p_base, kf.stereo_r(p_base, sensor, fcfg)):
+                bad = self.check.state(camera).inconsistent
+                return Fused(False, refusal="inconsistent_camera" if bad else None)
+        if stamp - self.t_last_det > self.cfg.throw.detection_timeout:
+            self.belief = kf.empty(self.cfg.filter)  # a new ball: start the filter afresh
+            self.confirm = 0
+            self.launch.reset()
+        lag = self.cfg.fusion.max_lag if self.check is not None else 0.0
+        self.belief, info = kf.update(self.belief, stamp, p_base, fcfg, sensor, lag)
+        if info.status == "late":
+            return Fused(False)
+        self.t_last_det = max(self.t_last_det, stamp)
+        # updates absorbed since the filter last (re)started from two measurements: before 2,
+        # one outlier among those two can fake any velocity
+        restarted = info.status in ("first", "init") or bool(np.any(info.reset))
+        self.settled = 0 if restarted else self.settled + 1
+        if not (armed and self.cfg.launch.enabled and not self.first):
+            return Fused(True)
+        several = self.check is not None
+        fit = self.launch.add(stamp, p_base, *((sensor, fcfg) if several else ()))
+        if fit is None:
+            return Fused(True)
+        newest = None if fit.t != stamp or not several else sensor
+        self.belief = kf.restart(self.belief, fit.t, fit.mean, fit.cov, fit.z, newest)
+        self.settled = max(self.settled, self.cfg.throw.settle_updates)
+        return Fused(True, launched=True)
+
+    def crossing(self) -> Crossing:
+        """The belief's crossing of the plane (delta method)."""
+        return self.tree.crossing(self.belief.mean, self.belief.cov, self.cfg.filter.gravity)
+
+    def confirms(self, c: Crossing, launched: bool, tracking: bool) -> bool:
+        """The belief (crossing ``c``; ``launched``: just restarted by the launch detector) is
+        one of a confirmed throw: counted while ``tracking`` (module doc); a throw under way
+        stays confirmed."""
+        if self.first:
+            return not tracking or self.approaching(c, sigmas=0.0)
+        if not tracking:
+            return True
+        th = self.cfg.throw
+        if self.settled >= th.settle_updates and self.approaching(c):
+            self.confirm = th.confirm_updates if launched else self.confirm + 1
+        else:  # one outlier frame costs one step, not the whole count
+            self.confirm = max(self.confirm - 1, 0)
+        return self.confirm >= th.confirm_updates
+
+    @property
+    def confirmed(self) -> bool:
+        """The count reached ``confirm_updates`` (never with the ``first`` gate)."""
+        return self.confirm >= self.cfg.throw.confirm_updates
+
+    def approaching(self, c: Crossing, sigmas: float | None = None) -> bool:
+        """The belief predicts a throw: approaching faster than ``min_approach_speed`` at
+        ``sigmas`` (default ``approach_sigmas``), crossing within ``max_tau``, near the goals."""
+        th = self.cfg.throw
+        k = th.approach_sigmas if sigmas is None else sigmas
+        speed_lo = -self.belief.mean[3] - k * np.sqrt(self.belief.cov[3, 3])
+        if not c.ok or speed_lo < th.min_approach_speed or c.mean[2] > th.max_tau:
+            return False
+        y, z = c.mean[0], c.mean[1]
+        lo, hi = self.tree.goal_yz.min(axis=0), self.tree.goal_yz.max(axis=0)
+        m = th.region_margin
+        return lo[0] - m <= y <= hi[0] + m and lo[1] - m <= z <= hi[1] + m
+
+    def drop(self) -> None:
+        """The throw was dropped: an empty filter, no count (the launch detector goes on)."""
+        self.belief = kf.empty(self.cfg.filter)
+        self.confirm = 0

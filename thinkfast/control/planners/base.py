@@ -1,0 +1,156 @@
+"""The planner interface: what a planner of the executor is given and what it returns.
+
+A planner decides where the arm goes once a throw is confirmed. It is built once per executor
+from the runtime tree, the robot, the runtime config and the executor's segment timeline
+(:class:`~thinkfast.control.timeline.Timeline`), and is clock-free: every call carries the time
+the plans run on (the controller's clock) [s].
+
+- :meth:`Planner.decide`, at every belief from the confirmation on, is given a :class:`Belief`
+  (the crossing prediction, the belief's mean, whether the arm has left home) and the throw's
+  :class:`EpisodeLog`. It commands motion by replacing the timeline's segment (a move from the
+  commanded state ``timeline.state(t_now)``, so plans stay continuous) and returns an
+  :class:`Act`: whether the arm leaves home now and the value of its choice.
+- :meth:`Planner.advance`, at every tick while the arm is out, moves on along plans made of
+  pieces (the tree edges of ``tree-rest``, the queued child edge of ``tree``).
+- :meth:`Planner.resume_edge` says what a compiled tree edge becomes after a resync (an edge
+  cannot be resumed off its compiled path).
+- :meth:`Planner.value` is the (value, goal) shown in the status and the records.
+
+Class attributes say what else the planner needs from the executor: ``gate`` (which throw gate
+confirms, :mod:`thinkfast.control.gate`), ``hedges`` (the hedge stage may run before the
+confirmation, :mod:`thinkfast.control.hedge_stage`) and ``full_limits`` (it follows compiled
+edges at the robot's full limits: no ``--speed-scale``). The registry
+(:mod:`thinkfast.control.planners.registry`) names the planners.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import ClassVar, NamedTuple
+
+import numpy as np
+
+from thinkfast.control.config import RunConfig
+from thinkfast.control.segments import STEER
+from thinkfast.control.timeline import Timeline
+from thinkfast.decide.tree_view import Decision, RuntimeTree
+from thinkfast.estimate.crossing import Crossing
+from thinkfast.robot.model import Robot
+
+CONFIRM, FIRST = "confirm", "first"  # throw gates (thinkfast/control/gate.py)
+
+
+@dataclass
+class EpisodeLog:
+    """What the current throw did (for status, records and the judge); times [s]."""
+
+    t_confirmed: float = math.nan
+    t_start: float = math.nan
+    t_cross: float = math.nan
+    path: list[int] = field(default_factory=list)  # tree nodes reached
+    terminal: int = -1
+    chosen_value: float = math.nan
+    decisions: int = 0
+    t_hedge: float = math.nan  # when the first hedge of the throw began (nan: none)
+
+
+class Belief(NamedTuple):
+    """What a planner is given at every belief from the confirmation on.
+
+    Attributes:
+        t_now: when a plan made now starts (the next controller cycle) [s].
+        stamp: capture time of the detection behind the belief [s].
+        crossing: the belief's crossing of the plane (``ok`` False: none predicted).
+        mean: belief mean (6,): ball position [m] and velocity [m/s] in ``base``.
+        executing: the arm has left home in this throw.
+        t_start: when it left [s] (nan while it has not).
+    """
+
+    t_now: float
+    stamp: float
+    crossing: Crossing
+    mean: np.ndarray
+    executing: bool
+    t_start: float
+
+
+class Act(NamedTuple):
+    """What a planner returns from a belief.
+
+    Attributes:
+        leave: the arm leaves home now (the executor starts the episode's motion at ``t_now``).
+        value: the value of the choice made (None: none to record).
+    """
+
+    leave: bool = False
+    value: float | None = None
+
+
+STAY = Act()
+
+
+class Planner:
+    """Base of the executor's planners (module doc).
+
+    Args:
+        tree: the runtime tree.
+        robot: the robot (limits, home).
+        cfg: runtime configuration (with the registry entry's settings applied).
+        timeline: the executor's segment timeline, the planner's output.
+    """
+
+    gate: ClassVar[str] = CONFIRM
+    hedges: ClassVar[bool] = False
+    full_limits: ClassVar[bool] = False
+
+    def __init__(self, tree: RuntimeTree, robot: Robot, cfg: RunConfig, timeline: Timeline):
+        self.tree, self.robot, self.cfg, self.timeline = tree, robot, cfg, timeline
+        self.lag = cfg.execution.controller_lag
+        self.decision: Decision | None = None  # the at-rest backup of the last belief
+
+    def decide(self, b: Belief, ep: EpisodeLog) -> Act:
+        """Plan on the belief ``b`` (module doc); returns what the executor records."""
+        raise NotImplementedError
+
+    def advance(self, t: float, ep: EpisodeLog) -> None:
+        """Every tick while the arm is out, before the timeline is sampled at ``t`` [s]."""
+
+    def resume_edge(self, q: np.ndarray) -> tuple[str, np.ndarray, int]:
+        """(kind, joint 1-3 target [rad] (3,), ref) the compiled tree edge in progress becomes
+        when planned again from the joints ``q`` (6,): a move to the most probable goal of the
+        last decision (none: a stop at ``q``)."""
+        d = self.decision
+        goal = -1 if d is None or d.backup is None else int(d.backup.best_goal)
+        return STEER, self.tree.goal_q[goal, :3] if goal >= 0 else q[:3], goal
+
+    def value(self) -> tuple[float, int] | None:
+        """(value, goal) of the last decision: the at-rest backup at the timeline's node and its
+        most probable goal; None before any."""
+        d = self.decision
+        if d is None or d.backup is None:
+            return None
+        return float(d.backup.value[self.timeline.node]), int(d.backup.best_goal)
+
+    def reset(self) -> None:
+        """The throw was dropped: forget its decisions."""
+        self.decision = None
+
+    def backup(self, b: Belief) -> Decision:
+        """The at-rest backup of the tree under ``b`` (from where the arm left home, or from
+        now while it has not), kept as :attr:`decision`."""
+        t_start = b.t_start if b.executing else b.t_now
+        self.decision = self.tree.decide(b.crossing, b.stamp, t_start, self.lag)
+        return self.decision
+
+    def rush(self, b: Belief) -> Act:
+        """To the goal nearest the most likely crossing point, from the commanded state (kept
+        when it already goes there); leaves home. Nothing without a crossing."""
+        c = b.crossing
+        if not c.ok:
+            return STAY
+        goal = self.tree.nearest_goal(c.mean[:2])
+        seg = self.timeline.segment
+        if not (seg.kind == STEER and seg.ref == goal):
+            self.timeline.steer_to(self.tree.goal_q[goal, :3], goal, b.t_now)
+        return Act(leave=True)

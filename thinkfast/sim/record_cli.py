@@ -1,0 +1,87 @@
+"""``thinkfast-sim record``: flight records of thinkfast-run as a summary, a plot, MCAP or in
+Rerun; :func:`convert` also serves ``thinkfast-sim replay``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from thinkfast.sim.cli_options import RERUN_HELP
+
+
+def convert(record: Path, rerun: str | None, mcap: Path | None, tree: Path | None) -> None:
+    """``--rerun`` and ``--mcap`` of replay and the record commands."""
+    from thinkfast.record.format import read_record
+
+    sink = None
+    if rerun is not None:
+        from thinkfast.daemon.live_view import parse_sink
+
+        sink = parse_sink(rerun)  # before reading: a bad option fails at once
+    rec = read_record(record)
+    if mcap is not None:
+        from thinkfast.record.mcap import write_mcap
+        from thinkfast.record.tables import run_config
+        from thinkfast.robot.model import load_robot
+
+        cfg = run_config(rec)
+        robot = load_robot(Path(cfg.robot) if cfg.robot else None)
+        counts = write_mcap(rec, mcap, robot.joint_names)
+        print(f"wrote {sum(counts.values())} messages on {len(counts)} topics to {mcap}")
+    if sink is not None:
+        from thinkfast.daemon.record_view import record_to_rerun
+
+        counts = record_to_rerun(rec, sink, tree)
+        what = ", ".join(f"{n} {k}" for k, n in counts.items())
+        print(f"rerun ({sink.kind}{' ' + sink.target if sink.target else ''}): {what}")
+
+
+record_app = typer.Typer(
+    help="Flight records of thinkfast-run: summary, plot, MCAP, Rerun.",
+    no_args_is_help=True,
+    rich_markup_mode=None,
+)
+
+
+@record_app.command("info")
+def record_info_cmd(
+    record: Path = typer.Argument(..., help="flight record (HDF5)"),
+) -> None:
+    """Attributes, streams, span, EGM rate and events of a flight record."""
+    from thinkfast.record.format import read_record
+    from thinkfast.record.plot import record_info
+
+    print("\n".join(record_info(read_record(record))))
+
+
+@record_app.command("plot")
+def record_plot_cmd(
+    record: Path = typer.Argument(..., help="flight record (HDF5)"),
+    output: Path = typer.Option(..., "-o", "--output", help="PNG to write"),
+) -> None:
+    """Joints, ball track against the belief, crossing prediction and decisions, as PNG."""
+    from thinkfast.record.format import read_record
+    from thinkfast.record.plot import plot_record
+
+    plot_record(read_record(record), output)
+    print(f"wrote {output}", flush=True)
+
+
+@record_app.command("mcap")
+def record_mcap_cmd(
+    record: Path = typer.Argument(..., help="flight record (HDF5)"),
+    output: Path = typer.Option(..., "-o", "--output", help="MCAP file to write"),
+) -> None:
+    """The record as MCAP with ROS 2 messages (sensor_msgs/JointState, PointStamped, ...)."""
+    convert(record, None, output, None)
+
+
+@record_app.command("view")
+def record_view_cmd(
+    record: Path = typer.Argument(..., help="flight record (HDF5)"),
+    rerun: str = typer.Option("spawn", "--rerun", help=RERUN_HELP),
+    tree: Path | None = typer.Option(None, "--tree", help="draw its goal grid"),
+) -> None:
+    """The record in the Rerun viewer (the live view's entities, offline)."""
+    convert(record, rerun, None, tree)
