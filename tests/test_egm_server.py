@@ -349,24 +349,35 @@ def test_a_request_that_arrived_before_the_last_reply_left_marks_that_reply_late
     assert seen == [False, True, False] and server.counters.behind == 1
 
 
-def test_another_senders_packet_waiting_does_not_mark_the_reply_late(client):
-    """Only the peer's own next request says its reply was late: a stranger's datagram waiting
-    in the socket as the reply leaves is counted as foreign and changes nothing."""
+@pytest.mark.parametrize("waiting", ["stranger", "garbage", "duplicate"])
+def test_only_the_peers_next_request_waiting_marks_the_reply_late(client, waiting):
+    """A stranger's request, the peer's garbage or a duplicate of the request being answered,
+    waiting in the socket as the reply leaves, say nothing of the controller's next cycle: the
+    next reply is not marked late, and each is counted for what it is."""
     c, stranger = client(), client()
     seen = []
+    extra = {
+        "stranger": (stranger, egm.encode_robot(9, 4, np.zeros(6))),
+        "garbage": (c, b"\x0a\x02junk"),
+        "duplicate": (c, egm.encode_robot(1, 0, np.zeros(6))),
+    }[waiting]
 
     def reply(fb, before=None):
         seen.append(server.behind)
-        if fb.seqno == 1:
-            stranger.sendto(egm.encode_robot(9, 4, np.zeros(6)), server.address)
+        if fb.seqno == 1 and len(seen) == 1:
+            extra[0].sendto(extra[1], server.address)
         return _hold(fb)
 
     with EgmServer(f"{LOOPBACK}:0", reply) as server:
         c.sendto(egm.encode_robot(1, 0, np.zeros(6)), server.address)
         _poll_until(server, 1)
         _poll_until(server, 2)
-        c.recv(65535)
         c.sendto(egm.encode_robot(2, 4, np.zeros(6)), server.address)
         _poll_until(server, 3)
-    assert seen == [False, False] and server.counters.behind == 0
-    assert server.counters.foreign == 1
+    assert server.counters.behind == 0 and not any(seen), seen
+    counters = server.counters
+    assert (counters.foreign, counters.malformed) == {
+        "stranger": (1, 0),
+        "garbage": (0, 1),
+        "duplicate": (0, 0),
+    }[waiting]

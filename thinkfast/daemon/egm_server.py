@@ -353,7 +353,7 @@ class EgmServer:
             c.reply_errors += 1
             return 0
         work = time.perf_counter() - t_read if self.timing is not None else 0.0
-        self._pending_at_send = self._peer_waiting()
+        self._pending_at_send = self._peer_waiting(fb.seqno)
         sent_at = time.perf_counter() if self.timing is not None else -math.inf
         try:
             self._sock.sendto(payload, addr)
@@ -367,16 +367,24 @@ class EgmServer:
             self.timing.add(wait, work)
         return 1
 
-    def _peer_waiting(self) -> bool:
-        """A datagram of the peer is first in the socket (one ``MSG_PEEK``, nothing consumed)."""
+    def _peer_waiting(self, answered: int) -> bool:
+        """The first datagram in the socket (read with ``MSG_PEEK``: nothing consumed) is the
+        peer's next request: a valid ``EgmRobot`` from the peer with a sequence number after
+        ``answered``, the one being replied to (garbage, duplicates and strangers say nothing)."""
         try:
-            _, src = self._sock.recvfrom(1, socket.MSG_PEEK | socket.MSG_DONTWAIT)
+            data, src = self._sock.recvfrom(MAX_DATAGRAM, socket.MSG_PEEK | socket.MSG_DONTWAIT)
         except BlockingIOError:
             return False
         except OSError:  # e.g. a port-unreachable report: taken by this call, so counted here
             self.counters.socket_errors += 1
             return False
-        return _source(src) == self.peer
+        if _source(src) != self.peer:
+            return False
+        try:
+            seqno = decode_robot(data).seqno
+        except EgmDecodeError:
+            return False
+        return 0 < (seqno - answered) & UINT32 < 1 << 31
 
     def serve(self, stop: threading.Event, wait_s: float = 0.05) -> None:
         """Reply to packets as they arrive until ``stop`` is set (body of a dedicated thread).
