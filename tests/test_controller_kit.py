@@ -246,7 +246,7 @@ def test_position_and_speed_with_hold(consts, mod_text):
 
 def test_udp_port_is_the_daemon_default(udpuc):
     from thinkfast.daemon import cli
-    from thinkfast.daemon.egm_server import parse_hostport
+    from thinkfast.daemon.egm_address import parse_hostport
     from thinkfast.daemon.service import Endpoints
 
     option = inspect.signature(cli.run).parameters["egm_bind"].default

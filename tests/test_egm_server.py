@@ -8,12 +8,8 @@ import numpy as np
 import pytest
 
 from thinkfast.contract import egm
-from thinkfast.daemon.egm_server import (
-    EgmAddressError,
-    EgmServer,
-    parse_controller,
-    parse_hostport,
-)
+from thinkfast.daemon.egm_address import EgmAddressError
+from thinkfast.daemon.egm_server import EgmServer
 
 LOOPBACK = "127.0.0.1"
 
@@ -45,39 +41,6 @@ def _poll_until(server, n_received, timeout=2.0):
         server.poll()
         time.sleep(0.0005)
     server.poll()
-
-
-@pytest.mark.parametrize(
-    "text, expected",
-    [
-        ("0.0.0.0:6510", ("0.0.0.0", 6510)),
-        ("127.0.0.1:0", ("127.0.0.1", 0)),
-        (" localhost:6511 ", ("localhost", 6511)),
-        ("[::1]:6512", ("::1", 6512)),
-    ],
-)
-def test_parse_hostport_accepts_host_colon_port(text, expected):
-    assert parse_hostport(text) == expected
-
-
-@pytest.mark.parametrize("text", ["6510", ":6510", "host:", "host:abc", "host:70000", "h:-1", ""])
-def test_parse_hostport_refuses_with_an_example_in_the_message(text):
-    with pytest.raises(EgmAddressError, match="HOST:PORT"):
-        parse_hostport(text)
-
-
-@pytest.mark.parametrize(
-    "text, expected",
-    [
-        ("192.168.125.1", ("192.168.125.1", None)),
-        ("192.168.125.1:6511", ("192.168.125.1", 6511)),
-        ("[::1]:6510", ("::1", 6510)),
-        ("::1", ("::1", None)),
-        (None, None),
-    ],
-)
-def test_controller_is_an_ip_with_an_optional_port(text, expected):
-    assert parse_controller(text) == expected
 
 
 def test_bad_controller_and_busy_port_are_clear_errors():

@@ -118,7 +118,7 @@ def run(
     """Run until SIGINT/SIGTERM, then brake smoothly and exit 0."""
     from thinkfast.contract.zenoh_session import session_config
     from thinkfast.control.config import load_run_config
-    from thinkfast.daemon.egm_server import parse_controller, parse_hostport
+    from thinkfast.daemon.egm_address import parse_controller, parse_hostport
     from thinkfast.daemon.service import Daemon, Endpoints, Modes
     from thinkfast.errors import ConfigError, RobotModelError
     from thinkfast.robot.model import default_robot_path, load_robot

@@ -84,7 +84,7 @@ def run(
     (docs/CAMERA_FRAMES.md) and a thinkfast-detect process turns them into detections.
     """
     from thinkfast.control.config import load_run_config
-    from thinkfast.daemon.egm_server import parse_hostport
+    from thinkfast.daemon.egm_address import parse_hostport
     from thinkfast.errors import ConfigError
     from thinkfast.robot.model import load_robot
     from thinkfast.sim.realtime import run_throws, run_with_daemon

@@ -19,7 +19,7 @@ def controller(
     import signal
 
     from thinkfast.config import from_dict, load_toml
-    from thinkfast.daemon.egm_server import parse_hostport
+    from thinkfast.daemon.egm_address import parse_hostport
     from thinkfast.robot.model import load_robot
     from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.irc5 import SimIrc5
