@@ -564,3 +564,65 @@ def test_transition(row: Row, rtree, robot):
 
 def _kinds(kind: str | tuple[str, ...]) -> tuple[str, ...]:
     return (kind,) if isinstance(kind, str) else kind
+
+
+# ---------------------------------------------------------------- limits of re-planned moves
+def _speeding_up(rtree, robot, scale: float = 0.2):
+    """An executor at ``--speed-scale`` ``scale`` whose arm is on a long move of the full
+    limits (joint 1 by 1.2 rad), and a time at which joint 1 is still speeding up close to its
+    velocity limit."""
+    from thinkfast.control.segments import move
+    from thinkfast.daemon.cli import scale_limits
+    from thinkfast.robot.steering import state_at
+
+    slow = scale_limits(robot, scale)
+    ex = Executor(rtree, slow, CFG, "naive")
+    ex.start_from(slow.home, 0.0)
+    tl = ex.timeline
+    target = slow.home[:3] + np.array([1.2, 0.0, 0.0])
+    tl.segment = move(tl.steer, STEER, tl.state(0.0), target, 0.0)
+    ex.mode = EXECUTING
+    traj, v_max = tl.segment.traj, tl.steer.v_max[0]
+    for t in np.arange(0.0, traj.duration, DT):
+        _, v, a = state_at(traj, t).reshape(3, 3)
+        if abs(v[0]) > 0.9 * v_max and a[0] * v[0] > 0.0:
+            return ex, float(t)
+    raise AssertionError("the move never speeds up near the limit")
+
+
+def test_the_way_home_from_an_arm_speeding_up_stays_within_the_full_limits(rtree, robot):
+    """With the return limits' jerk the speed would rise past the full velocity limit before
+    it falls; the way home brakes with the full jerk instead (the return speed stays)."""
+    from thinkfast.control.segments import move
+    from thinkfast.robot.steering import peaks
+
+    ex, t = _speeding_up(rtree, robot)
+    tl = ex.timeline
+    state = tl.state(t)
+    slow_jerk = move(tl.steer_home, RETURN, state, tl.home, t)
+    assert np.any(peaks(slow_jerk.traj)[0] > tl.steer.v_max * 1.001)  # what it used to do
+    ex._start_return(t)
+    assert ex.mode == RETURNING and ex.segment.kind == RETURN
+    v_peak, a_peak = peaks(ex.segment.traj)
+    assert np.all(v_peak <= tl.steer.v_max * (1 + 1e-9))
+    assert np.all(a_peak <= tl.steer.a_max * (1 + 1e-9))
+    np.testing.assert_array_equal(ex.segment.state(t), state)  # continuous: p, v and a
+
+
+def test_a_resync_from_an_acceleration_no_plan_holds_stays_within_the_velocity_limit(rtree, robot):
+    """After a missed cycle the control core resumes from the supervisor's extrapolated
+    acceleration: one that would carry the speed past the limit is taken as the largest a
+    plan could have, for the arm and the wrist alike."""
+    from thinkfast.robot.steering import peaks
+
+    ex, t = _speeding_up(rtree, robot)
+    s, steer = ex.segment.state(t), ex.timeline.steer
+    w_v = 0.95 * ex.wrist.steer.v_max
+    qd = np.r_[s[3:6], w_v]
+    qdd = np.r_[s[6:9] * 3.0, ex.wrist.steer.a_max]  # both speeding up harder than a plan can
+    ex.resync(np.r_[s[:3], ex.wrist.state[:3]], qd, qdd, t)
+    assert ex.segment.kind == STEER
+    assert np.all(peaks(ex.segment.traj)[0] <= steer.v_max * (1 + 1e-9))
+    for k in range(1, 200):
+        w = ex.wrist.step(t + k * DT, ex.segment.state(t + k * DT)[:3], np.array([1.0, 0, 0]))
+        assert np.all(np.abs(w[3:6]) <= ex.wrist.steer.v_max * (1 + 1e-9)), k

@@ -43,10 +43,9 @@ def test_from_a_fast_state_it_still_ends_home_and_a_hold_when_nothing_plans(robo
     tl.start_return(0.0)
     assert tl.segment.kind == RETURN and tl.at_home(tl.segment.t_end)
     wild = np.r_[robot.home[:3], 1e4, 1e4, 1e4, np.zeros(3)]  # Ruckig plans nothing from here
-    for brake in (True, False):
-        tl.segment = Segment(HOLD, 0.0, None, wild, 0.0)
-        tl.start_return(1.0, brake=brake)
-        assert tl.segment.kind == HOLD and np.array_equal(tl.state(2.0)[:3], wild[:3])
+    tl.segment = Segment(HOLD, 0.0, None, wild, 0.0)
+    tl.start_return(1.0)
+    assert tl.segment.kind == HOLD and np.array_equal(tl.state(2.0)[:3], wild[:3])
 
 
 def test_a_move_that_cannot_be_planned_keeps_the_segment_in_progress(robot):
