@@ -590,25 +590,6 @@ def _speeding_up(rtree, robot, scale: float = 0.2):
     raise AssertionError("the move never speeds up near the limit")
 
 
-def test_the_way_home_from_an_arm_speeding_up_stays_within_the_full_limits(rtree, robot):
-    """With the return limits' jerk the speed would rise past the full velocity limit before
-    it falls; the way home brakes with the full jerk instead (the return speed stays)."""
-    from thinkfast.control.segments import move
-    from thinkfast.robot.steering import peaks
-
-    ex, t = _speeding_up(rtree, robot)
-    tl = ex.timeline
-    state = tl.state(t)
-    slow_jerk = move(tl.steer_home, RETURN, state, tl.home, t)
-    assert np.any(peaks(slow_jerk.traj)[0] > tl.steer.v_max * 1.001)  # what it used to do
-    ex._start_return(t)
-    assert ex.mode == RETURNING and ex.segment.kind == RETURN
-    v_peak, a_peak = peaks(ex.segment.traj)
-    assert np.all(v_peak <= tl.steer.v_max * (1 + 1e-9))
-    assert np.all(a_peak <= tl.steer.a_max * (1 + 1e-9))
-    np.testing.assert_array_equal(ex.segment.state(t), state)  # continuous: p, v and a
-
-
 def test_a_resync_from_an_acceleration_no_plan_holds_stays_within_the_velocity_limit(rtree, robot):
     """After a missed cycle the control core resumes from the supervisor's extrapolated
     acceleration: one that would carry the speed past the limit is taken as the largest a
