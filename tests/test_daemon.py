@@ -77,6 +77,15 @@ def test_a_throw_aimed_at_a_goal_is_blocked(tree_file, tmp_path, robot, kin, pla
     assert max(s["throws"] for s in run.status) == 1
     _check_limits(rows, robot)
     assert np.allclose(rows[-1, 8:14], robot.home, atol=2e-3)  # back home
+    if planner == "tree":  # the hedge stage is on by default: its stages are in the record
+        from thinkfast.record.format import read_record
+
+        stages = [e.detail for e in read_record(run.record).events if e.kind == "stage"]
+        names = [d["stage"] for d in stages]
+        assert "commit" in names, stages
+        k = names.index("commit")
+        assert stages[k]["hedge_end"] == ("confirmed" if "hedge" in names[:k] else ""), stages
+        assert names[-1] == ""  # the episode ended
 
 
 def _fuzz_payloads(rng: np.random.Generator, n: int, stamp0: float) -> list[bytes]:

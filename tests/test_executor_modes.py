@@ -564,3 +564,46 @@ def test_transition(row: Row, rtree, robot):
 
 def _kinds(kind: str | tuple[str, ...]) -> tuple[str, ...]:
     return (kind,) if isinstance(kind, str) else kind
+
+
+# ---------------------------------------------------------------- limits of re-planned moves
+def _speeding_up(rtree, robot, scale: float = 0.2):
+    """An executor at ``--speed-scale`` ``scale`` whose arm is on a long move of the full
+    limits (joint 1 by 1.2 rad), and a time at which joint 1 is still speeding up close to its
+    velocity limit."""
+    from thinkfast.control.segments import move
+    from thinkfast.daemon.cli import scale_limits
+    from thinkfast.robot.steering import state_at
+
+    slow = scale_limits(robot, scale)
+    ex = Executor(rtree, slow, CFG, "naive")
+    ex.start_from(slow.home, 0.0)
+    tl = ex.timeline
+    target = slow.home[:3] + np.array([1.2, 0.0, 0.0])
+    tl.segment = move(tl.steer, STEER, tl.state(0.0), target, 0.0)
+    ex.mode = EXECUTING
+    traj, v_max = tl.segment.traj, tl.steer.v_max[0]
+    for t in np.arange(0.0, traj.duration, DT):
+        _, v, a = state_at(traj, t).reshape(3, 3)
+        if abs(v[0]) > 0.9 * v_max and a[0] * v[0] > 0.0:
+            return ex, float(t)
+    raise AssertionError("the move never speeds up near the limit")
+
+
+def test_a_resync_from_an_acceleration_no_plan_holds_stays_within_the_velocity_limit(rtree, robot):
+    """After a missed cycle the control core resumes from the supervisor's extrapolated
+    acceleration: one that would carry the speed past the limit is taken as the largest a
+    plan could have, for the arm and the wrist alike."""
+    from thinkfast.robot.steering import peaks
+
+    ex, t = _speeding_up(rtree, robot)
+    s, steer = ex.segment.state(t), ex.timeline.steer
+    w_v = 0.95 * ex.wrist.steer.v_max
+    qd = np.r_[s[3:6], w_v]
+    qdd = np.r_[s[6:9] * 3.0, ex.wrist.steer.a_max]  # both speeding up harder than a plan can
+    ex.resync(np.r_[s[:3], ex.wrist.state[:3]], qd, qdd, t)
+    assert ex.segment.kind == STEER
+    assert np.all(peaks(ex.segment.traj)[0] <= steer.v_max * (1 + 1e-9))
+    for k in range(1, 200):
+        w = ex.wrist.step(t + k * DT, ex.segment.state(t + k * DT)[:3], np.array([1.0, 0, 0]))
+        assert np.all(np.abs(w[3:6]) <= ex.wrist.steer.v_max * (1 + 1e-9)), k

@@ -136,3 +136,75 @@ def test_feints_keep_the_shield_within_the_bound_and_come_home(world):
         assert out.home_again, out
         hedged += out.hedges > 0
     assert hedged >= 1  # the forward swings do start hedges: the bound is what was tested
+
+
+# ---------------------------------------------------------------- at first-light speeds
+SCALE = 0.2  # thinkfast-run --speed-scale at first light (tests/test_first_light.py)
+
+
+@pytest.fixture(scope="module")
+def slow_world(small_tree_015, robot):
+    from thinkfast.daemon.cli import scale_limits
+    from thinkfast.sim.camera import CameraModelConfig
+    from thinkfast.sim.controller import ServoConfig
+    from thinkfast.sim.lockstep import World
+
+    slow = scale_limits(robot, SCALE)
+    return World(load_tree(small_tree_015), slow, _cfg("mean"), ServoConfig(), CameraModelConfig())
+
+
+def _fly_home(world, throw, seed: int, miss: float):
+    """Lockstep (thinkfast/sim/lockstep.py's loop) until the arm is home after the throw; the
+    host leaves each packet unanswered with probability ``miss`` (the controller keeps its
+    last reference, the next reply catches up). Returns the control core and the references
+    the controller received."""
+    from thinkfast.sim.camera import detection_payload, observe_cameras
+    from thinkfast.sim.controller import SimController
+    from thinkfast.sim.lockstep import LEAD
+    from thinkfast.sim.throws import plane_crossing
+
+    cfg, robot = world.cfg, world.robot
+    t_rel = LEAD + throw.t_release
+    dets = observe_cameras(throw, world.cameras, seed, t_rel)
+    t_over = t_rel + plane_crossing(throw).t + cfg.throw.after_crossing
+    sim = SimController(world.servo, q0=robot.home)
+    core = world.parts.core(world.parts.executor("tree-hedge-mean"))
+    rng = np.random.default_rng(seed)
+    k, t = 0, 0.0
+    while t < t_over or core.ex.mode != IDLE:
+        assert t < t_over + 10.0, "not home 10 s after the throw"
+        while k < len(dets) and dets[k].delivery_time <= t:
+            core.on_detection(detection_payload(dets[k]), None, t)
+            k += 1
+        if t < 0.1 or rng.random() >= miss:
+            reply = core.on_feedback(round(t * 1000.0), sim.q, t)
+            if reply is not None:
+                sim.command(reply.q, reply.qd, t)
+        sim.step(DT)
+        t += DT
+    return core, sim.commands()
+
+
+@pytest.mark.parametrize(
+    ("throw_id", "miss"),
+    [("s1-16", 0.0), ("s1-3", 0.1)],
+    ids=["return-after-hedge", "missed-cycles"],
+)
+def test_at_first_light_speed_the_supervisor_never_acts(slow_world, throw_id, miss):
+    """At ``--speed-scale 0.2`` with the hedge on, every reference is within the scaled limits
+    by construction, on the controller's clock: the supervisor changes none. Two ways it used
+    to: the way home planned with the return limits' lower jerk from an arm still speeding up
+    near the velocity limit (its speed rose past it before it fell), and a plan resumed after
+    a missed cycle from an extrapolated acceleration no plan could hold at that speed."""
+    from thinkfast.sim.throws import ThrowConfig, sample_throws
+
+    robot = slow_world.robot
+    throw = {th.id: th for th in sample_throws(ThrowConfig(), 17, seed=1)}[throw_id]
+    core, wire = _fly_home(slow_world, throw, int(throw_id.split("-")[1]), miss)
+    assert core.ex.hedges >= 1 and core.ex.episodes == 1  # hedged, blocked or not, home
+    assert (core.catch_ups > 20) == (miss > 0)
+    assert np.max(np.abs(wire.q - robot.home)) > 0.05  # it did move
+    assert core.sup.intervened == 0, {k: v for k, v in core.sup.counts.items() if v}
+    cycles = np.round(np.diff(wire.t) / DT)[:, None]
+    assert np.all(np.abs(wire.qd) <= robot.v_max + 1e-9)
+    assert np.all(np.abs(np.diff(wire.qd, axis=0)) <= robot.a_max * DT * cycles + 1e-9)

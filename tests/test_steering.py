@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from thinkfast.errors import NoSolutionError
-from thinkfast.robot.steering import Steering, state_at
+from thinkfast.robot.steering import Steering, feasible_acceleration, peaks, state_at
 
 
 @pytest.fixture(scope="module")
@@ -54,3 +54,50 @@ def test_for_robot_scales_the_limits(robot):
     np.testing.assert_array_equal(slow.j_max, robot.j_max[:3] * 0.5)
     fast = Steering.for_robot(robot).to_rest(np.zeros(9), np.array([0.5, 0.0, 0.0]))
     assert slow.to_rest(np.zeros(9), np.array([0.5, 0.0, 0.0])).duration > fast.duration
+
+
+def _sampled(traj, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    times = np.r_[np.arange(0.0, traj.duration, dt), traj.duration]
+    x = np.array([state_at(traj, t) for t in times])
+    n = traj.degrees_of_freedom
+    return np.abs(x[:, n : 2 * n]).max(axis=0), np.abs(x[:, 2 * n :]).max(axis=0)
+
+
+def test_peaks_are_the_largest_speed_and_acceleration_along_the_move(robot):
+    """Exact from the profiles, brakes included: never below a dense sampling, and above it by
+    no more than the sampling step can miss."""
+    steer = Steering.for_robot(robot, scale=0.2)
+    rng = np.random.default_rng(5)
+    dt = 5e-4
+    braked = 0
+    for _ in range(40):
+        v0 = rng.uniform(-1.5, 1.5, 3) * steer.v_max  # some start above the limits
+        a0 = rng.uniform(-1.5, 1.5, 3) * steer.a_max
+        traj = steer.to_rest(np.r_[rng.uniform(-1, 1, 3), v0, a0], rng.uniform(-1, 1, 3))
+        assert traj is not None
+        v_peak, a_peak = peaks(traj)
+        v_seen, a_seen = _sampled(traj, dt)
+        assert np.all(v_peak >= v_seen - 1e-12) and np.all(a_peak >= a_seen - 1e-12)
+        assert np.all(v_peak - v_seen <= steer.a_max * dt) and np.all(
+            a_peak - a_seen <= steer.j_max * dt
+        )
+        braked += bool(np.any(v_peak > steer.v_max * (1 + 1e-9)))
+    assert braked > 5  # brakes that pass the limits were among them
+
+
+def test_a_feasible_acceleration_keeps_the_plan_within_the_velocity_limit(robot):
+    steer = Steering.for_robot(robot, scale=0.2)
+    v0 = 0.97 * steer.v_max * np.array([1.0, -1.0, 1.0])
+    a0 = 0.8 * steer.a_max * np.sign(v0)  # speeding up near the limit: no ramp down in time
+    target = np.sign(v0) * 2.0
+    raw = peaks(steer.to_rest(np.r_[np.zeros(3), v0, a0], target))[0]
+    assert np.all(raw > steer.v_max * 1.001)
+    a = feasible_acceleration(v0, a0, steer.v_max, steer.a_max, steer.j_max)
+    assert np.all(np.abs(a) < np.abs(a0)) and np.all(np.sign(a) == np.sign(a0))
+    fixed = peaks(steer.to_rest(np.r_[np.zeros(3), v0, a], target))[0]
+    assert np.all(fixed <= steer.v_max * (1 + 1e-9))
+    # an acceleration a plan can hold is left alone: slowing down, or far from the limit
+    for v, acc in ((v0, -a0), (0.1 * v0, a0)):
+        np.testing.assert_array_equal(
+            feasible_acceleration(v, acc, steer.v_max, steer.a_max, steer.j_max), acc
+        )

@@ -3,7 +3,8 @@
 Real Ruckig on the default robot: the way home stays within the return limits and ends home at
 rest, also from faster than those limits; when nothing plans it holds; a move Ruckig cannot
 plan leaves the segment in progress as it was; a resync plans the same intent again from the
-given state and comes to rest when nothing plans; a move clears a queued edge.
+given state and comes to rest when nothing plans; a move clears a queued edge; the way home from
+an arm speeding up near its velocity limit stays within the full limits.
 """
 
 from __future__ import annotations
@@ -43,10 +44,9 @@ def test_from_a_fast_state_it_still_ends_home_and_a_hold_when_nothing_plans(robo
     tl.start_return(0.0)
     assert tl.segment.kind == RETURN and tl.at_home(tl.segment.t_end)
     wild = np.r_[robot.home[:3], 1e4, 1e4, 1e4, np.zeros(3)]  # Ruckig plans nothing from here
-    for brake in (True, False):
-        tl.segment = Segment(HOLD, 0.0, None, wild, 0.0)
-        tl.start_return(1.0, brake=brake)
-        assert tl.segment.kind == HOLD and np.array_equal(tl.state(2.0)[:3], wild[:3])
+    tl.segment = Segment(HOLD, 0.0, None, wild, 0.0)
+    tl.start_return(1.0)
+    assert tl.segment.kind == HOLD and np.array_equal(tl.state(2.0)[:3], wild[:3])
 
 
 def test_a_move_that_cannot_be_planned_keeps_the_segment_in_progress(robot):
@@ -73,3 +73,30 @@ def test_a_resync_plans_the_same_intent_again_or_comes_to_rest(robot):
     wild = np.r_[robot.home[:3], 1e4, 1e4, 1e4, np.zeros(3)]  # Ruckig plans nothing from here
     tl.replan(wild, STEER, target, 4, 4.0)
     assert tl.segment.kind == HOLD
+
+
+def test_the_way_home_from_an_arm_speeding_up_stays_within_the_full_limits(robot):
+    """At ``--speed-scale`` 0.2, on a long move of the full limits (joint 1 by 1.2 rad) with
+    joint 1 still speeding up close to its velocity limit: with the return limits' jerk the
+    speed would rise past the full velocity limit before it falls; the way home brakes with the
+    full jerk instead (the return speed stays)."""
+    from thinkfast.control.segments import move
+    from thinkfast.daemon.cli import scale_limits
+    from thinkfast.robot.steering import peaks, state_at
+
+    tl = Timeline(scale_limits(robot, 0.2), CFG)
+    tl.segment = move(tl.steer, STEER, tl.state(0.0), tl.home + np.array([1.2, 0.0, 0.0]), 0.0)
+    traj, v_max = tl.segment.traj, tl.steer.v_max
+    t = next(
+        t
+        for t in np.arange(0.0, traj.duration, 0.004)
+        if (s := state_at(traj, t))[3] > 0.9 * v_max[0] and s[6] > 0.0
+    )
+    state = tl.state(t)
+    slow_jerk = move(tl.steer_home, RETURN, state, tl.home, t)
+    assert np.any(peaks(slow_jerk.traj)[0] > v_max * 1.001)  # what it used to do
+    tl.start_return(t)
+    assert tl.segment.kind == RETURN and tl.at_home(tl.segment.t_end)
+    v_peak, a_peak = peaks(tl.segment.traj)
+    assert np.all(v_peak <= v_max * (1 + 1e-9)) and np.all(a_peak <= tl.steer.a_max * (1 + 1e-9))
+    np.testing.assert_array_equal(tl.state(t), state)  # continuous: p, v and a

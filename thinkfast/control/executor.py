@@ -59,6 +59,7 @@ from thinkfast.control.segments import EDGE, RETURN, Segment, WristTracker
 from thinkfast.control.timeline import ARM_HOME, Timeline
 from thinkfast.decide.tree_view import RuntimeTree
 from thinkfast.robot.model import Robot
+from thinkfast.robot.steering import feasible_acceleration
 
 
 class Mode(enum.StrEnum):
@@ -315,8 +316,13 @@ class Executor:
         :meth:`~thinkfast.control.planners.base.Planner.resume_edge`). Used after the supervisor
         changed a command and after an EGM silence."""
         q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
-        state = np.r_[q[:3], qd[:3], qdd[:3]]
-        self.wrist.reset(q[3:], t, qd[3:], qdd[3:])
+        # an acceleration no plan of these limits would hold at that speed (one extrapolated
+        # over a missed cycle, say) would carry the new plan past the velocity limit
+        s, w = self.timeline.steer, self.wrist.steer
+        a_arm = feasible_acceleration(qd[:3], qdd[:3], s.v_max, s.a_max, s.j_max)
+        a_wrist = feasible_acceleration(qd[3:], qdd[3:], w.v_max, w.a_max, w.j_max)
+        state = np.r_[q[:3], qd[:3], a_arm]
+        self.wrist.reset(q[3:], t, qd[3:], a_wrist)
         seg = self.timeline.segment
         kind, target, ref = seg.kind, seg.end[:3], seg.ref
         if kind == EDGE:

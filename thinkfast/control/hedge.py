@@ -53,7 +53,7 @@ class HedgeConfig:
     """Hedge stage (``[hedge]`` table of the runtime configuration; module doc)."""
 
     mode: str = spec(
-        "none",
+        "mean",
         choices=HEDGE_MODES,
         doc="none: nothing moves before the launch is confirmed; mean: hedge towards the goal "
         "nearest the early belief's crossing mean; tree: along the tree's best first edge",

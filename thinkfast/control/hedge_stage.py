@@ -19,7 +19,6 @@ import numpy as np
 from thinkfast.control.config import RunConfig
 from thinkfast.control.hedge import COMMIT, HEDGE, Hedger
 from thinkfast.control.planners.base import EpisodeLog, Planner
-from thinkfast.control.segments import RETURN, move
 from thinkfast.control.timeline import Timeline
 from thinkfast.decide.tree_view import RuntimeTree
 from thinkfast.robot.model import Robot
@@ -82,7 +81,7 @@ class HedgeStage:
             self.end(t, "silence")
         if self.home_after and t >= self.timeline.segment.t_end:
             self.home_after = False
-            self.timeline.start_return(t, brake=False)
+            self.timeline.start_return(t)
 
     def commit(self, t_now: float) -> bool:
         """The launch is confirmed: the planner takes over from wherever the arm is. True when
@@ -95,18 +94,17 @@ class HedgeStage:
         return out
 
     def end(self, t: float, why: str) -> None:
-        """Give the hedge up, still tracking the ball: home within the return limits, or the
-        full ones, when that way stays within the bound (a faster hedge brakes later with the
-        return limits); else on to the hedge's own target (checked) and home from there."""
+        """Give the hedge up, still tracking the ball: home (:meth:`Timeline.home_move`) when
+        that way stays within the bound (a faster hedge brakes later with the return limits);
+        else on to the hedge's own target (checked) and home from there."""
         self.stage, self.hedge_end = "", why
         tl = self.timeline
         state = tl.state(t)
         tl.pending = None
-        for steer in (tl.steer_home, tl.steer):
-            seg = move(steer, RETURN, state, tl.home, t)
-            if seg is not None and self.hedger.within(seg.traj):
-                tl.segment = seg
-                return
+        seg = tl.home_move(state, t, self.hedger.within)
+        if seg is not None:
+            tl.segment = seg
+            return
         self.home_after = True  # the segment in progress stops within the bound
 
     def drop(self) -> None:

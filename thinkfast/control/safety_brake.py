@@ -17,6 +17,7 @@ import numpy as np
 from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
 
 from thinkfast.control.safety_limits import SafetyLimits
+from thinkfast.robot.steering import feasible_acceleration
 
 
 def brake_velocity(v_p, a_p, lim: SafetyLimits, dt: float) -> np.ndarray:
@@ -62,13 +63,9 @@ class JerkLimitedStop:
         inp.synchronization = Synchronization.No
         inp.current_position = [0.0] * n
         inp.current_velocity = v0.tolist()
-        a0 = np.clip(a0, -lim.a_max, lim.a_max)
         # an acceleration that would carry the speed past v_max before it ramps down is the
         # estimate's error, not the plan's: take the largest that just reaches v_max
-        room = np.maximum(lim.v_max - np.abs(v0), 0.0)
-        a_top = np.sqrt(2.0 * lim.j_max * room)
-        away = a0 * np.sign(v0) > a_top
-        a0 = np.where(away, np.sign(v0) * a_top, a0)
+        a0 = feasible_acceleration(v0, a0, lim.v_max, lim.a_max, lim.j_max)
         inp.current_acceleration = a0.tolist()
         inp.target_velocity = [0.0] * n
         inp.target_acceleration = [0.0] * n

@@ -12,9 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from thinkfast.control.config import ExecutionConfig
-from thinkfast.control.segments import HOLD, RETURN, STEER, hold, move
+from thinkfast.control.safety_limits import REL_TOL
+from thinkfast.control.segments import HOLD, RETURN, STEER, Segment, hold, move
 from thinkfast.robot.model import Robot
-from thinkfast.robot.steering import Steering
+from thinkfast.robot.steering import Steering, peaks
 
 ARM_HOME = 1e-6  # rad, rad/s: the commanded way home has ended (Ruckig lands within 1e-8)
 
@@ -29,6 +30,8 @@ class Timeline:
     Attributes:
         steer: Ruckig at the robot's full limits.
         steer_home: Ruckig at the return limits (``return_speed_scale`` of the full ones).
+        home_steers: the ways home tried in turn (:meth:`home_move`): the return limits, the
+            same with the full jerk, the full limits.
         segment: the segment in progress (commanded from its ``t0``).
         pending: (child node, time it starts) of a compiled edge queued after the edge in
             progress, or None.
@@ -42,6 +45,9 @@ class Timeline:
         self.steer_home = Steering(
             robot.v_max[:3] * scale, robot.a_max[:3] * scale, robot.j_max[:3] * scale
         )
+        # with the full jerk, a brake from a fast state passes no full limit (home_move)
+        full_jerk = Steering(robot.v_max[:3] * scale, robot.a_max[:3] * scale, robot.j_max[:3])
+        self.home_steers = (self.steer_home, full_jerk, self.steer)
         self.segment = hold(np.r_[self.home, np.zeros(6)], -np.inf)
         self.pending: tuple[int, float] | None = None
         self.node = 0
@@ -65,15 +71,36 @@ class Timeline:
             self.segment = seg
             self.pending = None
 
-    def start_return(self, t: float, brake: bool = True) -> None:
-        """Home within the return limits from the commanded state at ``t``; with ``brake``, the
-        full limits when those cannot plan it (it moves faster than they brake); a hold when
-        nothing plans."""
+    def start_return(self, t: float) -> None:
+        """Home from the commanded state at ``t`` (:meth:`home_move`); a hold when nothing
+        plans."""
         state = self.segment.state(t)
-        seg = move(self.steer_home, RETURN, state, self.home, t)
-        if seg is None and brake:  # moving faster than the return limits: the full ones
-            seg = move(self.steer, RETURN, state, self.home, t)
+        seg = self.home_move(state, t)
         self.segment = seg if seg is not None else hold(state, t)
+
+    def home_move(self, state: np.ndarray, t: float, ok=None) -> Segment | None:
+        """The move home from the commanded ``state`` (9,) at ``t`` [s] with the first of
+        :attr:`home_steers` whose move stays within the full velocity and acceleration limits
+        and passes ``ok(traj)`` (when given); else the full limits' move (the last of them), or
+        None when Ruckig fails it or ``ok`` refuses it.
+
+        From a state faster than the return limits allow, Ruckig first brakes it with the jerk
+        it is given: a speed still rising while its acceleration ramps down at the return
+        limits' lower jerk rises further than the full limits' plan it left would have, past
+        the full velocity limit where that plan was close to it (the supervisor would clamp
+        it). With the full jerk it rises no further than that plan's own."""
+        tol = 1.0 + REL_TOL  # as the supervisor judges: a plan exactly at a limit passes
+        v_max, a_max = self.steer.v_max * tol, self.steer.a_max * tol
+        for steer in self.home_steers:
+            seg = move(steer, RETURN, state, self.home, t)
+            if seg is None or (ok is not None and not ok(seg.traj)):
+                continue
+            if steer is self.steer:
+                return seg
+            v_peak, a_peak = peaks(seg.traj)
+            if np.all(v_peak <= v_max) and np.all(a_peak <= a_max):
+                return seg
+        return None
 
     def hold_at(self, q: np.ndarray, t: float) -> None:
         """Hold joints 1-3 at ``q`` (3,) [rad] at rest from ``t``."""
@@ -81,15 +108,15 @@ class Timeline:
 
     def replan(self, state: np.ndarray, kind: str, target: np.ndarray, ref: int, t: float):
         """The motion of ``kind`` to ``target`` (3,) planned again from ``state`` (9,) at ``t``
-        (a resync): a hold at rest stays one; a way home uses the return limits (the full ones
-        when those cannot plan it); when Ruckig fails, it comes to rest where ``state`` stops."""
+        (a resync): a hold at rest stays one; a way home is :meth:`home_move` (it always ends
+        at home); when Ruckig fails, it comes to rest where ``state`` stops."""
         self.pending = None
         if kind == HOLD and not state[3:].any():
             self.segment = hold(state, t)
             return
-        steer = self.steer_home if kind == RETURN else self.steer
-        new = move(steer, kind, state, target, t, ref)
-        if new is None and steer is not self.steer:
+        if kind == RETURN:
+            new = self.home_move(state, t)
+        else:
             new = move(self.steer, kind, state, target, t, ref)
         if new is None:  # Ruckig failed: come to rest where the state would stop
             new = move(self.steer, HOLD, state, state[:3], t) or hold(state, t)

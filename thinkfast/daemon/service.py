@@ -129,6 +129,7 @@ class Daemon:
         self.detection_cost = 0.001  # s, decaying maximum of recent detection handling times
         self.last_throw: dict | None = None  # supervisor interventions in the last throw
         self._throw_mark: tuple[int, int] | None = None  # (ticks, intervened) at its start
+        self._stage: tuple[str, str, int] = ("", "", 0)  # the executor's (stage, hedge_end, hedges)
         self._peer = None
 
     # -------------------------------------------------------------- EGM path
@@ -150,6 +151,7 @@ class Daemon:
         if r is None:
             return None
         self._watch_throw(r.tick.t)
+        self._watch_stage(r.tick.t)
         q, qd, mode = r.q, r.qd, r.mode
         if self.modes.shadow:  # the plan is shown, the arm holds (egm_control)
             self.planned = (q, qd, mode)
@@ -209,6 +211,15 @@ class Daemon:
                 "intervened": sup.intervened - intervened0,
             }
             self._event(t, "throw_end", {**episode_text(self.executor), **self.last_throw})
+
+    def _watch_stage(self, t: float) -> None:
+        """A ``stage`` event (log and record) whenever the executor's stage of commitment
+        changes: a hedge begins (``hedge``), ends (``hedge_end``: why) or the commit takes over."""
+        ex = self.executor
+        stage = (ex.stage, ex.hedge_end, ex.hedges)
+        if stage != self._stage:
+            self._stage = stage
+            self._event(t, "stage", dict(zip(("stage", "hedge_end", "hedges"), stage, strict=True)))
 
     # -------------------------------------------------------------- main loop
     def run(self) -> int:

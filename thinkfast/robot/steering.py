@@ -103,6 +103,43 @@ def position_range(traj: Trajectory, t_end: float, samples: np.ndarray) -> tuple
     return lo, hi
 
 
+def feasible_acceleration(v, a, v_max, a_max, j_max) -> np.ndarray:
+    """The acceleration [rad/s^2] (n,) nearest ``a`` that a plan at these limits can hold at
+    speed ``v`` [rad/s] (n,), ``|v| <= v_max``: within ``a_max``, and where it drives the speed
+    up, no larger than a ramp to zero at ``j_max`` can take off before the speed reaches
+    ``v_max`` (``a^2 / (2 j_max) <= v_max - |v|``). Ruckig given a larger one brakes past
+    ``v_max``. Limits [rad/s, rad/s^2, rad/s^3] shape (n,)."""
+    v, a = np.asarray(v, dtype=float), np.asarray(a, dtype=float)
+    a = np.clip(a, -a_max, a_max)
+    top = np.sqrt(2.0 * j_max * np.maximum(v_max - np.abs(v), 0.0))
+    return np.where(a * np.sign(v) > top, np.sign(v) * top, a)
+
+
+def peaks(traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """Exact largest speed [rad/s] and acceleration magnitude [rad/s^2] of each joint, shapes
+    (n,), over the whole trajectory (from Ruckig's piecewise-constant-jerk profiles, including
+    the brake it prepends when the start state lies outside the limits it was given: that brake
+    may pass them, e.g. a speed still rising while the acceleration ramps down at the jerk
+    limit)."""
+    n = traj.degrees_of_freedom
+    v_peak, a_peak = np.zeros(n), np.zeros(n)
+    for section in traj.profiles:
+        for k, prof in enumerate(section):
+            brake = prof.brake
+            pieces = [(brake.t[i], brake.v[i], brake.a[i], brake.j[i]) for i in range(2)]
+            pieces += [(prof.t[i], prof.v[i], prof.a[i], prof.j[i]) for i in range(7)]
+            for dt, v, a, j in pieces:
+                if dt <= 0.0:
+                    continue
+                v1, a1 = v + a * dt + 0.5 * j * dt * dt, a + j * dt
+                top = max(abs(v), abs(v1))
+                if j != 0.0 and 0.0 < -a / j < dt:  # the speed turns inside the piece
+                    top = max(top, abs(v - 0.5 * a * a / j))
+                v_peak[k] = max(v_peak[k], top)
+                a_peak[k] = max(a_peak[k], abs(a), abs(a1))
+    return v_peak, a_peak
+
+
 def _floats(a) -> list[float]:
     """``a`` as a list of Python floats (``tolist`` when it already is a float64 array)."""
     if isinstance(a, np.ndarray) and a.dtype == np.float64:
