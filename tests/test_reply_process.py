@@ -1,0 +1,143 @@
+"""The reply loop in a process of its own (``thinkfast-run --reply-process``): a planner that
+stalls costs no reply, one that stalls too long brakes the arm smoothly and resumes, one that is
+killed leaves the arm braked and still answered. Real processes, real UDP with protobuf EGM
+against the simulated controller, real zenoh on loopback."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from daemon_harness import DaemonRun, ballistic_throw, publish_throw
+
+DT = 0.004
+REPLY = ("--reply-process",)
+
+
+@pytest.fixture(scope="module")
+def tree_file(small_tree_015):
+    return small_tree_015
+
+
+def _limits(q, qd, cycles, robot, margin: float = 0.005) -> None:
+    """Positions and velocities within the limits; velocity steps within a_max over the
+    controller cycles between two commands (a reply may answer a later cycle)."""
+    assert np.all(np.isfinite(q)) and np.all(np.isfinite(qd))
+    assert np.all(q >= robot.q_lower + margin - 1e-9) and np.all(q <= robot.q_upper - margin + 1e-9)
+    assert np.all(np.abs(qd) <= robot.v_max + 1e-9)
+    assert np.all(cycles >= 0)
+    assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT * cycles[:, None] + 1e-9)
+
+
+def _throw(run: DaemonRun) -> None:
+    t_release = time.time() + 0.8
+    _, _, at = ballistic_throw((0.25, 1.25), 0.8, t_release, (7.8, -0.2, 1.5))
+    publish_throw(run, at, t_release, 0.8)
+
+
+def _gone(pid: int, timeout: float) -> bool:
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                if f.read().split(") ")[1][0] == "Z":
+                    return True  # ended (its new parent reaps it)
+        except FileNotFoundError:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.mark.realtime
+def test_a_planner_stall_of_50_ms_costs_no_reply_and_the_arm_follows_its_plan(
+    tree_file, tmp_path, robot
+):
+    extra = REPLY + ("--test-stall-planner", "0.05@0.1")
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=extra)
+    try:
+        _throw(run)
+        assert run.wait_state("idle", timeout=8.0), run.status[-1]
+    finally:
+        code, err = run.stop()
+    assert code == 0, err
+    assert "stalling the planner for 0.050 s" in err
+    assert "planner_stale" not in err
+    rows = run.egm_rows()
+    assert not rows[:, 20].any()  # never braked: the plan went on through the stall
+    last = run.status[-1]
+    assert last["reply_process"]["planner_stale"] == 0 and last["throws"] == 1
+    egm = last["egm"]
+    assert egm["reply_errors"] == 0 and egm["deferred"] == 0
+    _limits(rows[:, 8:14], rows[:, 14:20], np.diff(rows[:, 1]), robot)
+    assert np.allclose(rows[-1, 8:14], robot.home, atol=2e-3)
+
+
+@pytest.mark.realtime
+def test_a_planner_stall_of_2_s_brakes_smoothly_and_the_throw_resumes_after_it(
+    tree_file, tmp_path, robot
+):
+    extra = REPLY + ("--test-stall-planner", "2@0.15")
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=extra)
+    try:
+        _throw(run)
+        time.sleep(2.0)  # the stall
+        assert run.wait_state("idle", timeout=10.0), run.status[-1]
+    finally:
+        code, err = run.stop()
+    assert code == 0, err
+    assert "planner_stale" in err and "planner_resumed" in err
+    rows = run.egm_rows()
+    _limits(rows[:, 8:14], rows[:, 14:20], np.diff(rows[:, 1]), robot)
+    braking = rows[:, 20] == 1.0
+    first = int(np.argmax(braking))
+    end = first + int(np.argmin(braking[first:]))  # the first reply after the brake
+    assert braking.any() and end > first  # (the last rows brake on the test's SIGINT)
+    assert np.abs(rows[end:, 14:20]).max() > 0.05  # it moved on after the stall: home
+    assert np.abs(rows[first - 1, 14:20]).max() > 0.05  # it was moving when the brake came
+    assert np.all(rows[end - 1, 14:20] == 0.0)  # stopped before resuming
+    speed = np.abs(rows[first:end, 14:20])
+    overshoot = robot.a_max**2 / (2 * robot.j_max) + robot.a_max * DT
+    assert np.all(speed.max(axis=0) <= speed[0] + overshoot)  # a stop, never a speed-up
+    # 2 s of stall: the stop lasted most of it (the loop answered throughout, holding)
+    assert rows[end, 0] - rows[first, 0] > 1.0
+    assert run.status[-1]["reply_process"]["planner_stale"] == 1
+    assert np.allclose(rows[-1, 8:14], robot.home, atol=2e-3)  # the throw ended, back home
+
+
+@pytest.mark.realtime
+def test_a_killed_planner_leaves_the_arm_braked_and_still_answered(tree_file, tmp_path, robot):
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=REPLY)
+    child = None
+    try:
+        import threading
+
+        th = threading.Thread(target=_throw, args=(run,), daemon=True)
+        th.start()
+        assert run.wait_state("executing", timeout=6.0)
+        time.sleep(0.1)  # moving now
+        child = run.status[-1]["reply_process"]["pid"]
+        n_before = len(run.sim.commands().t)
+        run.proc.kill()  # SIGKILL the planner process
+        run.proc.wait(5.0)
+        time.sleep(1.5)
+        cmds = run.sim.commands()
+        assert len(cmds.t) - n_before > 60  # the controller is still answered
+        q, qd, t = cmds.q[n_before - 5 :], cmds.qd[n_before - 5 :], cmds.t[n_before - 5 :]
+        applied = np.r_[np.diff(t) > 0, True]  # a late reply and the next in one cycle: the last
+        q, qd, t = q[applied], qd[applied], t[applied]
+        moving = np.abs(qd[0]).max()
+        assert moving > 0.05
+        assert np.all(qd[-20:] == 0.0)  # braked to a stop, holding
+        _limits(q, qd, np.round(np.diff(t) / DT), robot)
+        os.kill(child, signal.SIGTERM)  # it ends when told
+        assert _gone(child, 10.0)
+        child = None
+    finally:
+        if child is not None:
+            os.kill(child, signal.SIGKILL)
+        _, err = run.stop()
+    assert "planner process" in err and "lost: braking to a stop and holding" in err
