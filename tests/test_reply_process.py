@@ -11,7 +11,6 @@ import time
 
 import numpy as np
 import pytest
-
 from daemon_harness import DaemonRun, ballistic_throw, publish_throw
 
 DT = 0.004
