@@ -86,7 +86,7 @@ class SafetyConfig:
         lo=0.0,
     )
     planner_timeout: float = spec(
-        0.15,
+        0.25,
         doc="with the reply loop in its own process (--reply-process): a plan whose planner "
         "has given no word for this long is replaced by a smooth stop (brake planner_stale) "
         "until the planner speaks again",

@@ -100,8 +100,10 @@ class ReplyLoop:
             if got is not None:
                 self.version = got[0]
                 plan = decode_plan(got[1])
+                following = self.follower.segments
                 if plan is not None and self.follower.adopt(plan):
                     core.invalidate()
+                    self._join_late(plan, following)
         if self.lost:
             return
         if os.getppid() != self.parent:
@@ -124,6 +126,28 @@ class ReplyLoop:
             self.follower.resync(np.array(sup.q), z, z, core.clock.t)
             core.invalidate()
             self.events.append(event_row(core.clock.t, "planner_resumed"))
+
+    def _join_late(self, plan, following) -> None:
+        """A plan that starts at or before the last reply (the planner was late: a slow
+        decision, a loaded host) is joined from the commanded state, with the same intent (a
+        replan the planner makes too): the old plan was commanded past its start, and taking
+        the new one at the next cycle would step its velocity by what the two plans drifted
+        apart since. A segment followed already (``following``: the planner's copy of a replan
+        made here, or a plan sent again for its wrist) is kept as it is."""
+        core, sup, t = self.core, self.core.sup, self.core.clock.t
+        segs = plan.segments
+        seg = segs[-1] if len(segs) > 1 and segs[-1].t0 <= t else segs[0]
+        if not math.isfinite(t) or seg.t0 > t or sup.braking:
+            return
+        if seg.traj is None and sup.stopped:
+            return  # a hold from rest: nothing drifted
+        for old in following:
+            if old.t0 == seg.t0 and old.kind == seg.kind and np.array_equal(old.end, seg.end):
+                return
+        self.follower.timeline.segment = seg
+        a_max = sup.limits.a_max
+        qdd = np.clip(sup.qdd_end, -a_max, a_max)
+        self.follower.resync(np.array(sup.q), np.array(sup.qd), qdd, core.clock.t)
 
     def run(self, spin_ahead: float = 0.0) -> None:
         """Serve until SIGTERM/SIGINT (module doc)."""

@@ -226,6 +226,10 @@ class SplitDaemon(Daemon):
             signal.signal(sig, self._on_signal)
         log.info("serving EGM on %s:%d from reply process %d, planner %s", *self.egm.address,
                  self.reply_pid, self.planner)  # fmt: skip
+        if self.cpu is not None:  # the reply process's CPU is left to it
+            others = os.sched_getaffinity(0) - {self.cpu}
+            _move_threads(others)
+            self.recorder.move_writer(others)
         self._event(time.time(), "start", self.summary())
         code, told = 0, False
         next_status = time.time()
@@ -300,3 +304,18 @@ class SplitDaemon(Daemon):
             "rows_lost": self.ring.lost, "planner_stale": self.stale_events,
         }  # fmt: skip
         return out
+
+
+def _move_threads(cpus: set[int]) -> None:
+    """Every thread of this process (zenoh's included) onto ``cpus`` (none: left as they are)."""
+    if not cpus:
+        return
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    for tid in tids:
+        try:
+            os.sched_setaffinity(tid, cpus)
+        except OSError:  # the thread has just ended
+            pass
