@@ -143,3 +143,70 @@ def test_a_killed_planner_leaves_the_arm_braked_and_still_answered(tree_file, tm
             os.kill(child, signal.SIGKILL)
         _, err = run.stop()
     assert "planner process" in err and "lost: braking to a stop and holding" in err
+
+
+def test_the_deadline_brakes_on_a_silent_planner_and_resumes_from_the_stop(robot):
+    """ReplyLoop driven packet by packet (no wall clock): a heartbeat older than
+    planner_timeout brakes along the supervisor's stop; once stopped and the planner speaks,
+    the loop plans on from the commanded state (a resync the planner is told of) and moves."""
+    from thinkfast.control.config import RunConfig
+    from thinkfast.control.plan import SIZE, plan_vector
+    from thinkfast.control.segments import STEER, move
+    from thinkfast.contract.egm import RobotFeedback
+    from thinkfast.daemon.egm_server import EgmServer
+    from thinkfast.daemon.reply_process import ReplyLoop
+    from thinkfast.daemon.reply_rows import CALL, COL, EVENT, EVENTS, REPLY, WIDTH
+    from thinkfast.daemon.shared_plan import RowRing, Seqlock
+
+    cfg = RunConfig()
+    block, ring = Seqlock(SIZE), RowRing(WIDTH)
+    loop = ReplyLoop(robot, cfg, block, ring, os.getppid())
+    loop.egm = EgmServer(("127.0.0.1", 0), loop.reply, timing=True)  # its counters in the rows
+    try:
+        core, sup, f = loop.core, loop.core.sup, loop.follower
+        qs = []
+
+        def packet(seqno: int) -> None:
+            q = robot.home if not qs else qs[-1]  # an arm that follows exactly
+            q, _ = loop.reply(RobotFeedback(seqno, 4 * seqno, q, True, True, True))
+            qs.append(np.array(q))
+            loop.after(True)
+
+        packet(1)  # the stream starts: the follower holds home (epoch 1)
+        t0 = core.clock.t + DT
+        target = robot.home[:3] + np.array([0.8, -0.3, 0.3])
+        seg = move(f.timeline.steer, STEER, np.r_[robot.home[:3], np.zeros(6)], target, t0, 2)
+        block.write(plan_vector(1, f.epoch, "executing", [seg], f.normal, None))
+        block.beat(10.0)
+        loop.watch_plan(10.001)
+        assert f.plan_id == 1
+        for k in range(2, 60):
+            packet(k)
+            loop.watch_plan(10.0 + cfg.safety.planner_timeout * k / 100)  # in time
+        assert not sup.braking and np.abs(sup.qd).max() > 0.5  # moving along the plan
+        loop.watch_plan(10.0 + cfg.safety.planner_timeout + 0.01)  # no word: too late
+        assert sup.brake_reason == "planner_stale"
+        k = 60
+        while not sup.stopped:
+            packet(k)
+            k += 1
+            assert k < 400
+        block.beat(11.0)
+        loop.watch_plan(11.001)  # the planner speaks again
+        assert not sup.braking
+        for k in range(k, k + 40):
+            packet(k)
+        assert np.abs(sup.qd).max() > 0.1  # on its way to the target again
+        rows = ring.take()
+        events = [EVENTS[int(r[COL["code"]])] for r in rows if r[COL["type"]] == EVENT]
+        assert events == ["planner_stale", "planner_resumed"]
+        calls = rows[rows[:, COL["type"]] == CALL]
+        assert len(calls) == 2 and f.epoch == 2  # the start, and the resync after the stop
+        replies = rows[rows[:, COL["type"]] == REPLY]
+        qd = replies[:, COL["qd"]]
+        assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT + 1e-9)
+        assert np.all(np.abs(qd) <= robot.v_max + 1e-9)
+    finally:
+        loop.egm.close()
+        block.close()
+        ring.close()
