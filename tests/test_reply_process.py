@@ -149,10 +149,10 @@ def test_the_deadline_brakes_on_a_silent_planner_and_resumes_from_the_stop(robot
     """ReplyLoop driven packet by packet (no wall clock): a heartbeat older than
     planner_timeout brakes along the supervisor's stop; once stopped and the planner speaks,
     the loop plans on from the commanded state (a resync the planner is told of) and moves."""
+    from thinkfast.contract.egm import RobotFeedback
     from thinkfast.control.config import RunConfig
     from thinkfast.control.plan import SIZE, plan_vector
     from thinkfast.control.segments import STEER, move
-    from thinkfast.contract.egm import RobotFeedback
     from thinkfast.daemon.egm_server import EgmServer
     from thinkfast.daemon.reply_process import ReplyLoop
     from thinkfast.daemon.reply_rows import CALL, COL, EVENT, EVENTS, REPLY, WIDTH
@@ -194,8 +194,8 @@ def test_the_deadline_brakes_on_a_silent_planner_and_resumes_from_the_stop(robot
         block.beat(11.0)
         loop.watch_plan(11.001)  # the planner speaks again
         assert not sup.braking
-        for k in range(k, k + 40):
-            packet(k)
+        for j in range(k, k + 40):
+            packet(j)
         assert np.abs(sup.qd).max() > 0.1  # on its way to the target again
         rows = ring.take()
         events = [EVENTS[int(r[COL["code"]])] for r in rows if r[COL["type"]] == EVENT]
