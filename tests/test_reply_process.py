@@ -210,3 +210,16 @@ def test_the_deadline_brakes_on_a_silent_planner_and_resumes_from_the_stop(robot
         loop.egm.close()
         block.close()
         ring.close()
+
+
+@pytest.mark.realtime
+def test_a_dead_reply_process_stops_the_daemon_with_exit_1_and_says_why(tree_file, tmp_path, robot):
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=REPLY)
+    try:
+        child = run.status[-1]["reply_process"]["pid"]
+        os.kill(child, signal.SIGKILL)
+        code = run.proc.wait(20.0)
+    finally:
+        _, err = run.stop()
+    assert code == 1
+    assert f"the EGM reply process {child} died (exit code -9)" in err
