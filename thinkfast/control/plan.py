@@ -181,14 +181,20 @@ class PlanFollower:
         if plan.epoch != self.epoch or plan.id == self.plan_id:
             return False
         self.plan_id, self.mode = plan.id, plan.mode
-        self.segments = plan.segments
+        # a plan that starts after the next cycle: the one in effect goes on until it starts
+        # (it starts from that one's state then)
+        early = plan.segments[0].t0 > self.t_set and self.timeline.segment.t0 <= self.t_set
+        self.segments = ((self.timeline.segment,) if early else ()) + plan.segments
         self.normal, self.goal = plan.normal, plan.goal
         return True
 
     def setpoint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions [rad] (6,) and velocities [rad/s] (6,) of the plan at ``t`` [s]."""
         segs = self.segments
-        seg = segs[-1] if len(segs) > 1 and t >= segs[-1].t0 else segs[0]
+        seg = segs[0]
+        for later in segs[1:]:  # the last one started by t
+            if t >= later.t0:
+                seg = later
         self.timeline.segment = seg
         s = seg.state(t)
         w = self.wrist.step(t, s[:3], self.normal, self.goal)

@@ -135,8 +135,10 @@ class ReplyLoop:
         apart since. A segment followed already (``following``: the planner's copy of a replan
         made here, or a plan sent again for its wrist) is kept as it is."""
         core, sup, t = self.core, self.core.sup, self.core.clock.t
-        segs = plan.segments
-        seg = segs[-1] if len(segs) > 1 and segs[-1].t0 <= t else segs[0]
+        seg = plan.segments[0]
+        for later in plan.segments[1:]:
+            if later.t0 <= t:
+                seg = later
         if not math.isfinite(t) or seg.t0 > t or sup.braking:
             return
         if seg.traj is None and sup.stopped:

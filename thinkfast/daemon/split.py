@@ -19,6 +19,7 @@ holding (see there).
 
 from __future__ import annotations
 
+import gc
 import logging
 import math
 import multiprocessing
@@ -82,6 +83,8 @@ class SplitDaemon(Daemon):
         self._plan_key: tuple | None = None
         self._executing: float | None = None  # when the first throw was executed (stall hook)
         self.stale_events = 0
+        self.lap_max = 0.0  # the longest planner loop [s]
+        self._slow_said = -math.inf
 
     def _serve_egm(self, endpoints):
         """Start the reply process; it binds the EGM socket and reports its address."""
@@ -231,22 +234,30 @@ class SplitDaemon(Daemon):
             _move_threads(others)
             self.recorder.move_writer(others)
         self._event(time.time(), "start", self.summary())
+        gc.collect()
+        gc.freeze()  # the tree and the rest of the start-up never collected: short collections
         code, told = 0, False
         next_status = time.time()
         try:
             while True:
+                lap = _Lap()
                 lost = self.ring.lost
                 rows = self.ring.take()
                 for row in rows:
                     self._mirror(row)
                 if self.ring.lost != lost:
                     self._rows_lost(rows)
+                self.plan_block.beat(time.monotonic())  # any word counts (deadlines)
                 self._flush_outbox()
                 self._watch_peer()
+                lap("rows")
                 self._take_detections(True)
+                self.plan_block.beat(time.monotonic())
+                lap("detections")
                 self.home.service(self.control, lambda now: math.inf, self._plan_time)
                 self._publish()
                 self.plan_block.beat(time.monotonic())
+                lap("plan")
                 now = time.time()
                 if now >= next_status:
                     self.zio.publish_status(self.status(now))
@@ -254,7 +265,9 @@ class SplitDaemon(Daemon):
                 if self.view is not None:
                     self.view.service(now, self.last_rx, self.control, math.inf)
                 self.recorder.service()
+                lap("status")
                 self._stall(now)
+                self._slow_lap(lap, len(rows))
                 if self.stop_reason is not None and not told:
                     told = True
                     os.kill(self.proc.pid, signal.SIGTERM)  # it brakes, then ends
@@ -280,11 +293,22 @@ class SplitDaemon(Daemon):
         log.info("stopped (%s)", self.stop_reason or "reply process ended")
         return code
 
+    def _slow_lap(self, lap: _Lap, rows: int) -> None:
+        """Keep the longest loop, and say where the time went in one that took more than half
+        the planner timeout (at most every 10 s)."""
+        total = lap.total()
+        self.lap_max = max(self.lap_max, total)
+        if total > 0.5 * self.cfg.safety.planner_timeout and time.time() > self._slow_said + 10:
+            self._slow_said = time.time()
+            parts = ", ".join(f"{k} {1e3 * v:.1f} ms" for k, v in lap.parts)
+            log.warning("slow planner loop: %.1f ms (%s; %d rows)", 1e3 * total, parts, rows)
+
     def _take_detections(self, replied: bool) -> None:
         """Every queued detection, at once: nothing here delays a reply."""
         self.pending.extend(self.zio.drain())
         while self.pending:
             self._take(self.pending.popleft(), time.time())
+            self.plan_block.beat(time.monotonic())  # word with every detection handled
 
     def _stall(self, now: float) -> None:
         if self.stall is None:
@@ -302,6 +326,7 @@ class SplitDaemon(Daemon):
         out["reply_process"] = {
             "pid": self.reply_pid, "alive": self.proc.is_alive(), "plan_id": self.plan_id,
             "rows_lost": self.ring.lost, "planner_stale": self.stale_events,
+            "loop_max_ms": round(1e3 * self.lap_max, 1),
         }  # fmt: skip
         return out
 
@@ -319,3 +344,19 @@ def _move_threads(cpus: set[int]) -> None:
             os.sched_setaffinity(tid, cpus)
         except OSError:  # the thread has just ended
             pass
+
+
+class _Lap:
+    """Durations of the phases of one planner loop [s]."""
+
+    def __init__(self):
+        self.t0 = self.t = time.perf_counter()
+        self.parts: list[tuple[str, float]] = []
+
+    def __call__(self, name: str) -> None:
+        now = time.perf_counter()
+        self.parts.append((name, now - self.t))
+        self.t = now
+
+    def total(self) -> float:
+        return self.t - self.t0
