@@ -51,21 +51,28 @@ def _gone(pid: int, timeout: float) -> bool:
     return False
 
 
+def _stalled_throw(tree_file, tmp_path, robot, stall: str, seconds: float):
+    """A throw at a daemon whose planner stalls (``SECONDS@AFTER`` the throw executes), until
+    it is idle again: (run, its log, its recorded EGM rows)."""
+    extra = REPLY + ("--test-stall-planner", stall)
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=extra)
+    try:
+        _throw(run)
+        time.sleep(seconds)
+        assert run.wait_state("idle", timeout=10.0), run.status[-1]
+    finally:
+        code, err = run.stop()
+    assert code == 0, err
+    return run, err, run.egm_rows()
+
+
 @pytest.mark.realtime
 def test_a_planner_stall_of_50_ms_costs_no_reply_and_the_arm_follows_its_plan(
     tree_file, tmp_path, robot
 ):
-    extra = REPLY + ("--test-stall-planner", "0.05@0.1")
-    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=extra)
-    try:
-        _throw(run)
-        assert run.wait_state("idle", timeout=8.0), run.status[-1]
-    finally:
-        code, err = run.stop()
-    assert code == 0, err
+    run, err, rows = _stalled_throw(tree_file, tmp_path, robot, "0.05@0.1", 0.0)
     assert "stalling the planner for 0.050 s" in err
     assert "planner_stale" not in err
-    rows = run.egm_rows()
     braking = rows[:, 20] == 1.0
     k = int(np.argmax(braking)) if braking.any() else len(rows)
     assert np.all(braking[k:])  # never braked but at the end (the test's SIGINT, at rest)
@@ -82,17 +89,8 @@ def test_a_planner_stall_of_50_ms_costs_no_reply_and_the_arm_follows_its_plan(
 def test_a_planner_stall_of_2_s_brakes_smoothly_and_the_throw_resumes_after_it(
     tree_file, tmp_path, robot
 ):
-    extra = REPLY + ("--test-stall-planner", "2@0.15")
-    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=extra)
-    try:
-        _throw(run)
-        time.sleep(2.0)  # the stall
-        assert run.wait_state("idle", timeout=10.0), run.status[-1]
-    finally:
-        code, err = run.stop()
-    assert code == 0, err
+    run, err, rows = _stalled_throw(tree_file, tmp_path, robot, "2@0.15", 2.0)
     assert "planner_stale" in err and "planner_resumed" in err
-    rows = run.egm_rows()
     _limits(rows[:, 8:14], rows[:, 14:20], np.diff(rows[:, 1]), robot)
     braking = rows[:, 20] == 1.0
     first = int(np.argmax(braking))
