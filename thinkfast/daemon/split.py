@@ -12,7 +12,9 @@ publishes the executor's plan (:func:`~thinkfast.control.plan.executor_plan`) wh
 changes, and a heartbeat every loop (about every millisecond); nothing it does can delay a
 reply.
 
-It reports a planner stall the reply loop saw (``planner_stale``), and exits 1 with a log line
+With ``--cpu N`` its threads leave CPU N to the reply process; with ``--fifo P`` its planning
+thread runs under SCHED_FIFO at P - 1, below the reply loop (as the daemon's own loop does at P
+without ``--reply-process``). It reports a planner stall the reply loop saw (``planner_stale``), and exits 1 with a log line
 when the reply process dies. A planner process that dies leaves the reply process braking and
 holding (see there).
 """
@@ -49,6 +51,7 @@ from thinkfast.daemon.reply_rows import (
     ip_text,
 )  # fmt: skip
 from thinkfast.daemon.reply_times import ReplyTimes
+from thinkfast.daemon.rt_thread import set_fifo
 from thinkfast.daemon.service import Daemon
 from thinkfast.daemon.shared_plan import RowRing, Seqlock
 
@@ -233,6 +236,8 @@ class SplitDaemon(Daemon):
             others = os.sched_getaffinity(0) - {self.cpu}
             _move_threads(others)
             self.recorder.move_writer(others)
+        if self.fifo is not None:  # this thread (the planning) just below the reply loop
+            set_fifo(max(1, self.fifo - 1))
         self._event(time.time(), "start", self.summary())
         gc.collect()
         gc.freeze()  # the tree and the rest of the start-up never collected: short collections
