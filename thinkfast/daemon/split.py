@@ -14,9 +14,9 @@ reply.
 
 With ``--cpu N`` its threads leave CPU N to the reply process; with ``--fifo P`` its planning
 thread runs under SCHED_FIFO at P - 1, below the reply loop (as the daemon's own loop does at P
-without ``--reply-process``). It reports a planner stall the reply loop saw (``planner_stale``), and exits 1 with a log line
-when the reply process dies. A planner process that dies leaves the reply process braking and
-holding (see there).
+without ``--reply-process``). It reports a planner stall the reply loop saw
+(``planner_stale``), and exits 1 with a log line when the reply process dies. A planner process
+that dies leaves the reply process braking and holding (see there).
 """
 
 from __future__ import annotations
