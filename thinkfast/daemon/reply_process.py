@@ -14,7 +14,8 @@ seqlock: never waits), writes each reply's row to the ring the planner reads
   jerk-limited stop (brake ``planner_stale``); once stopped and the planner speaks again, the
   loop plans on from the commanded state (a ``resync`` the planner makes too) and resumes;
 * the planner process gone (this process was re-parented): brake ``planner_lost``, one line on
-  stderr, and the loop keeps answering, holding the arm, until it is stopped (SIGTERM/SIGINT:
+  stderr, a status of its own on zenoh (:mod:`thinkfast.daemon.orphan_status`: ``state``
+  ``fault``), and the loop keeps answering, holding the arm, until it is stopped (SIGTERM/SIGINT:
   it brakes while the controller still talks, then ends, as the daemon does).
 
 No zenoh, no recorder, no logging inside the loop.
@@ -35,6 +36,7 @@ import numpy as np
 from thinkfast.control.core import ControlCore
 from thinkfast.control.plan import SIZE, PlanFollower, decode_plan
 from thinkfast.control.safety import SafetySupervisor, robot_limits
+from thinkfast.daemon import orphan_status
 from thinkfast.daemon.cycle import Cycle
 from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.reply_rows import WIDTH, call_row, event_row, reply_row
@@ -61,6 +63,7 @@ class ReplyLoop:
         self.events: list[np.ndarray] = []
         self.core = ControlCore(self.follower, sup, cfg.safety, on_event=self._on_event)
         self.egm: EgmServer | None = None
+        self.zenoh: tuple[str, str] | None = None  # (JSON5 config, key prefix): orphan status
         self.version = -1  # the plan block's version last read
         self.lost = False
         self.stop = False
@@ -113,6 +116,8 @@ class ReplyLoop:
             self.events.append(event_row(core.clock.t, "planner_lost", "planner_lost"))
             msg = f"planner process {self.parent} lost: braking to a stop and holding"
             print(f"thinkfast reply process: {msg}; stop this process to end", file=sys.stderr)
+            if self.zenoh is not None:  # the status goes on, from here
+                orphan_status.start(*self.zenoh, self)
             return
         beat = self.plan.heartbeat
         stale = math.isfinite(beat) and now_mono - beat > self.timeout
@@ -182,10 +187,12 @@ class ReplyLoop:
 
 
 def main(conn, bind, controller, handover, robot, cfg, plan_name, ring_name, parent,
-         cpu=None, fifo=None, spin_ahead=0.0) -> None:  # fmt: skip
+         cpu=None, fifo=None, spin_ahead=0.0, zenoh=None) -> None:  # fmt: skip
     """Body of the reply process: bind, report ``("ready", address, pid)`` (or ``("error",
-    text)``) on the pipe ``conn``, then serve (module doc)."""
+    text)``) on the pipe ``conn``, then serve (module doc). ``zenoh``: (JSON5 configuration, key
+    prefix) for a status of its own once the planner is lost (:mod:`orphan_status`)."""
     loop = ReplyLoop(robot, cfg, Seqlock(SIZE, plan_name), RowRing(WIDTH, name=ring_name), parent)
+    loop.zenoh = zenoh
 
     def on_signal(signum, _frame):
         loop.stop = True

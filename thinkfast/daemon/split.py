@@ -78,9 +78,10 @@ class SplitDaemon(Daemon):
     """The planner process (module doc); ``stall``: ``(seconds, after)`` to stall the loop once,
     ``after`` seconds after the first throw began to execute (a test hook)."""
 
-    def __init__(self, *args, stall: tuple[float, float] | None = None, **kwargs):
+    def __init__(self, tree, robot, cfg, planner, endpoints, zenoh_conf, stall=None, **kwargs):
         self.stall = stall
-        super().__init__(*args, **kwargs)
+        self._zenoh = (str(zenoh_conf), endpoints.key_prefix)  # for the reply process's status
+        super().__init__(tree, robot, cfg, planner, endpoints, zenoh_conf, **kwargs)
         self.plan_id = 0
         self.epoch = 0  # replans of the reply loop made here too
         self._plan_key: tuple | None = None
@@ -98,7 +99,7 @@ class SplitDaemon(Daemon):
         args = (
             theirs, endpoints.egm_bind, endpoints.egm_controller, endpoints.egm_handover,
             self.robot, self.cfg, self.plan_block.name, self.ring.name, os.getpid(), self.cpu,
-            self.fifo, self.cycle.spin_ahead,
+            self.fifo, self.cycle.spin_ahead, self._zenoh,
         )  # fmt: skip
         self.proc = ctx.Process(target=reply_process.main, args=args, name="thinkfast-reply")
         self.proc.start()
