@@ -47,8 +47,8 @@ DEPLOY = ("--spin-ahead-ms", "1", "--cpu", str(max(os.sched_getaffinity(0))))
 @pytest.mark.realtime
 @pytest.mark.parametrize(
     "planner, extra",
-    [("tree", ()), ("naive", ()), ("tree", DEPLOY)],
-    ids=["tree", "naive", "tree-spin-pinned"],
+    [("tree", ()), ("naive", ()), ("tree", DEPLOY), ("tree", ("--reply-process",))],
+    ids=["tree", "naive", "tree-spin-pinned", "tree-reply-process"],
 )
 def test_a_throw_aimed_at_a_goal_is_blocked(tree_file, tmp_path, robot, kin, planner, extra):
     from thinkfast.sim.judge import judge
@@ -77,6 +77,11 @@ def test_a_throw_aimed_at_a_goal_is_blocked(tree_file, tmp_path, robot, kin, pla
     assert max(s["throws"] for s in run.status) == 1
     _check_limits(rows, robot)
     assert np.allclose(rows[-1, 8:14], robot.home, atol=2e-3)  # back home
+    if "--reply-process" in extra:  # the replies came from the reply process, as planned
+        split = [s["reply_process"] for s in run.status if s.get("reply_process")]
+        assert split and split[0]["alive"] and split[-1]["plan_id"] > 3, split[-1:]
+        assert run.status[-1]["egm"]["replied"] > 500
+        print("interventions", run.status[-1]["interventions"], run.status[-1]["safety"])
     if planner == "tree":  # the hedge stage is on by default: its stages are in the record
         from thinkfast.record.format import read_record
 

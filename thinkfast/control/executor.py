@@ -211,16 +211,7 @@ class Executor:
         if self.mode == EXECUTING:
             self.planner.advance(t, self.episode)
         s = self.timeline.state(t)
-        ball_v = None  # the shield turns towards the ball only in a confirmed throw
-        belief = self.gate.belief
-        if self.mode in (TRACKING, EXECUTING) and self.gate.confirmed and belief.n_meas >= 2:
-            v_std = np.sqrt(np.max(np.diag(belief.cov)[3:]))
-            fast = -belief.mean[3] > self.cfg.throw.min_approach_speed
-            if fast and v_std < self.cfg.execution.wrist_confident_speed_std:
-                ball_v = belief.mean[3:]
-        # on the way back the wrist goes to its home angles, never to the equivalent branch
-        home = self.robot.home[3:] if self.mode in (RETURNING, IDLE) else None
-        w = self.wrist.step(t, s[:3], self.wrist.normal_for(ball_v), home)
+        w = self.wrist.step(t, s[:3], *self.wrist_inputs())
         seg = self.timeline.segment
         if self.mode == RETURNING and (seg.kind != RETURN or t >= seg.t_end):
             arm_home = np.all(np.abs(s[:3] - self.robot.home[:3]) < ARM_HOME) and np.all(
@@ -239,6 +230,20 @@ class Executor:
                 if wrist_home or t > seg.t_end + ex.wrist_home_timeout:
                     self._finish_return(t)  # the whole arm is home and at rest: ready
         return np.r_[s[:3], w[:3]], np.r_[s[3:6], w[3:6]]
+
+    def wrist_inputs(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """(shield normal (3,), wrist angles [rad] (3,) to go to instead, or None): what the
+        wrist tracker steps towards in the present mode and belief."""
+        ball_v = None  # the shield turns towards the ball only in a confirmed throw
+        belief = self.gate.belief
+        if self.mode in (TRACKING, EXECUTING) and self.gate.confirmed and belief.n_meas >= 2:
+            v_std = np.sqrt(np.max(np.diag(belief.cov)[3:]))
+            fast = -belief.mean[3] > self.cfg.throw.min_approach_speed
+            if fast and v_std < self.cfg.execution.wrist_confident_speed_std:
+                ball_v = belief.mean[3:]
+        # on the way back the wrist goes to its home angles, never to the equivalent branch
+        home = self.robot.home[3:] if self.mode in (RETURNING, IDLE) else None
+        return self.wrist.normal_for(ball_v), home
 
     def _end_of_throw(self, t: float) -> None:
         if self.mode not in (TRACKING, EXECUTING):

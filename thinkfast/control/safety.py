@@ -30,7 +30,9 @@ from thinkfast.control.safety_limits import (
 )
 from thinkfast.control.safety_limits import robot_limits as robot_limits  # the daemon's import
 
-BRAKE_REASONS = ("signal", "deviation", "nonfinite")
+# planner_stale, planner_lost: the reply process had no word from its planner process in time,
+# or lost it (thinkfast.daemon.reply_process)
+BRAKE_REASONS = ("signal", "deviation", "nonfinite", "planner_stale", "planner_lost")
 KINDS = CLAMP_KINDS + tuple(f"brake_{r}" for r in BRAKE_REASONS) + ("init_clamped", "resync")
 
 
@@ -82,6 +84,15 @@ class SafetyConfig:
         "rest this long",
         unit="s",
         lo=0.0,
+    )
+    planner_timeout: float = spec(
+        0.25,
+        doc="with the reply loop in its own process (--reply-process): a plan whose planner "
+        "has given no word for this long is replaced by a smooth stop (brake planner_stale) "
+        "until the planner speaks again",
+        unit="s",
+        lo=0.0,
+        lo_open=True,
     )
     max_faults: int = spec(
         3, doc="this many faults within fault_window latch fault until restarted", lo=1

@@ -102,6 +102,13 @@ def run(
     fifo: int | None = typer.Option(
         None, "--fifo", help="run the EGM loop under SCHED_FIFO at this priority (1-99)"
     ),
+    reply_process: bool = typer.Option(
+        False,
+        "--reply-process",
+        help="answer EGM from a process of its own that planning cannot delay (--cpu and "
+        "--fifo apply to it); a planner silent for [safety] planner_timeout brakes the arm",
+    ),
+    test_stall_planner: str | None = typer.Option(None, "--test-stall-planner", hidden=True),
     foxglove: str | None = typer.Option(
         None,
         "--foxglove",
@@ -166,6 +173,8 @@ def run(
             "--fifo", None, "not with --busy-poll: the kernel throttles a SCHED_FIFO thread "
             "that never sleeps (use --spin-ahead-ms)",
         )  # fmt: skip
+    if reply_process and shadow:
+        raise ConfigError("--reply-process", None, "not with --shadow")
     if ros_domain is not None:  # one clear error before anything starts
         from thinkfast.contract import ros
 
@@ -192,9 +201,17 @@ def run(
     ends = Endpoints(egm_bind, egm_controller, egm_handover, key_prefix, record, ros_domain)
     modes = Modes(shadow=shadow, go_home=go_home, speed_scale=speed_scale)
     spin = math.inf if busy_poll else spin_ahead / 1e3
-    daemon = Daemon(
-        t, robot, cfg, planner, ends, conf, spin_ahead=spin, cpu=cpu, fifo=fifo, modes=modes
-    )
+    kind, extra = Daemon, {}
+    if reply_process:
+        from thinkfast.daemon.split import SplitDaemon
+
+        kind, extra = SplitDaemon, {"stall": _stall_option(test_stall_planner)}
+    elif test_stall_planner is not None:
+        raise ConfigError("--test-stall-planner", None, "only with --reply-process")
+    daemon = kind(
+        t, robot, cfg, planner, ends, conf, spin_ahead=spin, cpu=cpu, fifo=fifo, modes=modes,
+        **extra,
+    )  # fmt: skip
     if rerun is not None:
         from thinkfast.daemon.live_view import daemon_view
 
@@ -205,6 +222,19 @@ def run(
         daemon.view = FoxgloveView(*fox, robot)
         logging.getLogger("thinkfast.run").info("foxglove on ws://%s:%d", fox[0], daemon.view.port)
     sys.exit(daemon.run())
+
+
+def _stall_option(text: str | None) -> tuple[float, float] | None:
+    """``SECONDS@AFTER`` of the hidden test hook ``--test-stall-planner`` (None: off)."""
+    from thinkfast.errors import ConfigError
+
+    if text is None:
+        return None
+    try:
+        seconds, after = (float(x) for x in text.split("@"))
+    except ValueError:
+        raise ConfigError("--test-stall-planner", None, f"{text!r} is not SECONDS@AFTER") from None
+    return seconds, after
 
 
 def scale_limits(robot, scale: float):

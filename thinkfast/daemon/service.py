@@ -105,14 +105,7 @@ class Daemon:
         self.planned: tuple[np.ndarray, np.ndarray, str] | None = None  # shadow: virtual arm
         self._was_connected = False
         self._last_mode = IDLE
-        self.egm = EgmServer(
-            endpoints.egm_bind,
-            self._reply,
-            endpoints.egm_controller,
-            timing=True,
-            handover=endpoints.egm_handover,
-        )
-        self.egm.timing.late_after = cfg.safety.dt
+        self.egm = self._serve_egm(endpoints)
         if endpoints.ros_domain is None:
             self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix)
         else:  # rosbags (the ros extra) only when asked for
@@ -133,6 +126,13 @@ class Daemon:
         self._peer = None
 
     # -------------------------------------------------------------- EGM path
+    def _serve_egm(self, endpoints: Endpoints) -> EgmServer:
+        """The EGM server answering with :meth:`_reply` (thinkfast.daemon.split: elsewhere)."""
+        egm = EgmServer(endpoints.egm_bind, self._reply, endpoints.egm_controller, timing=True,
+                        handover=endpoints.egm_handover)  # fmt: skip
+        egm.timing.late_after = self.cfg.safety.dt
+        return egm
+
     def _reply(self, fb, before=None) -> tuple[np.ndarray, np.ndarray] | None:
         """The setpoint answering ``fb``, or None to leave it unanswered (after a silence in
         motion, until three packets measure the velocity; see :mod:`thinkfast.control.core`)."""

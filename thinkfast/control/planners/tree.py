@@ -81,6 +81,20 @@ class TreePlanner(Planner):
         elif t >= t_switch:
             self.start_edge(child, t_switch, ep)
 
+    def pending_segment(self) -> Segment | None:
+        """The queued child edge as :meth:`start_edge` will start it (pure), or None."""
+        tl = self.timeline
+        if tl.pending is None or tl.segment.kind != EDGE:
+            return None
+        child, t0 = tl.pending
+        if self.tree.compiled.node_parent[child] != tl.segment.ref:
+            return None
+        target = self.tree.subgoal_q[self.tree.compiled.edge_target[child], :3]
+        traj = tl.steer.to_rest(tl.state(t0), target)
+        if traj is None:
+            return None
+        return Segment(EDGE, t0, traj, np.r_[target, np.zeros(6)], traj.duration, int(child))
+
     def resume_edge(self, q: np.ndarray) -> tuple[str, np.ndarray, int]:
         """An edge steers on to its sub-goal: resume that move."""
         seg = self.timeline.segment

@@ -1,0 +1,229 @@
+"""The reply loop in a process of its own (``thinkfast-run --reply-process``): a planner that
+stalls costs no reply, one that stalls too long brakes the arm smoothly and resumes, one that is
+killed leaves the arm braked and still answered. Real processes, real UDP with protobuf EGM
+against the simulated controller, real zenoh on loopback."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+from daemon_harness import DaemonRun, ballistic_throw, publish_throw
+
+DT = 0.004
+REPLY = ("--reply-process",)
+
+
+@pytest.fixture(scope="module")
+def tree_file(small_tree_015):
+    return small_tree_015
+
+
+def _limits(q, qd, cycles, robot, margin: float = 0.005) -> None:
+    """Positions and velocities within the limits; velocity steps within a_max over the
+    controller cycles between two commands (a reply may answer a later cycle)."""
+    assert np.all(np.isfinite(q)) and np.all(np.isfinite(qd))
+    assert np.all(q >= robot.q_lower + margin - 1e-9) and np.all(q <= robot.q_upper - margin + 1e-9)
+    assert np.all(np.abs(qd) <= robot.v_max + 1e-9)
+    assert np.all(cycles >= 0)
+    assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT * cycles[:, None] + 1e-9)
+
+
+def _throw(run: DaemonRun) -> None:
+    t_release = time.time() + 0.8
+    _, _, at = ballistic_throw((0.25, 1.25), 0.8, t_release, (7.8, -0.2, 1.5))
+    publish_throw(run, at, t_release, 0.8)
+
+
+def _gone(pid: int, timeout: float) -> bool:
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                if f.read().split(") ")[1][0] == "Z":
+                    return True  # ended (its new parent reaps it)
+        except FileNotFoundError:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def _stalled_throw(tree_file, tmp_path, robot, stall: str, seconds: float):
+    """A throw at a daemon whose planner stalls (``SECONDS@AFTER`` the throw executes), until
+    it is idle again: (run, its log, its recorded EGM rows)."""
+    extra = REPLY + ("--test-stall-planner", stall)
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=extra)
+    try:
+        _throw(run)
+        time.sleep(seconds)
+        assert run.wait_state("idle", timeout=10.0), run.status[-1]
+    finally:
+        code, err = run.stop()
+    assert code == 0, err
+    return run, err, run.egm_rows()
+
+
+@pytest.mark.realtime
+def test_a_planner_stall_of_50_ms_costs_no_reply_and_the_arm_follows_its_plan(
+    tree_file, tmp_path, robot
+):
+    run, err, rows = _stalled_throw(tree_file, tmp_path, robot, "0.05@0.1", 0.0)
+    assert "stalling the planner for 0.050 s" in err
+    assert "planner_stale" not in err
+    braking = rows[:, 20] == 1.0
+    k = int(np.argmax(braking)) if braking.any() else len(rows)
+    assert np.all(braking[k:])  # never braked but at the end (the test's SIGINT, at rest)
+    assert np.abs(rows[: k - 1, 14:20]).max() > 0.3  # the throw was executed through the stall
+    last = run.status[-1]
+    assert last["reply_process"]["planner_stale"] == 0 and last["throws"] == 1
+    egm = last["egm"]
+    assert egm["reply_errors"] == 0 and egm["deferred"] == 0
+    _limits(rows[:, 8:14], rows[:, 14:20], np.diff(rows[:, 1]), robot)
+    assert np.allclose(rows[-1, 8:14], robot.home, atol=2e-3)
+
+
+@pytest.mark.realtime
+def test_a_planner_stall_of_2_s_brakes_smoothly_and_the_throw_resumes_after_it(
+    tree_file, tmp_path, robot
+):
+    run, err, rows = _stalled_throw(tree_file, tmp_path, robot, "2@0.15", 2.0)
+    assert "planner_stale" in err and "planner_resumed" in err
+    _limits(rows[:, 8:14], rows[:, 14:20], np.diff(rows[:, 1]), robot)
+    braking = rows[:, 20] == 1.0
+    first = int(np.argmax(braking))
+    end = first + int(np.argmin(braking[first:]))  # the first reply after the brake
+    assert braking.any() and end > first  # (the last rows brake on the test's SIGINT)
+    assert np.abs(rows[end:, 14:20]).max() > 0.05  # it moved on after the stall: home
+    assert np.abs(rows[first - 1, 14:20]).max() > 0.05  # it was moving when the brake came
+    assert np.all(rows[end - 1, 14:20] == 0.0)  # stopped before resuming
+    speed = np.abs(rows[first:end, 14:20])
+    overshoot = robot.a_max**2 / (2 * robot.j_max) + robot.a_max * DT
+    assert np.all(speed.max(axis=0) <= speed[0] + overshoot)  # a stop, never a speed-up
+    # 2 s of stall: the stop lasted most of it (the loop answered throughout, holding)
+    assert rows[end, 0] - rows[first, 0] > 1.0
+    assert run.status[-1]["reply_process"]["planner_stale"] == 1
+    assert np.allclose(rows[-1, 8:14], robot.home, atol=2e-3)  # the throw ended, back home
+
+
+@pytest.mark.realtime
+def test_a_killed_planner_leaves_the_arm_braked_and_still_answered(tree_file, tmp_path, robot):
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=REPLY)
+    child = None
+    try:
+        import threading
+
+        th = threading.Thread(target=_throw, args=(run,), daemon=True)
+        th.start()
+        assert run.wait_state("executing", timeout=6.0)
+        time.sleep(0.1)  # moving now
+        child = run.status[-1]["reply_process"]["pid"]
+        n_before = len(run.sim.commands().t)
+        run.proc.kill()  # SIGKILL the planner process
+        run.proc.wait(5.0)
+        time.sleep(1.5)
+        cmds = run.sim.commands()
+        assert len(cmds.t) - n_before > 60  # the controller is still answered
+        q, qd, t = cmds.q[n_before - 5 :], cmds.qd[n_before - 5 :], cmds.t[n_before - 5 :]
+        applied = np.r_[np.diff(t) > 0, True]  # a late reply and the next in one cycle: the last
+        q, qd, t = q[applied], qd[applied], t[applied]
+        moving = np.abs(qd[0]).max()
+        assert moving > 0.05
+        assert np.all(qd[-20:] == 0.0)  # braked to a stop, holding
+        _limits(q, qd, np.round(np.diff(t) / DT), robot)
+        deadline = time.time() + 20.0  # zenoh reconnects to the same endpoint after a backoff
+        while time.time() < deadline and run.status[-1].get("fault") != "planner_lost":
+            time.sleep(0.1)
+        last = run.status[-1]  # not silence: the reply process's own status
+        assert last["state"] == "fault" and last["fault"] == "planner_lost", last
+        assert last["brake_reason"] == "planner_lost" and not any(last["qd"])
+        os.kill(child, signal.SIGTERM)  # it ends when told
+        assert _gone(child, 10.0)
+        child = None
+    finally:
+        if child is not None:
+            os.kill(child, signal.SIGKILL)
+        _, err = run.stop()
+    assert "planner process" in err and "lost: braking to a stop and holding" in err
+
+
+def test_the_deadline_brakes_on_a_silent_planner_and_resumes_from_the_stop(robot):
+    """ReplyLoop driven packet by packet (no wall clock): a heartbeat older than
+    planner_timeout brakes along the supervisor's stop; once stopped and the planner speaks,
+    the loop plans on from the commanded state (a resync the planner is told of) and moves."""
+    from thinkfast.contract.egm import RobotFeedback
+    from thinkfast.control.config import RunConfig
+    from thinkfast.control.plan import SIZE, plan_vector
+    from thinkfast.control.segments import STEER, move
+    from thinkfast.daemon.egm_server import EgmServer
+    from thinkfast.daemon.reply_process import ReplyLoop
+    from thinkfast.daemon.reply_rows import CALL, COL, EVENT, EVENTS, REPLY, WIDTH
+    from thinkfast.daemon.shared_plan import RowRing, Seqlock
+
+    cfg = RunConfig()
+    block, ring = Seqlock(SIZE), RowRing(WIDTH)
+    loop = ReplyLoop(robot, cfg, block, ring, os.getppid())
+    loop.egm = EgmServer(("127.0.0.1", 0), loop.reply, timing=True)  # its counters in the rows
+    try:
+        core, sup, f = loop.core, loop.core.sup, loop.follower
+        qs = []
+
+        def packet(seqno: int) -> None:
+            q = robot.home if not qs else qs[-1]  # an arm that follows exactly
+            q, _ = loop.reply(RobotFeedback(seqno, 4 * seqno, q, True, True, True))
+            qs.append(np.array(q))
+            loop.after(True)
+
+        packet(1)  # the stream starts: the follower holds home (epoch 1)
+        t0 = core.clock.t + DT
+        target = robot.home[:3] + np.array([0.8, -0.3, 0.3])
+        seg = move(f.timeline.steer, STEER, np.r_[robot.home[:3], np.zeros(6)], target, t0, 2)
+        block.write(plan_vector(1, f.epoch, "executing", [seg], f.normal, None))
+        block.beat(10.0)
+        loop.watch_plan(10.001)
+        assert f.plan_id == 1
+        for k in range(2, 60):
+            packet(k)
+            loop.watch_plan(10.0 + cfg.safety.planner_timeout * k / 100)  # in time
+        assert not sup.braking and np.abs(sup.qd).max() > 0.5  # moving along the plan
+        loop.watch_plan(10.0 + cfg.safety.planner_timeout + 0.01)  # no word: too late
+        assert sup.brake_reason == "planner_stale"
+        k = 60
+        while not sup.stopped:
+            packet(k)
+            k += 1
+            assert k < 400
+        block.beat(11.0)
+        loop.watch_plan(11.001)  # the planner speaks again
+        assert not sup.braking
+        for j in range(k, k + 40):
+            packet(j)
+        assert np.abs(sup.qd).max() > 0.1  # on its way to the target again
+        rows = ring.take()
+        events = [EVENTS[int(r[COL["code"]])] for r in rows if r[COL["type"]] == EVENT]
+        assert events == ["planner_stale", "planner_resumed"]
+        calls = rows[rows[:, COL["type"]] == CALL]
+        assert len(calls) == 2 and f.epoch == 2  # the start, and the resync after the stop
+        replies = rows[rows[:, COL["type"]] == REPLY]
+        qd = replies[:, COL["qd"]]
+        assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT + 1e-9)
+        assert np.all(np.abs(qd) <= robot.v_max + 1e-9)
+    finally:
+        loop.egm.close()
+        block.close()
+        ring.close()
+
+
+@pytest.mark.realtime
+def test_a_dead_reply_process_stops_the_daemon_with_exit_1_and_says_why(tree_file, tmp_path, robot):
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=REPLY)
+    try:
+        child = run.status[-1]["reply_process"]["pid"]
+        os.kill(child, signal.SIGKILL)
+        code = run.proc.wait(20.0)
+    finally:
+        _, err = run.stop()
+    assert code == 1
+    assert f"the EGM reply process {child} died (exit code -9)" in err

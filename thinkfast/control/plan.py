@@ -1,0 +1,244 @@
+"""A plan as pure data, and its evaluation without the planner (the isolated reply loop).
+
+The planner process (the daemon with its :class:`~thinkfast.control.executor.Executor`) exports
+what it commands as a flat float64 vector (:func:`plan_vector`): the joint 1-3 segment in
+progress and the one queued after it (each a Ruckig trajectory as its exact cubic pieces,
+:class:`Pieces`), the wrist tracker's inputs (shield normal, or the angles it goes to) and the
+mode. The reply process evaluates it with :class:`PlanFollower`, a stand-in for the executor
+that the :class:`~thinkfast.control.core.ControlCore` drives: the setpoint at the controller's
+time is the segment in effect then and the wrist tracker stepped towards its inputs, as
+``Executor.setpoint`` computes them.
+
+When the core plans again from the commanded state (a catch-up, a supervisor change, a restart,
+a fault) the follower does it itself (the same :class:`~thinkfast.control.timeline.Timeline`
+replan: a compiled edge steers on to its sub-goal), counts an *epoch* and records the call, so
+that the planner makes the same call on its executor. A plan is taken only when it was made
+after every such call (its epoch is the follower's): a plan made from a state the reply loop has
+left would jump. Clock-free and without I/O.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from thinkfast.control.config import RunConfig
+from thinkfast.control.executor import FAULT, IDLE, RETURNING, Mode
+from thinkfast.control.segments import EDGE, HOLD, RETURN, STEER, TERMINAL, Segment, WristTracker
+from thinkfast.control.timeline import Timeline
+from thinkfast.robot.model import Robot
+from thinkfast.robot.steering import feasible_acceleration
+
+MODES = tuple(m.value for m in Mode) + ("brake", "standby", "shadow")
+KINDS = (EDGE, TERMINAL, STEER, RETURN, HOLD)
+CALLS = ("resync", "start_from", "hold_fault", "recover")
+K_MAX = 10  # cubic pieces per joint: 2 of a brake pre-trajectory, 7 phases, the end
+_SEG = 4 + 9 + 1 + 3 * K_MAX * 5  # kind, t0, duration, ref, end, pieces, (start, p, v, a, j)
+_HEAD = 10  # id, epoch, mode, normal (3), goal (3), segments
+SIZE = _HEAD + 2 * _SEG
+
+
+class Pieces:
+    """A Ruckig trajectory of joints 1-3 as cubic pieces; ``at_time`` and ``duration`` as
+    Ruckig's (within rounding: the same formulas).
+
+    Args:
+        start: piece start times [s] (3, K_MAX), +inf past the last piece of a joint.
+        coef: (p, v, a, j) at each piece's start (3, K_MAX, 4).
+        duration: the trajectory's duration [s].
+    """
+
+    def __init__(self, start: np.ndarray, coef: np.ndarray, duration: float):
+        self.start = [list(map(float, row)) for row in start]
+        self.coef = [[tuple(map(float, c)) for c in row] for row in coef]
+        self.duration = float(duration)
+
+    @classmethod
+    def of(cls, traj) -> tuple[np.ndarray, np.ndarray]:
+        """(start, coef) arrays of a one-section Ruckig trajectory (``to_rest``'s)."""
+        start = np.full((3, K_MAX), np.inf)
+        coef = np.zeros((3, K_MAX, 4))
+        for k, pr in enumerate(traj.profiles[0]):
+            rows: list[tuple[float, float, float, float, float]] = []
+            b, tb = pr.brake, pr.brake.duration
+            if tb > 0.0:
+                rows.append((0.0, b.p[0], b.v[0], b.a[0], b.j[0]))
+                rows.append((b.t[0], b.p[1], b.v[1], b.a[1], b.j[1]))
+            t_sum = np.cumsum(pr.t)
+            for i in range(7):
+                rows.append((tb + (t_sum[i - 1] if i else 0.0), pr.p[i], pr.v[i], pr.a[i], pr.j[i]))
+            rows.append((tb + t_sum[6], pr.p[7], pr.v[7], pr.a[7], 0.0))
+            arr = np.array(rows)
+            start[k, : len(rows)] = arr[:, 0]
+            coef[k, : len(rows)] = arr[:, 1:]
+        return start, coef
+
+    def at_time(self, s: float):
+        """Positions, velocities, accelerations (3 lists of 3) at ``s`` [s] from the start."""
+        p, v, a = [], [], []
+        for starts, coefs in zip(self.start, self.coef, strict=True):
+            i = max(bisect.bisect_right(starts, s) - 1, 0)
+            h = s - starts[i]
+            p0, v0, a0, j = coefs[i]
+            p.append(p0 + h * (v0 + h * (a0 / 2 + h * j / 6)))
+            v.append(v0 + h * (a0 + h * j / 2))
+            a.append(a0 + h * j)
+        return p, v, a
+
+
+class Plan(NamedTuple):
+    """A decoded plan vector: ``id``, ``epoch``, ``mode``, wrist ``normal`` (3,) and ``goal``
+    (3,) or None, and the segments (current first, then the queued one) on the plans' clock."""
+
+    id: int
+    epoch: int
+    mode: str
+    normal: np.ndarray
+    goal: np.ndarray | None
+    segments: tuple[Segment, ...]
+
+
+def _put_segment(out: np.ndarray, seg: Segment) -> None:
+    out[:4] = (KINDS.index(seg.kind), seg.t0, seg.duration, seg.ref)
+    out[4:13] = seg.end
+    out[13] = np.nan if seg.traj is None else seg.traj.duration
+    if seg.traj is not None:
+        start, coef = Pieces.of(seg.traj)
+        n = 3 * K_MAX
+        out[14 : 14 + n] = start.ravel()
+        out[14 + n : 14 + 5 * n] = coef.ravel()
+
+
+def _get_segment(v: np.ndarray) -> Segment:
+    kind, t0, duration, ref = v[:4]
+    traj = None
+    if not np.isnan(v[13]):
+        n = 3 * K_MAX
+        traj = Pieces(v[14 : 14 + n].reshape(3, K_MAX), v[14 + n : 14 + 5 * n].reshape(3, K_MAX, 4),
+                      v[13])  # fmt: skip
+    return Segment(KINDS[int(kind)], float(t0), traj, v[4:13].copy(), float(duration), int(ref))
+
+
+def plan_vector(plan_id: int, epoch: int, mode: str, segments, normal, goal) -> np.ndarray:
+    """The flat vector (:data:`SIZE`,) of a plan (see :class:`Plan`; ``segments``: 1 or 2)."""
+    out = np.full(SIZE, np.nan)
+    out[:3] = (plan_id, epoch, MODES.index(mode))
+    out[3:6] = normal
+    out[6:9] = np.nan if goal is None else goal
+    out[9] = len(segments)
+    for k, seg in enumerate(segments[:2]):
+        _put_segment(out[_HEAD + k * _SEG : _HEAD + (k + 1) * _SEG], seg)
+    return out
+
+
+def decode_plan(v: np.ndarray) -> Plan | None:
+    """The :class:`Plan` of a vector from :func:`plan_vector`; None for an empty block."""
+    if not math.isfinite(v[0]):
+        return None
+    segs = tuple(_get_segment(v[_HEAD + k * _SEG :]) for k in range(int(v[9])))
+    goal = None if np.isnan(v[6]) else v[6:9].copy()
+    return Plan(int(v[0]), int(v[1]), MODES[int(v[2])], v[3:6].copy(), goal, segs)
+
+
+def executor_plan(ex, plan_id: int, epoch: int) -> np.ndarray:
+    """The plan vector of an :class:`~thinkfast.control.executor.Executor` now: its segment, the
+    queued one when its planner can say it (``pending_segment``), its wrist inputs."""
+    segs = [ex.timeline.segment]
+    pending = getattr(ex.planner, "pending_segment", None)
+    nxt = pending() if pending is not None else None
+    if nxt is not None:
+        segs.append(nxt)
+    normal, goal = ex.wrist_inputs()
+    return plan_vector(plan_id, epoch, ex.mode.value, segs, normal, goal)
+
+
+class PlanFollower:
+    """The executor's stand-in in the reply process: evaluates the plans it is given (module
+    doc). ``calls``: ``(name, t, q, qd, qdd)`` of each replan made here, for the planner."""
+
+    def __init__(self, robot: Robot, cfg: RunConfig):
+        ex = cfg.execution
+        self.home = np.array(robot.home, dtype=float)
+        self.timeline = Timeline(robot, ex)
+        self.wrist = WristTracker(
+            robot, ex.wrist_max_tilt, cfg.safety.position_margin + ex.wrist_inner_margin
+        )
+        self.wrist.reset(self.home[3:], -math.inf)
+        self.mode: str = IDLE
+        self.away = False
+        self.segments: tuple[Segment, ...] = (self.timeline.segment,)
+        self.normal = self.wrist.normal_for(None)
+        self.goal: np.ndarray | None = self.home[3:]
+        self.plan_id, self.epoch = -1, 0
+        self.calls: list[tuple[str, float, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.t_set = -math.inf  # the last time a setpoint was asked for
+
+    def adopt(self, plan: Plan) -> bool:
+        """Follow ``plan`` when it is new and was made after every replan made here."""
+        if plan.epoch != self.epoch or plan.id == self.plan_id:
+            return False
+        self.plan_id, self.mode = plan.id, plan.mode
+        # a plan that starts after the next cycle: the one in effect goes on until it starts
+        # (it starts from that one's state then)
+        early = plan.segments[0].t0 > self.t_set and self.timeline.segment.t0 <= self.t_set
+        self.segments = ((self.timeline.segment,) if early else ()) + plan.segments
+        self.normal, self.goal = plan.normal, plan.goal
+        return True
+
+    def setpoint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Joint positions [rad] (6,) and velocities [rad/s] (6,) of the plan at ``t`` [s]."""
+        segs = self.segments
+        seg = segs[0]
+        for later in segs[1:]:  # the last one started by t
+            if t >= later.t0:
+                seg = later
+        self.timeline.segment = seg
+        s = seg.state(t)
+        w = self.wrist.step(t, s[:3], self.normal, self.goal)
+        self.t_set = t
+        return np.r_[s[:3], w[:3]], np.r_[s[3:6], w[3:6]]
+
+    def _replanned(self, name: str, t: float, q, qd, qdd) -> None:
+        self.segments = (self.timeline.segment,)
+        self.epoch += 1
+        z = np.zeros(6)
+        self.calls.append((name, t, np.array(q, float), z + qd, z + qdd))
+
+    def resync(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, t: float) -> None:
+        """Plan on from ``q, qd, qdd`` (6,) at ``t`` with the same intent (as the executor)."""
+        q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
+        s, w = self.timeline.steer, self.wrist.steer
+        a_arm = feasible_acceleration(qd[:3], qdd[:3], s.v_max, s.a_max, s.j_max)
+        a_wrist = feasible_acceleration(qd[3:], qdd[3:], w.v_max, w.a_max, w.j_max)
+        self.wrist.reset(q[3:], t, qd[3:], a_wrist)
+        seg = self.timeline.segment
+        kind = STEER if seg.kind == EDGE else seg.kind
+        self.timeline.replan(np.r_[q[:3], qd[:3], a_arm], kind, seg.end[:3], seg.ref, t)
+        self._replanned("resync", t, q, qd, qdd)
+
+    def start_from(self, q: np.ndarray, t: float) -> None:
+        """Hold ``q`` (6,) at rest from ``t`` (the planner decides what follows)."""
+        self._hold(q, t, IDLE)
+        self._replanned("start_from", t, q, 0.0, 0.0)
+
+    def hold_fault(self, q: np.ndarray, t: float) -> None:
+        """Latched fault: hold ``q`` (6,) at rest."""
+        self._hold(q, t, FAULT)
+        self._replanned("hold_fault", t, q, 0.0, 0.0)
+
+    def recover(self, q: np.ndarray, t: float) -> None:
+        """After a fault stop at ``q`` (6,): return home from there."""
+        self._hold(q, t, RETURNING)
+        self.timeline.start_return(t)
+        self._replanned("recover", t, q, 0.0, 0.0)
+
+    def _hold(self, q, t: float, mode: str) -> None:
+        q = np.asarray(q, dtype=float)
+        self.wrist.reset(q[3:], t)
+        self.timeline.hold_at(q[:3], t)
+        self.mode = mode
+        self.normal = self.wrist.normal_for(None)  # no belief here: as the executor without one
+        self.goal = self.home[3:] if mode in (IDLE, RETURNING) else None

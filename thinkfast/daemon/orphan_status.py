@@ -1,0 +1,59 @@
+"""The status of a reply process whose planner process died (``--reply-process``).
+
+The planner process publishes the daemon's status; when it dies, the reply process, still
+answering the controller with the arm braked and held, publishes a status of its own so that the
+cell never sees silence: ``state`` ``fault`` with ``fault`` ``planner_lost``, what it commands
+and its EGM counters, once a second on ``<prefix>/status`` (docs/INTERFACES.md: stamp and state
+at least). It runs in a thread with its own zenoh session, opened only then: the arm is held
+braked, and the reply loop never waits for it (it reads plain attributes).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+
+import numpy as np
+
+
+def start(zenoh_json: str, prefix: str, loop) -> threading.Thread:
+    """Publish ``loop``'s status (a :class:`~thinkfast.daemon.reply_process.ReplyLoop`) from a
+    daemon thread, on a session of the zenoh configuration ``zenoh_json`` (JSON5)."""
+    th = threading.Thread(target=_run, args=(zenoh_json, prefix, loop), daemon=True)
+    th.start()
+    return th
+
+
+def status(loop, now: float) -> dict:
+    """The status message of a reply loop without its planner."""
+    core, sup, egm = loop.core, loop.core.sup, loop.egm
+    return {
+        "stamp": now,
+        "state": "fault",
+        "fault": "planner_lost",
+        "planner_lost": {"pid": loop.parent},
+        "braking": sup.braking,
+        "brake_reason": sup.brake_reason,
+        "q": np.round(np.asarray(sup.q), 6).tolist(),
+        "qd": np.round(np.asarray(sup.qd), 6).tolist(),
+        "egm": dict(vars(egm.counters)) if egm is not None else {},
+        "loop": {"missed_cycles": core.held, "catch_ups": core.catch_ups},
+    }
+
+
+def _run(zenoh_json: str, prefix: str, loop) -> None:
+    try:
+        import zenoh
+
+        from thinkfast.contract import keys
+
+        session = zenoh.open(zenoh.Config.from_json5(zenoh_json))
+        pub = session.declare_publisher(keys.status(prefix))
+    except Exception as exc:  # the log line on stderr still says what happened
+        print(f"thinkfast reply process: no status on zenoh ({exc})", file=sys.stderr)
+        return
+    while True:
+        pub.put(json.dumps(status(loop, time.time())).encode())
+        time.sleep(1.0)
