@@ -20,6 +20,7 @@ import shlex
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -28,7 +29,7 @@ import pytest
 
 from tests.daemon_harness import free_port
 from thinkfast.contract.zenoh_session import free_tcp_port
-from thinkfast.sim.realtime import LOOPBACK_ZENOH, wait_port
+from thinkfast.sim.realtime import LOOPBACK_ZENOH, daemon_log, wait_port
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -46,17 +47,19 @@ def rehearsal_blocks() -> list[list[str]]:
 
 def test_the_doc_has_the_rehearsal_blocks():
     blocks = rehearsal_blocks()
-    assert len(blocks) == 2
+    assert len(blocks) == 3
     progs = [{shlex.split(line)[0] for line in b} for b in blocks]
-    assert all(p == {"thinkfast-run", "thinkfast-sim", "thinkfast-cell"} for p in progs)
-    assert all(any("--foxglove" in line for line in b) for b in blocks)
-    assert any("--throws" in line for line in blocks[1])
+    assert progs[0] == progs[2] == {"thinkfast-run", "thinkfast-sim", "thinkfast-cell"}
+    assert progs[1] == progs[0] | {"thinkfast-calib"}
+    assert all(any("--foxglove" in line for line in blocks[i]) for i in (0, 2))
+    assert all(any("--throws" in line for line in blocks[i]) for i in (1, 2))
 
 
 class Cell:
     """The processes of one block, on this test's ports."""
 
-    def __init__(self, tree: Path):
+    def __init__(self, tree: Path, cwd: Path):
+        self.cwd = cwd  # where the doc's relative files (cal.h5, patch.toml) go
         self.ports = {"6510": str(free_port()), "8080": str(free_tcp_port()),
                       "7447": str(free_tcp_port()), "8765": str(free_tcp_port())}  # fmt: skip
         self.tree = tree
@@ -76,17 +79,22 @@ class Cell:
         return [str(BIN / args[0]), *args[1:]]
 
     def run(self, line: str) -> subprocess.CompletedProcess:
+        """Start the daemon (``thinkfast-run --tree``) or the controller; run anything else."""
         args = self.args(line)
-        if args[0].endswith("thinkfast-run") and args[1] != "status" or "controller" in args[1:2]:
+        if "--tree" in args or args[1:2] == ["controller"]:
             return self._start(args)
-        return subprocess.run(args, capture_output=True, text=True, timeout=60)
+        return subprocess.run(args, capture_output=True, text=True, timeout=120, cwd=self.cwd)
 
     def _start(self, args: list[str]) -> subprocess.CompletedProcess:
         if args[1] == "controller":
-            p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                 cwd=self.cwd)  # fmt: skip
             threading.Thread(target=self._read, args=(p,), daemon=True).start()
         else:
-            p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            log = tempfile.TemporaryFile(mode="w+")  # a file: a full pipe would stall the daemon
+            p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=log, text=True,
+                                 cwd=self.cwd)  # fmt: skip
+            p.log = log  # for daemon_log
             self.daemon = p
             wait_port(p, int(self.ports["7447"]), timeout=90)
         self.procs.append((p, args))
@@ -120,7 +128,7 @@ class Cell:
             except subprocess.TimeoutExpired:
                 p.kill()
                 codes.append(-9)
-        log = self.daemon.stderr.read() if self.daemon is not None else ""
+        log = daemon_log(self.daemon) if self.daemon is not None else ""
         return codes, log
 
 
@@ -155,10 +163,10 @@ def _foxglove_topics(port: str) -> set[str]:
     return topics
 
 
-def test_first_light_in_shadow_as_the_doc_says(tree):
+def test_first_light_in_shadow_as_the_doc_says(tree, tmp_path):
     pytest.importorskip("foxglove")
     lines = rehearsal_blocks()[0]
-    cell = Cell(tree)
+    cell = Cell(tree, tmp_path)
     out: dict[str, subprocess.CompletedProcess] = {}
     try:
         cell.run(lines[0])  # the daemon, --shadow --foxglove
@@ -182,10 +190,36 @@ def test_first_light_in_shadow_as_the_doc_says(tree):
         assert word in log, word
 
 
-def test_the_first_simulated_block_as_the_doc_says(tree):
-    pytest.importorskip("foxglove")
+def test_a_slow_recorded_session_and_its_calibration_as_the_doc_says(tree, tmp_path):
     lines = rehearsal_blocks()[1]
-    cell = Cell(tree)
+    cell = Cell(tree, tmp_path)
+    try:
+        cell.run(lines[0])  # the daemon, --speed-scale 0.2 --record cal.h5
+        cell.run(lines[1])  # the simulated IRC5 with --throws
+        cell.url_ready()
+        started = cell.run(lines[2])
+        assert started.returncode == 0, started.stderr
+        done = _until(lambda: any(ln.startswith("blocked ") for ln in cell.controller_lines), 120)
+        assert done, cell.controller_lines
+        stopped = cell.run(lines[3])
+        assert stopped.returncode == 0, stopped.stderr
+    finally:
+        codes, log = cell.stop()  # Ctrl-C: the record is complete
+    assert codes == [0, 0], log
+    assert len([ln for ln in cell.controller_lines if ln.startswith("throw ")]) == 3
+    calib, check = cell.run(lines[4]), cell.run(lines[5])
+    print(calib.stdout, check.stdout, sep="\n")
+    assert calib.returncode == 0, calib.stderr
+    assert "controller lag" in calib.stdout and "no limit measured" in calib.stdout
+    assert "max_acceleration[0] = 12.00: not measured" in calib.stdout  # robot.toml's, kept
+    assert "controller_lag" in (tmp_path / "patch.toml").read_text()
+    assert check.returncode == 0 and "patch.toml: OK" in check.stdout, check.stderr
+
+
+def test_the_first_simulated_block_as_the_doc_says(tree, tmp_path):
+    pytest.importorskip("foxglove")
+    lines = rehearsal_blocks()[2]
+    cell = Cell(tree, tmp_path)
     out: dict[str, subprocess.CompletedProcess] = {}
     try:
         cell.run(lines[0])  # the daemon, full speed, --foxglove

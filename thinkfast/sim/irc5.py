@@ -87,7 +87,7 @@ class SimIrc5:
         self.sim.motors_on, self.sim.rapid_running, self.sim.mci_running = motors, running, session
         now = time.monotonic()
         if session and self.runner is None:
-            self.runner = ControllerRunner(self.sim, self.target).start()
+            self.runner = ControllerRunner(self.sim, self.target, keep_cycle=True).start()
             self._last_reply = (0, now)
         elif not session and self.runner is not None:
             self._stop_egm()
