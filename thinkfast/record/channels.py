@@ -61,10 +61,26 @@ class ChannelPainter:
         self.names = tuple(robot.joint_names)
         self.next_goals = -np.inf
         self.shield_path = self.scene.shield_path
-        # imports and tables made on first use (rosbags' type store, scipy's rotations: about a
-        # second on a loaded host) made here, before the daemon serves, not in a first step
-        cdr_point_stamped(0.0, (0.0, 0.0, 0.0))
-        self.scene.ball(np.zeros(6), np.eye(6))
+        self._warm_up(robot)
+
+    def _warm_up(self, robot) -> None:
+        """Every method once, emitting nothing: what is made on first use (rosbags' type store
+        and its generated serialisers, imports) is made here, before the daemon serves. A cold
+        first step measured at milliseconds would otherwise wait for its decaying cost estimate
+        (live_view.WAIT_DECAY) and hold the view's queue for seconds."""
+        emit, self.emit = self.emit, lambda t, topic, data: None
+        try:
+            q = np.asarray(robot.home, dtype=float)
+            self.joints(0.0, q, np.zeros(6), q)
+            self.raw(0.0, (1.0, 0.0, 1.0))
+            self.belief(0.0, np.r_[1.0, 0.0, 1.0, -1.0, 0.0, 0.0], np.eye(6))
+            self.crossing(0.0, np.zeros(3), np.eye(3))
+            self.decision(0.0, "", None, -1, np.zeros((2, 3)))
+            self.arm(0.0, "commanded", q)
+            self.event(0.0, "start", "{}")
+            self.status(0.0, {})
+        finally:
+            self.emit, self.next_goals = emit, -np.inf
 
     def _scene(self, t: float, *entities) -> None:
         self.emit(t, SCENE_TOPIC, self.scene.update([e for e in entities if e is not None]))
