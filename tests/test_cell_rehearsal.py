@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.daemon_harness import free_port
+from tests.daemon_harness import free_port, until
 from thinkfast.contract.zenoh_session import free_tcp_port
 from thinkfast.sim.realtime import LOOPBACK_ZENOH, daemon_log, wait_port
 
@@ -104,9 +104,21 @@ class Cell:
         for line in p.stdout:
             self.controller_lines.append(line.rstrip())
 
+    def throw(self, lines: list[str]) -> subprocess.CompletedProcess:
+        """The block's daemon and throwing controller (its first two lines), then its
+        ``thinkfast-cell start`` (the third); returns that once the throws are judged."""
+        self.run(lines[0])
+        self.run(lines[1])
+        self.url_ready()
+        started = self.run(lines[2])
+        assert started.returncode == 0, started.stderr
+        done = until(lambda: any(ln.startswith("blocked ") for ln in self.controller_lines), 120)
+        assert done, self.controller_lines
+        return started
+
     def url_ready(self) -> None:
         url = f"http://127.0.0.1:{self.ports['8080']}"
-        assert _until(lambda: subprocess.run([str(BIN / "thinkfast-cell"), "state", "--url", url],
+        assert until(lambda: subprocess.run([str(BIN / "thinkfast-cell"), "state", "--url", url],
                                              capture_output=True).returncode == 0, 60)  # fmt: skip
 
     def status(self) -> dict:
@@ -130,15 +142,6 @@ class Cell:
                 codes.append(-9)
         log = daemon_log(self.daemon) if self.daemon is not None else ""
         return codes, log
-
-
-def _until(check, timeout: float) -> bool:
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        if check():
-            return True
-        time.sleep(0.3)
-    return False
 
 
 @pytest.fixture(scope="module")
@@ -165,8 +168,7 @@ def _foxglove_topics(port: str) -> set[str]:
 
 def test_first_light_in_shadow_as_the_doc_says(tree, tmp_path):
     pytest.importorskip("foxglove")
-    lines = rehearsal_blocks()[0]
-    cell = Cell(tree, tmp_path)
+    lines, cell = rehearsal_blocks()[0], Cell(tree, tmp_path)
     out: dict[str, subprocess.CompletedProcess] = {}
     try:
         cell.run(lines[0])  # the daemon, --shadow --foxglove
@@ -175,10 +177,10 @@ def test_first_light_in_shadow_as_the_doc_says(tree, tmp_path):
         assert "/thinkfast/scene" in _foxglove_topics(cell.ports["8765"])
         for line in lines[2:]:
             if "status" in line:
-                assert _until(lambda: cell.status().get("egm_connected"), 30)
+                assert until(lambda: cell.status().get("egm_connected"), 30)
             out[line] = r = cell.run(line)
             assert r.returncode == 0, (line, r.stdout, r.stderr)
-        assert _until(lambda: cell.status().get("egm_connected") is False, 30)
+        assert until(lambda: cell.status().get("egm_connected") is False, 30)
     finally:
         codes, log = cell.stop()
     assert codes == [0, 0], log
@@ -191,16 +193,9 @@ def test_first_light_in_shadow_as_the_doc_says(tree, tmp_path):
 
 
 def test_a_slow_recorded_session_and_its_calibration_as_the_doc_says(tree, tmp_path):
-    lines = rehearsal_blocks()[1]
-    cell = Cell(tree, tmp_path)
+    lines, cell = rehearsal_blocks()[1], Cell(tree, tmp_path)
     try:
-        cell.run(lines[0])  # the daemon, --speed-scale 0.2 --record cal.h5
-        cell.run(lines[1])  # the simulated IRC5 with --throws
-        cell.url_ready()
-        started = cell.run(lines[2])
-        assert started.returncode == 0, started.stderr
-        done = _until(lambda: any(ln.startswith("blocked ") for ln in cell.controller_lines), 120)
-        assert done, cell.controller_lines
+        cell.throw(lines)  # --speed-scale 0.2 --record cal.h5, --throws 3, cell start
         stopped = cell.run(lines[3])
         assert stopped.returncode == 0, stopped.stderr
     finally:
@@ -218,17 +213,10 @@ def test_a_slow_recorded_session_and_its_calibration_as_the_doc_says(tree, tmp_p
 
 def test_the_first_simulated_block_as_the_doc_says(tree, tmp_path):
     pytest.importorskip("foxglove")
-    lines = rehearsal_blocks()[2]
-    cell = Cell(tree, tmp_path)
+    lines, cell = rehearsal_blocks()[2], Cell(tree, tmp_path)
     out: dict[str, subprocess.CompletedProcess] = {}
     try:
-        cell.run(lines[0])  # the daemon, full speed, --foxglove
-        cell.run(lines[1])  # the simulated IRC5 with --throws
-        cell.url_ready()
-        out[lines[2]] = r = cell.run(lines[2])  # thinkfast-cell start: the throws begin
-        assert r.returncode == 0, r.stderr
-        done = _until(lambda: any(ln.startswith("blocked ") for ln in cell.controller_lines), 120)
-        assert done, cell.controller_lines
+        out[lines[2]] = cell.throw(lines)  # full speed with --foxglove, --throws 3, cell start
         for line in lines[3:]:
             out[line] = r = cell.run(line)
             assert r.returncode == 0, (line, r.stdout, r.stderr)
