@@ -30,6 +30,17 @@ def free_port(kind=socket.SOCK_DGRAM) -> int:
         return s.getsockname()[1]
 
 
+def until(check, timeout: float, poll: float = 0.3) -> bool:
+    """Call ``check()`` every ``poll`` seconds until it is true (True) or ``timeout`` [s] has
+    passed (False)."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if check():
+            return True
+        time.sleep(poll)
+    return False
+
+
 class DaemonRun:
     """A daemon process with a simulated controller and a zenoh peer connected to it.
 

@@ -144,3 +144,39 @@ def test_a_missed_reply_that_had_arrived_in_time_is_told_apart(deadline_offset, 
     sensor.close()
     st = runner.stats
     assert (st.late, st.missed, st.in_time_unread) == (1, 1, in_time)
+
+
+class _Stalling(SimController):
+    """A servo model whose every 25th step stalls 30 ms (a loaded host, this side)."""
+
+    def step(self, dt):
+        super().step(dt)
+        if self.seqno % 25 == 0:
+            time.sleep(0.03)
+
+
+@pytest.mark.realtime
+@pytest.mark.parametrize("keep_cycle", [True, False])
+def test_an_overrunning_controller_keeps_its_cycle_only_when_asked(keep_cycle):
+    """keep_cycle: the cycles this side could not serve are stepped through unsent, so the
+    sequence numbers stay the wall clock (seqno x dt), as thinkfast-calib dynamics reads them;
+    without it the model's time falls behind by the stalls."""
+    server, stop, thread = _hold_server(np.zeros(6))
+    sim = _Stalling()
+    runner = ControllerRunner(sim, server.address, keep_cycle=keep_cycle).start()
+    t0 = time.perf_counter()
+    time.sleep(2.0)
+    runner.stop()
+    elapsed = time.perf_counter() - t0
+    runner.join(2.0)
+    stop.set()
+    thread.join(1.0)
+    server.close()
+    st = runner.stats
+    assert st.sent > 50  # it ran (how many cycles it served depends on the host)
+    assert sim.seqno == st.sent + st.skipped
+    if keep_cycle:  # at least the 30 ms stalls (7 cycles each), whatever else the host adds
+        assert st.skipped >= 6 * (st.sent // 25)
+        assert sim.seqno * DT == pytest.approx(elapsed, rel=0.1, abs=0.02)
+    else:
+        assert st.skipped == 0 and sim.seqno * DT < elapsed - 0.015 * (st.sent // 25)

@@ -9,12 +9,11 @@ import json
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
-from tests.daemon_harness import free_port
+from tests.daemon_harness import free_port, until
 from thinkfast.contract.zenoh_session import free_tcp_port
 from thinkfast.sim.realtime import daemon_log, start_daemon, wait_port
 
@@ -34,15 +33,6 @@ def _status(zport: int) -> dict:
     return json.loads(out.stdout)["thinkfast"]["status"]
 
 
-def _until(check, timeout: float) -> bool:
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        if check():
-            return True
-        time.sleep(0.3)
-    return False
-
-
 def test_first_light_rehearsal_with_the_simulated_controller(small_tree_015):
     egm, zport, rws = free_port(), free_tcp_port(), free_tcp_port()
     url = f"http://127.0.0.1:{rws}"
@@ -55,7 +45,7 @@ def test_first_light_rehearsal_with_the_simulated_controller(small_tree_015):
     )  # fmt: skip
     try:
         wait_port(daemon, zport)
-        assert _until(lambda: _run("thinkfast-cell", "state", "--url", url).returncode == 0, 30)
+        assert until(lambda: _run("thinkfast-cell", "state", "--url", url).returncode == 0, 30)
         state = json.loads(_run("thinkfast-cell", "state", "--url", url, "--json").stdout)
         assert "motoron" in json.dumps(state) and "stopped" in json.dumps(state)
         before = _status(zport)
@@ -63,7 +53,7 @@ def test_first_light_rehearsal_with_the_simulated_controller(small_tree_015):
 
         started = _run("thinkfast-cell", "start", "--url", url)
         assert started.returncode == 0, started.stderr
-        assert _until(lambda: _status(zport)["egm_connected"], 20)
+        assert until(lambda: _status(zport)["egm_connected"], 20)
         st = _status(zport)
         assert st["controller"]["motors_on"] and st["controller"]["rapid_running"]
         assert st["controller"]["mci_running"] and st["shadow"] is not None
@@ -71,7 +61,7 @@ def test_first_light_rehearsal_with_the_simulated_controller(small_tree_015):
 
         stopped = _run("thinkfast-cell", "stop", "--url", url)
         assert stopped.returncode == 0, stopped.stderr
-        assert _until(lambda: not _status(zport)["egm_connected"], 20)
+        assert until(lambda: not _status(zport)["egm_connected"], 20)
     finally:
         daemon.send_signal(signal.SIGINT)
         irc5.send_signal(signal.SIGINT)

@@ -219,7 +219,7 @@ def run(
     if foxglove is not None:
         from thinkfast.daemon.foxglove_view import FoxgloveView
 
-        daemon.view = FoxgloveView(*fox, robot)
+        daemon.view = FoxgloveView(*fox, robot, daemon.executor.tree, cfg)
         logging.getLogger("thinkfast.run").info("foxglove on ws://%s:%d", fox[0], daemon.view.port)
     sys.exit(daemon.run())
 

@@ -19,6 +19,7 @@ Three layers:
 from __future__ import annotations
 
 import collections
+import logging
 import math
 import time
 from typing import NamedTuple
@@ -34,6 +35,8 @@ PATH_SAMPLES = 24  # shield positions drawn along the chosen motion
 INITIAL_COST = 0.0015  # s: expected duration of a job before one of its kind was measured
 WAIT_DECAY = 0.9995  # factor on a job kind's cost each time it waits for time
 SINKS = ("spawn", "connect", "save")
+STATUS_PERIOD = 0.5  # s between status messages drawn (the daemon publishes 20 a second)
+log = logging.getLogger("thinkfast.run")
 
 
 class ViewSink(NamedTuple):
@@ -108,7 +111,8 @@ class DaemonView:
     """The daemon's live view (module doc): queue at detection time, log in idle time.
 
     Args:
-        painter: the painter of the stream.
+        painter: the painter of the stream (:class:`~thinkfast.daemon.rerun_painter.Painter`,
+            or :class:`~thinkfast.record.channels.ChannelPainter` for Foxglove).
         cfg: the run configuration (camera extrinsic, detection limits, gravity).
         tree_view: the runtime tree (goal joints for the chosen goal).
         joint_rate: joint samples logged per second at most [Hz].
@@ -132,6 +136,13 @@ class DaemonView:
         self._parse, self._to_base = parse_detection, to_base
         self._R, self._p = cfg.camera.rotation(), cfg.camera.translation()
         self._last_motion: tuple | None = None
+        self.status_msg: dict | None = None  # the daemon's last status message, not yet drawn
+        self.next_status = -math.inf
+        self.errors = 0  # steps that raised (counted, the first logged): never into the daemon
+
+    def on_status(self, now: float, msg: dict) -> None:
+        """Keep the daemon's status message ``msg`` (a reference; drawn in :meth:`service`)."""
+        self.status_msg = (now, msg)
 
     def on_detection(self, now: float, payload: bytes, accepted, executor) -> None:
         """Queue one detection and the executor's state after it (references only: cheap)."""
@@ -159,6 +170,11 @@ class DaemonView:
             if now >= self.next_joints and control.last is not None:
                 self.next_joints = now + self.period
                 self._joints(t_joints, control)
+            elif now >= self.next_status and self.status_msg is not None:
+                self.next_status = now + STATUS_PERIOD
+                t, msg = self.status_msg
+                self.status_msg = None
+                self.steps.append(("status", lambda: self.painter.status(t, msg)))
             elif self.jobs:
                 self._detection(self.jobs.popleft())
             else:
@@ -171,7 +187,12 @@ class DaemonView:
             return
         self.steps.popleft()
         t0 = time.perf_counter()
-        fn()
+        try:
+            fn()
+        except Exception:  # a viewer's failure is the view's, never the daemon's
+            self.errors += 1
+            if self.errors == 1:
+                log.exception("live view: a %s step failed (counted in status view.errors)", kind)
         self.cost[kind] = max(time.perf_counter() - t0, 0.99 * cost)
         self.done += 1
 
@@ -230,13 +251,14 @@ class DaemonView:
         self.painter.decision(s.t, text, value, goal, path)
 
     def as_dict(self) -> dict:
-        """Status block: steps run, waited for time, jobs dropped and queued, cost of each
-        kind of step [ms]."""
+        """Status block: steps run, waited for time, jobs dropped and queued, steps failed,
+        cost of each kind of step [ms]."""
         return {
             "done": self.done,
             "waited": self.waited,
             "dropped": self.dropped,
             "queued": len(self.jobs) + len(self.steps),
+            "errors": self.errors,
             "cost_ms": {k: round(1e3 * v, 3) for k, v in self.cost.items()},
         }
 
@@ -245,7 +267,10 @@ class DaemonView:
         while self.jobs:
             self._detection(self.jobs.popleft())
         while self.steps:
-            self.steps.popleft()[1]()
+            try:
+                self.steps.popleft()[1]()
+            except Exception:
+                self.errors += 1
         self.painter.close()
 
 

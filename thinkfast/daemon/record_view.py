@@ -10,31 +10,13 @@ per second) and the daemon's events. The goal grid comes from ``tree`` when give
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-
-import numpy as np
 
 from thinkfast.daemon.live_view import ViewSink, open_stream
 from thinkfast.daemon.rerun_painter import Painter
-from thinkfast.record.format import MODES, Record
-from thinkfast.record.tables import (
-    columns,
-    event_times,
-    plane_x,
-    raw_positions,
-    run_config,
-)
-
-
-def decimate(t: np.ndarray, rate: float) -> np.ndarray:
-    """Indices of the rows of times ``t`` [s] (non-decreasing) at most ``rate`` per second."""
-    keep, next_t = [], -np.inf
-    for i, ti in enumerate(t):
-        if ti >= next_t:
-            keep.append(i)
-            next_t = ti + 1.0 / rate
-    return np.array(keep, dtype=int)
+from thinkfast.record.format import Record
+from thinkfast.record.replay import log_record, plane_and_goals
+from thinkfast.record.tables import run_config
 
 
 def record_to_rerun(
@@ -51,57 +33,9 @@ def record_to_rerun(
 
     cfg = run_config(record)
     robot = load_robot(Path(cfg.robot) if cfg.robot else None)
-    goal_yz, px = None, plane_x(record)
-    if tree is not None:
-        from thinkfast.tree.file import load_tree
-        from thinkfast.tree.provenance import Provenance
-
-        t = load_tree(tree)
-        goal_yz, px = t.goal_yz, Provenance.of(t.meta).plane_x
+    px, goal_yz = plane_and_goals(record, tree)
     rec = open_stream(sink, f"record {record.path.name}")
     p = Painter(rec, robot, px if px is not None else 0.0, goal_yz)
     counts = log_record(p, record, cfg, joint_rate, crossings=px is not None)
     p.close()
     return counts
-
-
-def log_record(p: Painter, record: Record, cfg, joint_rate: float, crossings=True) -> dict:
-    """Draw every stream of ``record`` with ``p`` (see the module doc); rows logged per kind."""
-    raw = raw_positions(record, cfg)
-    for t, pos in zip(raw.t, raw.position, strict=True):
-        p.raw(t, pos)
-    det = columns(record, "detections")
-    for t, pos in zip(det["t_recv"], np.c_[det["x"], det["y"], det["z"]], strict=True):
-        p.accepted(t, pos)
-    b = columns(record, "beliefs")
-    n_cross = 0
-    for i, t in enumerate(b["t"]):
-        p.belief(t, b["mean"][i], b["cov"][i].reshape(6, 6))
-        if crossings and b["crossing_ok"][i] > 0.5:
-            p.crossing(t, b["o_mean"][i], b["o_cov"][i].reshape(3, 3))
-            n_cross += 1
-    d = columns(record, "decisions")
-    for t, mode, node, value, goal in zip(
-        d["t"], d["mode"], d["node"], d["value"], d["best_goal"], strict=True
-    ):
-        name = MODES[int(mode)] if 0 <= mode < len(MODES) else "?"
-        text = f"{name}: node {int(node)}, best goal {int(goal)}, value {value:.3f}"
-        p.decision(t, text, float(value), int(goal), None)
-    e = columns(record, "egm")
-    keep = decimate(e["t"], joint_rate)
-    for i in keep:
-        t = e["t"][i]
-        p.joints(t, e["q_cmd"][i], e["qd_cmd"][i], e["q_fb"][i])
-        p.arm(t, "commanded", e["q_cmd"][i])
-        p.arm(t, "measured", e["q_fb"][i])
-    for t, ev in zip(event_times(record), record.events, strict=True):
-        p.event(t, ev.kind, json.dumps(ev.detail))
-    return {
-        "raw": len(raw.t),
-        "accepted": len(det["t_recv"]),
-        "beliefs": len(b["t"]),
-        "crossings": n_cross,
-        "decisions": len(d["t"]),
-        "joints": len(keep),
-        "events": len(record.events),
-    }

@@ -4,18 +4,22 @@
 joints into the entities of :data:`ENTITIES` on the ``time`` timeline (Unix time [s]). Used by
 the daemon live (:mod:`thinkfast.daemon.live_view`) and by ``thinkfast-sim replay --rerun``
 offline (:mod:`thinkfast.daemon.record_view`). The geometry it draws is pure (ellipsoids,
-quaternions, the crossing on the plane). ``rerun`` is imported when a painter is made.
+quaternions, the crossing on the plane: :mod:`thinkfast.record.scene`, shared with the Foxglove
+view). ``rerun`` is imported when a painter is made.
 """
 
 from __future__ import annotations
 
 import collections
+import json
 import math
 
 import numpy as np
 
+from thinkfast.record.scene import ELLIPSOID_SIGMAS, ellipsoid, matrix_quat, plane_cov
+
+__all__ = ["ELLIPSOID_SIGMAS", "ENTITIES", "Painter", "ellipsoid", "matrix_quat", "plane_cov"]
 TIMELINE = "time"  # Unix time [s]
-ELLIPSOID_SIGMAS = 2.0  # half-axes of the belief and crossing ellipsoids, in standard deviations
 TRAIL = 240  # detections kept in the raw and accepted trails (about 4 s at 60 Hz)
 
 # Entity paths and what each shows (docs/LIVE_VIEW.md has the same table; a test checks both).
@@ -38,6 +42,7 @@ ENTITIES = {
     "joints/q_meas": "measured joint positions [rad], one series per joint",
     "joints/qd_cmd": "commanded joint velocities [rad/s], one series per joint",
     "events": "the daemon's events (record replay only)",
+    "status": "the daemon's status message, as JSON (live only)",
 }
 GREY, GREEN, ORANGE, BLUE, RED = (
     (150, 150, 150),
@@ -46,33 +51,6 @@ GREY, GREEN, ORANGE, BLUE, RED = (
     (60, 140, 255),
     (230, 50, 50),
 )
-
-
-# ------------------------------------------------------------------ geometry (pure)
-def ellipsoid(cov: np.ndarray, sigmas: float = ELLIPSOID_SIGMAS) -> tuple[np.ndarray, np.ndarray]:
-    """Half-axes (3,) [m] and orientation quaternion (x, y, z, w) of the ``sigmas`` ellipsoid
-    of a 3x3 covariance [m^2] (non-finite or negative variances count as 0)."""
-    c = np.nan_to_num(0.5 * (cov + cov.T))
-    w, v = np.linalg.eigh(c)
-    if np.linalg.det(v) < 0:
-        v[:, 2] = -v[:, 2]  # a rotation, not a reflection
-    return sigmas * np.sqrt(np.clip(w, 0.0, None)), matrix_quat(v)
-
-
-def matrix_quat(r: np.ndarray) -> np.ndarray:
-    """Quaternion (x, y, z, w) of a rotation matrix (3, 3)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(r).as_quat()
-
-
-def plane_cov(o_cov: np.ndarray, thickness: float = 1e-6) -> np.ndarray:
-    """3x3 covariance [m^2] in base of the crossing point on the plane x = const, from the
-    crossing covariance (Y, Z, tau) (3, 3): flat along x."""
-    c = np.zeros((3, 3))
-    c[1:, 1:] = o_cov[:2, :2]
-    c[0, 0] = thickness
-    return c
 
 
 def motion_text(kind: str, ref: int, goal: int, value: float | None) -> str:
@@ -222,6 +200,11 @@ class Painter:
         """One daemon event (kind and JSON detail)."""
         self._at(t)
         self.rec.log("events", self.rr.TextLog(f"{kind} {detail}"))
+
+    def status(self, t: float, msg: dict) -> None:
+        """The daemon's status message (docs/INTERFACES.md "Status")."""
+        self._at(t)
+        self.rec.log("status", self.rr.TextDocument(json.dumps(msg, indent=1)))
 
     def shield_path(self, q123: np.ndarray, wrist: np.ndarray) -> np.ndarray:
         """Shield centres (K, 3) [m] for joints 1-3 samples (K, 3) with the wrist held."""

@@ -78,7 +78,7 @@ class Daemon:
         view=None,
     ):
         self.cfg, self.robot, self.planner, self.modes = cfg, robot, planner, modes
-        self.view = view  # live view (daemon/live_view.DaemonView) or None: off
+        self.view = view  # live view (daemon/live_view.DaemonView: Rerun or Foxglove) or None
         self.tree_meta = tree.meta
         self.tree_fingerprint = tree_fingerprint(tree)  # `thinkfast-compile diff` prints it too
         self.cycle, self.cpu, self.fifo = Cycle(cfg.safety.dt, spin_ahead), cpu, fifo
@@ -259,7 +259,10 @@ class Daemon:
                 self.home.service(self.control, self._time_left, self._plan_time)
                 now = time.time()
                 if now >= next_status and self._time_left(now) > STATUS_COST:
-                    self.zio.publish_status(self.status(now))
+                    msg = self.status(now)
+                    self.zio.publish_status(msg)
+                    if self.view is not None:  # a reference: drawn in the view's own steps
+                        self.view.on_status(now, msg)
                     next_status = now + status_period
                 if self.view is not None:  # a job only when its measured cost fits
                     self.view.service(now, self.last_rx, self.control, self._time_left(now))

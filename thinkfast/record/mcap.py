@@ -18,8 +18,12 @@ Channels (:data:`TOPICS`; log and publish time = the record's Unix time):
 | ``/thinkfast/ball/crossing`` | geometry_msgs/msg/PointStamped | ``beliefs``: crossing point |
 | ``/thinkfast/decisions`` | std_msgs/msg/String | ``decisions``, one JSON object |
 | ``/thinkfast/events`` | std_msgs/msg/String | ``events``: {"kind", "detail"} |
+| ``/thinkfast/scene`` | foxglove.SceneUpdate (protobuf) | arm, ball, crossing, plan, goals |
 
-Points are in the frame ``base`` (the robot base); joint states name the robot's joints.
+Points are in the frame ``base`` (the robot base); joint states name the robot's joints. The
+scene (:mod:`thinkfast.record.scene`, written when ``foxglove-sdk`` is installed and a robot is
+given) is what the live Foxglove view (``thinkfast-run --foxglove``) draws, with the same schema,
+entity ids and the same ROS 2 topics beside it: a layout made live opens the record.
 """
 
 from __future__ import annotations
@@ -123,8 +127,14 @@ def record_messages(record: Record, joint_names) -> list[tuple[float, str, bytes
     return out
 
 
-def write_mcap(record: Record, path: Path, joint_names) -> dict[str, int]:
+def write_mcap(
+    record: Record, path: Path, joint_names, scene: tuple | None = None
+) -> dict[str, int]:
     """Write ``record`` as MCAP to ``path`` (module doc); returns messages per topic.
+
+    Args:
+        scene: (robot, plane_x [m] or None, goal grid (G, 2) [m] or None) to add the
+            ``/thinkfast/scene`` channel; None: the ROS 2 topics only.
 
     Raises:
         ConfigError: the ``mcap`` package is missing, or ``path`` cannot be written.
@@ -134,7 +144,14 @@ def write_mcap(record: Record, path: Path, joint_names) -> dict[str, int]:
     except ImportError:
         raise ConfigError("--mcap", None, "needs mcap: pip install 'thinkfast[view]'") from None
     messages = record_messages(record, list(joint_names))
-    counts = dict.fromkeys(TOPICS, 0)
+    specs = {t: (typ, "ros2msg", schemas()[typ].encode(), "cdr") for t, typ in TOPICS.items()}
+    if scene is not None:
+        from thinkfast.record.channels import channel_specs, scene_messages
+        from thinkfast.record.scene import SCENE_TOPIC
+
+        specs[SCENE_TOPIC] = channel_specs(status=False)[SCENE_TOPIC]
+        messages = sorted(messages + scene_messages(record, *scene), key=lambda m: m[0])
+    counts = dict.fromkeys(specs, 0)
     try:
         f = open(path, "wb")  # noqa: SIM115 (closed below, after the writer's finish)
     except OSError as exc:
@@ -143,14 +160,14 @@ def write_mcap(record: Record, path: Path, joint_names) -> dict[str, int]:
         w = Writer(f)
         w.start(profile="ros2", library="thinkfast")
         schema = {
-            name: w.register_schema(name=name, encoding="ros2msg", data=text.encode())
-            for name, text in sorted(schemas().items())
+            name: w.register_schema(name=name, encoding=enc, data=data)
+            for name, enc, data, _ in sorted(set(specs.values()))
         }
         channel = {
-            topic: w.register_channel(topic=topic, message_encoding="cdr", schema_id=schema[typ])
-            for topic, typ in TOPICS.items()
+            topic: w.register_channel(topic=topic, message_encoding=m_enc, schema_id=schema[name])
+            for topic, (name, _, _, m_enc) in specs.items()
         }
-        seq = dict.fromkeys(TOPICS, 0)
+        seq = dict.fromkeys(specs, 0)
         for t, topic, data in messages:
             ns = int(round(t * 1e9))
             w.add_message(channel[topic], log_time=ns, data=data, publish_time=ns,

@@ -23,7 +23,7 @@ from thinkfast.sim.cli_options import load_throws as _throws
 from thinkfast.sim.cli_options import throw_config as _throw_config
 from thinkfast.sim.irc5_cli import controller as controller_cmd
 from thinkfast.sim.planners import check_planners, online_planners
-from thinkfast.sim.record_cli import convert, record_app
+from thinkfast.sim.record_cli import SCENE_HELP, convert, record_app
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
 
@@ -226,6 +226,7 @@ def replay(
         None, "--mcap", help="write the record as MCAP with ROS 2 messages (Foxglove)"
     ),
     tree: Path | None = typer.Option(None, "--tree", help="with --rerun: draw its goal grid"),
+    scene: bool = typer.Option(False, "--scene", help=SCENE_HELP),
 ) -> None:
     """Re-publish a flight record's detections (raw payloads) with their original timing
     (schema 1 and 2 records, also a partial one).
@@ -240,7 +241,7 @@ def replay(
     if speed <= 0:
         raise ConfigError("--speed", None, "must be > 0")
     if rerun is not None or mcap is not None:
-        convert(record, rerun, mcap, tree)
+        convert(record, rerun, mcap, tree, scene)
         if not zenoh_connect:
             return
     t, payloads = read_detections(record)  # RecordFileError: one line naming the file

@@ -36,6 +36,7 @@ class ExchangeStats:
     late: int = 0
     malformed: int = 0
     in_time_unread: int = 0
+    skipped: int = 0  # cycles this side could not serve in time (``keep_cycle``): never sent
     rtt_s: list[float] = dataclasses.field(default_factory=list)
 
 
@@ -60,6 +61,10 @@ class ControllerRunner:
         lead: wake this long [s] before each cycle's send and busy-wait to it, so that the
             send and the timing run on a hot CPU (on a virtual machine a Python process runs
             several times slower right after a sleep). 0 sleeps to the send time.
+        keep_cycle: when this side overruns by whole cycles (a loaded host), step the model
+            and the sequence number through them without sending (``skipped``), as a
+            controller whose cycle never stops would lose those packets: ``seqno x dt`` stays
+            the wall-clock time. False: the cycles are lost from the model's time too.
 
     Busy-waiting holds the GIL: use ``spin`` and ``lead`` only where no other Python thread of
     the process has work to do (a sensor in the same process would be starved).
@@ -75,8 +80,10 @@ class ControllerRunner:
         bind=("127.0.0.1", 0),
         spin=0.0,
         lead=0.0,
+        keep_cycle=False,
     ):
         self.sim, self.target, self.n, self.spin, self.lead = sim, tuple(target), n, spin, lead
+        self.keep_cycle = keep_cycle
         self.period = 1.0 / rate_hz if rate_hz > 0 else 0.0
         self.reply_timeout = reply_timeout or (self.period or sim.config.dt)
         self.stats = ExchangeStats()
@@ -154,7 +161,20 @@ class ControllerRunner:
                         pass
                 elif now > t_next + self.period:
                     self._warn(f"controller loop overrun by {1e3 * (now - t_next):.1f} ms")
-                    t_next = now
+                    if self.keep_cycle:
+                        t_next = self._skip(now, t_next)
+                    else:
+                        t_next = now
+
+    def _skip(self, now: float, t_next: float) -> float:
+        """Step the model through the whole cycles missed by ``now`` without sending (each one
+        a sequence number); returns the next cycle's send time."""
+        sim, k = self.sim, int((now - t_next) / self.period)
+        for _ in range(k):
+            sim.header()  # the cycle's sequence number, never sent
+            sim.step(sim.config.dt)
+        self.stats.skipped += k
+        return t_next + k * self.period
 
     def _await_reply(self, t_send: float, deadline: float) -> None:
         st, sock = self.stats, self._sock

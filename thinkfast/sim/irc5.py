@@ -8,6 +8,8 @@ side a :class:`~thinkfast.sim.controller.SimController` (servo model) run by a
 packets flow only while the program is in an EGM session (``tf_status`` "session", started
 by ``thinkfast-cell start``), they report the motors and RAPID state RWS shows, and a session
 whose sensor stays silent for ``comm_timeout`` is lost (the program stops, "lost").
+With throws (:meth:`SimIrc5.throw_in_session`), simulated balls are thrown at the daemon once a
+session runs and judged from this arm's motion: a rehearsal to the first simulated block.
 """
 
 from __future__ import annotations
@@ -17,8 +19,9 @@ import time
 
 import numpy as np
 
-from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller import ServoConfig
 from thinkfast.sim.controller_runner import ControllerRunner
+from thinkfast.sim.realtime import WallClockSim
 from thinkfast.sim.rws_server import FakeRwsController, ProgramTiming
 
 log = logging.getLogger("thinkfast.sim.irc5")
@@ -26,6 +29,7 @@ log = logging.getLogger("thinkfast.sim.irc5")
 # ASSUMED durations of the simulated program for a rehearsal (the kit's module: homing takes
 # the MoveAbsJ's time, EGM_RAMP_OUT_TIME 0.5 s, EGM_COMM_TIMEOUT a few seconds)
 REHEARSAL = ProgramTiming(home_time=1.0, ramp_out=0.5, comm_timeout=2.0)
+HISTORY = 2500  # joint samples kept, stamped with the wall clock: 10 s at 250 Hz (the judge)
 
 
 class SimIrc5:
@@ -51,7 +55,7 @@ class SimIrc5:
         self.target = egm_target
         self.rws = FakeRwsController(timing=timing, host=rws_host, port=rws_port)
         self.rws.execstate = "stopped"
-        self.sim = SimController(servo, q0=q0, max_history=1000)
+        self.sim = WallClockSim(servo, q0=q0, max_history=HISTORY)
         self.runner: ControllerRunner | None = None
         self._last_reply = (0, 0.0)  # (replies, monotonic time it last changed)
         self._said: tuple | None = None
@@ -83,7 +87,7 @@ class SimIrc5:
         self.sim.motors_on, self.sim.rapid_running, self.sim.mci_running = motors, running, session
         now = time.monotonic()
         if session and self.runner is None:
-            self.runner = ControllerRunner(self.sim, self.target).start()
+            self.runner = ControllerRunner(self.sim, self.target, keep_cycle=True).start()
             self._last_reply = (0, now)
         elif not session and self.runner is not None:
             self._stop_egm()
@@ -115,3 +119,20 @@ class SimIrc5:
         while not stop():
             self.step()
             time.sleep(0.01)
+
+    def throw_in_session(
+        self, robot, throws, zenoh_endpoint: str, prefix: str, seed: int, extrinsic, report, stop
+    ) -> list:
+        """Once an EGM session runs and the daemon has answered for a second, throw ``throws``
+        at the daemon (detections on ``zenoh_endpoint``) and judge each from this arm's
+        wall-clock history (:func:`~thinkfast.sim.realtime.run_throws`); [] when ``stop()``
+        came first. Runs beside :meth:`run` (another thread)."""
+        from thinkfast.sim.realtime import run_throws
+
+        while not stop():
+            runner = self.runner
+            if runner is not None and runner.stats.replies >= 250:
+                return run_throws(robot, throws, self.target, zenoh_endpoint, prefix, seed,
+                                  extrinsic, report, controller=(self.sim, runner))  # fmt: skip
+            time.sleep(0.05)
+        return []

@@ -9,6 +9,7 @@ compare it with the throw's true flight. A feint is judged by
 
 from __future__ import annotations
 
+import collections
 import signal
 import subprocess
 import sys
@@ -87,7 +88,8 @@ class WallClockSim(SimController):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self.wall: list[tuple[float, np.ndarray]] = []
+        # as many samples as the history keeps (``max_history``; None: all)
+        self.wall: collections.deque = collections.deque(maxlen=kwargs.get("max_history"))
 
     def step(self, dt: float) -> None:
         super().step(dt)
@@ -170,15 +172,21 @@ def run_throws(
     report=print,
     camera: CameraModelConfig = CameraModelConfig(),
     frames=None,
+    controller: tuple[WallClockSim, ControllerRunner] | None = None,
 ) -> list[RealtimeResult]:
     """Throw every ball at a running daemon and judge it; ``report`` gets one line per throw.
 
     ``frames``: a :class:`~thinkfast.sim.frame_stream.FrameStream` to publish rendered camera
-    frames (for a detector) instead of detections.
+    frames (for a detector) instead of detections. ``controller``: the simulated controller
+    already talking EGM to the daemon, and its runner (the simulated IRC5's; kept running);
+    None: one is started at the home pose on ``egm`` and stopped at the end.
     """
     kin = Kinematics(robot)
-    sim = WallClockSim(ServoConfig(), q0=robot.home)
-    runner = ControllerRunner(sim, egm).start()
+    if controller is None:
+        sim = WallClockSim(ServoConfig(), q0=robot.home)
+        runner = ControllerRunner(sim, egm).start()
+    else:
+        sim, runner = controller
     session = open_peer(connect=[zenoh_endpoint])
     results = []
     try:
@@ -215,8 +223,9 @@ def run_throws(
             report(throw_line(i, len(throws), th, r))
             dog.sleep_until(t0 + cross.t + GAP, i + 1, len(throws))
     finally:
-        runner.stop()
-        runner.join(2.0)
+        if controller is None:
+            runner.stop()
+            runner.join(2.0)
         session.close()
     return results
 

@@ -9,9 +9,17 @@ import typer
 
 from thinkfast.sim.cli_options import RERUN_HELP
 
+SCENE_HELP = (
+    "with the MCAP: add /thinkfast/scene (foxglove.SceneUpdate, the live --foxglove view's 3D "
+    "scene; needs the foxglove extra). rosbags 0.11 cannot open an MCAP with this protobuf "
+    "channel: leave it out for rosbags"
+)
 
-def convert(record: Path, rerun: str | None, mcap: Path | None, tree: Path | None) -> None:
-    """``--rerun`` and ``--mcap`` of replay and the record commands."""
+
+def convert(
+    record: Path, rerun: str | None, mcap: Path | None, tree: Path | None, scene: bool = False
+) -> None:
+    """``--rerun``, ``--mcap`` and ``--scene`` of replay and the record commands."""
     from thinkfast.record.format import read_record
 
     sink = None
@@ -27,7 +35,8 @@ def convert(record: Path, rerun: str | None, mcap: Path | None, tree: Path | Non
 
         cfg = run_config(rec)
         robot = load_robot(Path(cfg.robot) if cfg.robot else None)
-        counts = write_mcap(rec, mcap, robot.joint_names)
+        extra = _scene(rec, robot, tree) if scene else None
+        counts = write_mcap(rec, mcap, robot.joint_names, extra)
         print(f"wrote {sum(counts.values())} messages on {len(counts)} topics to {mcap}")
     if sink is not None:
         from thinkfast.daemon.record_view import record_to_rerun
@@ -35,6 +44,22 @@ def convert(record: Path, rerun: str | None, mcap: Path | None, tree: Path | Non
         counts = record_to_rerun(rec, sink, tree)
         what = ", ".join(f"{n} {k}" for k, n in counts.items())
         print(f"rerun ({sink.kind}{' ' + sink.target if sink.target else ''}): {what}")
+
+
+def _scene(rec, robot, tree: Path | None) -> tuple:
+    """(robot, plane x, goal grid) for the MCAP's scene channel.
+
+    Raises:
+        ConfigError: foxglove-sdk is not installed.
+    """
+    import importlib.util
+
+    from thinkfast.errors import ConfigError
+    from thinkfast.record.replay import plane_and_goals
+
+    if importlib.util.find_spec("foxglove") is None:
+        raise ConfigError("--scene", None, "needs foxglove-sdk: pip install 'thinkfast[foxglove]'")
+    return (robot, *plane_and_goals(rec, tree))
 
 
 record_app = typer.Typer(
@@ -72,9 +97,11 @@ def record_plot_cmd(
 def record_mcap_cmd(
     record: Path = typer.Argument(..., help="flight record (HDF5)"),
     output: Path = typer.Option(..., "-o", "--output", help="MCAP file to write"),
+    scene: bool = typer.Option(False, "--scene", help=SCENE_HELP),
+    tree: Path | None = typer.Option(None, "--tree", help="with --scene: draw its goal grid"),
 ) -> None:
     """The record as MCAP with ROS 2 messages (sensor_msgs/JointState, PointStamped, ...)."""
-    convert(record, None, output, None)
+    convert(record, None, output, tree, scene)
 
 
 @record_app.command("view")

@@ -1,0 +1,230 @@
+"""docs/CELL.md section 0, rehearsed as written: the two command blocks are read from the doc and
+every line is run as a process (``thinkfast-run --foxglove``, ``thinkfast-sim controller``,
+``thinkfast-cell``, ``thinkfast-run status``), from first light in shadow to the first simulated
+block. The doc cannot drift from what runs.
+
+What the test changes in the doc's lines, and only that: the cell's ports (6510, 8080, 7447,
+8765) become free ones; programs that open zenoh sessions on their own get the loopback zenoh
+configuration (no multicast scouting: other daemons on a shared host stay out); the live
+``thinkfast-run status`` draws once (``--once``) so that its output can be read; the default tree
+is the compiled ``trees/irb1600_default.h5`` when the checkout has it, else the tests' small tree
+(``trees/*.h5`` is not in the repository). Of the doc's three simulated throws at least one must
+be blocked (both trees blocked all three on a loaded 2-core host).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.daemon_harness import free_port, until
+from thinkfast.contract.zenoh_session import free_tcp_port
+from thinkfast.sim.realtime import LOOPBACK_ZENOH, daemon_log, wait_port
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+DEFAULT_TREE = "trees/irb1600_default.h5"
+pytestmark = pytest.mark.realtime
+
+
+def rehearsal_blocks() -> list[list[str]]:
+    """The command lines of docs/CELL.md section 0's code blocks (comments dropped)."""
+    text = (ROOT / "docs" / "CELL.md").read_text(encoding="utf-8")
+    section = text.split("## 0. Rehearsal on one machine", 1)[1].split("\n## ", 1)[0]
+    blocks = re.findall(r"^```\n(.*?)^```", section, flags=re.M | re.S)
+    return [[ln.split("  #", 1)[0].strip() for ln in b.splitlines() if ln.strip()] for b in blocks]
+
+
+def test_the_doc_has_the_rehearsal_blocks():
+    blocks = rehearsal_blocks()
+    assert len(blocks) == 3
+    progs = [{shlex.split(line)[0] for line in b} for b in blocks]
+    assert progs[0] == progs[2] == {"thinkfast-run", "thinkfast-sim", "thinkfast-cell"}
+    assert progs[1] == progs[0] | {"thinkfast-calib"}
+    assert all(any("--foxglove" in line for line in blocks[i]) for i in (0, 2))
+    assert all(any("--throws" in line for line in blocks[i]) for i in (1, 2))
+
+
+class Cell:
+    """The processes of one block, on this test's ports."""
+
+    def __init__(self, tree: Path, cwd: Path):
+        self.cwd = cwd  # where the doc's relative files (cal.h5, patch.toml) go
+        self.ports = {"6510": str(free_port()), "8080": str(free_tcp_port()),
+                      "7447": str(free_tcp_port()), "8765": str(free_tcp_port())}  # fmt: skip
+        self.tree = tree
+        self.procs: list[tuple[subprocess.Popen, list[str]]] = []
+        self.daemon: subprocess.Popen | None = None
+        self.controller_lines: list[str] = []
+
+    def args(self, line: str) -> list[str]:
+        """The doc's line with this test's changes (module doc)."""
+        for port, mine in self.ports.items():
+            line = re.sub(rf"(?<=:){port}\b|(?<= ){port}\b", mine, line)
+        args = [str(self.tree) if a == DEFAULT_TREE else a for a in shlex.split(line)]
+        if args[:2] == ["thinkfast-run", "status"]:
+            args += ["--once", "--timeout", "5", "--zenoh-config", str(LOOPBACK_ZENOH)]
+        elif args[0] == "thinkfast-run":
+            args += ["--zenoh-config", str(LOOPBACK_ZENOH)]
+        return [str(BIN / args[0]), *args[1:]]
+
+    def run(self, line: str) -> subprocess.CompletedProcess:
+        """Start the daemon (``thinkfast-run --tree``) or the controller; run anything else."""
+        args = self.args(line)
+        if "--tree" in args or args[1:2] == ["controller"]:
+            return self._start(args)
+        return subprocess.run(args, capture_output=True, text=True, timeout=120, cwd=self.cwd)
+
+    def _start(self, args: list[str]) -> subprocess.CompletedProcess:
+        if args[1] == "controller":
+            p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                 cwd=self.cwd)  # fmt: skip
+            threading.Thread(target=self._read, args=(p,), daemon=True).start()
+        else:
+            log = tempfile.TemporaryFile(mode="w+")  # a file: a full pipe would stall the daemon
+            p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=log, text=True,
+                                 cwd=self.cwd)  # fmt: skip
+            p.log = log  # for daemon_log
+            self.daemon = p
+            wait_port(p, int(self.ports["7447"]), timeout=90)
+        self.procs.append((p, args))
+        return subprocess.CompletedProcess(args, 0, "", "")
+
+    def _read(self, p: subprocess.Popen) -> None:
+        for line in p.stdout:
+            self.controller_lines.append(line.rstrip())
+
+    def throw(self, lines: list[str]) -> subprocess.CompletedProcess:
+        """The block's daemon and throwing controller (its first two lines), then its
+        ``thinkfast-cell start`` (the third); returns that once the throws are judged."""
+        self.run(lines[0])
+        self.run(lines[1])
+        self.url_ready()
+        started = self.run(lines[2])
+        assert started.returncode == 0, started.stderr
+        done = until(lambda: any(ln.startswith("blocked ") for ln in self.controller_lines), 120)
+        assert done, self.controller_lines
+        return started
+
+    def url_ready(self) -> None:
+        url = f"http://127.0.0.1:{self.ports['8080']}"
+        assert until(lambda: subprocess.run([str(BIN / "thinkfast-cell"), "state", "--url", url],
+                                             capture_output=True).returncode == 0, 60)  # fmt: skip
+
+    def status(self) -> dict:
+        out = subprocess.run(
+            [str(BIN / "thinkfast-run"), "status", "--json", "--timeout", "5", "--zenoh-connect",
+             f"tcp/127.0.0.1:{self.ports['7447']}", "--zenoh-config", str(LOOPBACK_ZENOH)],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        return json.loads(out.stdout)["thinkfast"]["status"] if out.returncode == 0 else {}
+
+    def stop(self) -> tuple[list[int], str]:
+        """SIGINT every process (as Ctrl-C); their exit codes and the daemon's log."""
+        codes = []
+        for p, _ in reversed(self.procs):
+            p.send_signal(signal.SIGINT)
+        for p, _ in self.procs:
+            try:
+                codes.append(p.wait(30))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                codes.append(-9)
+        log = daemon_log(self.daemon) if self.daemon is not None else ""
+        return codes, log
+
+
+@pytest.fixture(scope="module")
+def tree(small_tree_015) -> Path:
+    default = ROOT / DEFAULT_TREE
+    return default if default.exists() else small_tree_015
+
+
+def _foxglove_topics(port: str) -> set[str]:
+    websocket = pytest.importorskip("websocket")
+    ws = websocket.create_connection(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"],
+                                     timeout=10)  # fmt: skip
+    topics: set[str] = set()
+    try:
+        deadline = time.time() + 10
+        while "/thinkfast/scene" not in topics and time.time() < deadline:
+            msg = ws.recv()
+            if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
+                topics |= {c["topic"] for c in json.loads(msg)["channels"]}
+    finally:
+        ws.close()
+    return topics
+
+
+def test_first_light_in_shadow_as_the_doc_says(tree, tmp_path):
+    pytest.importorskip("foxglove")
+    lines, cell = rehearsal_blocks()[0], Cell(tree, tmp_path)
+    out: dict[str, subprocess.CompletedProcess] = {}
+    try:
+        cell.run(lines[0])  # the daemon, --shadow --foxglove
+        cell.run(lines[1])  # the simulated IRC5
+        cell.url_ready()
+        assert "/thinkfast/scene" in _foxglove_topics(cell.ports["8765"])
+        for line in lines[2:]:
+            if "status" in line:
+                assert until(lambda: cell.status().get("egm_connected"), 30)
+            out[line] = r = cell.run(line)
+            assert r.returncode == 0, (line, r.stdout, r.stderr)
+        assert until(lambda: cell.status().get("egm_connected") is False, 30)
+    finally:
+        codes, log = cell.stop()
+    assert codes == [0, 0], log
+    state, status = out[lines[2]].stdout, out[lines[4]].stdout
+    print(*(r.stdout for r in out.values()), sep="\n")
+    assert "motoron" in state.replace(" ", "").lower() or "motors on" in state.lower(), state
+    assert "shadow" in status.lower() or "idle" in status.lower(), status
+    for word in ("foxglove on ws://", "egm_connected", "controller_state", "egm_lost"):
+        assert word in log, word
+
+
+def test_a_slow_recorded_session_and_its_calibration_as_the_doc_says(tree, tmp_path):
+    lines, cell = rehearsal_blocks()[1], Cell(tree, tmp_path)
+    try:
+        cell.throw(lines)  # --speed-scale 0.2 --record cal.h5, --throws 3, cell start
+        stopped = cell.run(lines[3])
+        assert stopped.returncode == 0, stopped.stderr
+    finally:
+        codes, log = cell.stop()  # Ctrl-C: the record is complete
+    assert codes == [0, 0], log
+    assert len([ln for ln in cell.controller_lines if ln.startswith("throw ")]) == 3
+    calib, check = cell.run(lines[4]), cell.run(lines[5])
+    print(calib.stdout, check.stdout, sep="\n")
+    assert calib.returncode == 0, calib.stderr
+    assert "controller lag" in calib.stdout and "no limit measured" in calib.stdout
+    assert "max_acceleration[0] = 12.00: not measured" in calib.stdout  # robot.toml's, kept
+    assert "controller_lag" in (tmp_path / "patch.toml").read_text()
+    assert check.returncode == 0 and "patch.toml: OK" in check.stdout, check.stderr
+
+
+def test_the_first_simulated_block_as_the_doc_says(tree, tmp_path):
+    pytest.importorskip("foxglove")
+    lines, cell = rehearsal_blocks()[2], Cell(tree, tmp_path)
+    out: dict[str, subprocess.CompletedProcess] = {}
+    try:
+        out[lines[2]] = cell.throw(lines)  # full speed with --foxglove, --throws 3, cell start
+        for line in lines[3:]:
+            out[line] = r = cell.run(line)
+            assert r.returncode == 0, (line, r.stdout, r.stderr)
+    finally:
+        codes, log = cell.stop()
+    assert codes == [0, 0], log
+    print("\n".join(cell.controller_lines), *(r.stdout for r in out.values()), sep="\n")
+    throws = [ln for ln in cell.controller_lines if ln.startswith("throw ")]
+    assert len(throws) == 3, cell.controller_lines
+    assert any("BLOCKED" in ln for ln in throws), throws  # the first simulated block
+    assert "throw_start" in log and "egm_connected" in log
