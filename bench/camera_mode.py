@@ -63,16 +63,24 @@ def _run(a) -> None:
     start = time.perf_counter()
     stop = len(balls) if a.stop is None else min(a.stop, len(balls))
     planners, make = a.planners.split(","), _WorldFactory(Path(a.tree), cfg)
-    if a.start or stop < len(balls):  # a piece: throw i keeps its camera seed
-        rows = run_chunk(make(), balls[a.start : stop], planners, a.seed, a.start)
-    else:
-        rows = run_bench(make, balls, planners, a.seed, a.jobs)
     with open(a.out, "w", encoding="utf-8") as f:
-        for o in rows:
-            f.write(json.dumps(o._replace(planner=f"{o.planner} {label}")._asdict()) + "\n")
+        if a.start or stop < len(balls):  # a piece, written throw by throw (stop it any time)
+            world, rows = make(), []
+            for i in range(a.start, stop):  # throw i keeps its camera seed
+                rows += _write(f, run_chunk(world, balls[i : i + 1], planners, a.seed, i), label)
+        else:
+            rows = _write(f, run_bench(make, balls, planners, a.seed, a.jobs), label)
     took = time.perf_counter() - start
     w = cfg.launch.window
     print(f"{len(rows)} outcomes ({label}, launch window {w}) -> {a.out}, {took:.0f} s")
+
+
+def _write(f, rows: list[Outcome], label: str) -> list[Outcome]:
+    """Write ``rows`` as JSON lines, each planner labelled with the mode; returns them."""
+    for o in rows:
+        f.write(json.dumps(o._replace(planner=f"{o.planner} {label}")._asdict()) + "\n")
+    f.flush()
+    return rows
 
 
 def _combine(a) -> None:
