@@ -13,9 +13,10 @@ the camera noise draws differ by mode, which is the point).
     python bench/camera_mode.py combine rows/hd720.jsonl rows/vga.jsonl \\
         --reference "tree HD720@50" [--json]
 
-``--start``/``--stop`` fly a piece of the throws (each keeps its camera seed); ``combine`` takes
-pieces in any number, a later file's row of a throw replacing an earlier one's (the first 300
-throws of ``--throws 1000`` are those of ``--throws 300``, their feints are not).
+``--start``/``--stop`` fly a piece of the throws (each keeps its camera seed), written throw by
+throw; ``combine`` takes pieces in any number, a later file's row of a throw replacing an
+earlier one's (the first 300 throws of ``--throws 1000`` are those of ``--throws 300``, their
+feints are not), and compares the throws every run flew (``dropped``: the others).
 
 ``--window N`` sets ``[launch] window`` (detections per launch fit at 50 fps, 6 by default; the
 daemon keeps its time span at the camera's rate, 11 at 100 fps).
@@ -91,10 +92,13 @@ def _combine(a) -> None:
                 if line.strip():
                     o = Outcome(**json.loads(line))
                     keyed[(o.throw_id, o.planner)] = o
-    rows = list(keyed.values())
-    names = list(dict.fromkeys(o.planner for o in rows))
+    names = list(dict.fromkeys(planner for _, planner in keyed))
+    ids = [{t for t, p in keyed if p == name} for name in names]
+    common = set.intersection(*ids)  # the throws every run flew (pieces may stop early)
+    rows = [o for (t, _), o in keyed.items() if t in common]
     summary = summarize(rows, names, a.reference or names[0])
     summary["runs"] = a.rows
+    summary["dropped"] = {n: len(i - common) for n, i in zip(names, ids, strict=True)}
     summary["machine"] = machine_info()
     if a.json:
         print(json.dumps(summary, default=lambda x: None if math.isnan(x) else x))
