@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 from thinkfast.contract.camera_mode import check_camera_setup
-from thinkfast.control.config import load_run_config
+from thinkfast.control.config import launch_window, load_run_config
 from thinkfast.errors import ConfigError
 from thinkfast.machine import machine_info
 from thinkfast.sim.bench import format_summary, run_bench, run_chunk, summarize
@@ -72,8 +72,8 @@ def _run(a) -> None:
         else:
             rows = _write(f, run_bench(make, balls, planners, a.seed, a.jobs), label)
     took = time.perf_counter() - start
-    w = cfg.launch.window
-    print(f"{len(rows)} outcomes ({label}, launch window {w}) -> {a.out}, {took:.0f} s")
+    w = launch_window(cfg)
+    print(f"{len(rows)} outcomes ({label}, launch fit of {w}) -> {a.out}, {took:.0f} s")
 
 
 def _write(f, rows: list[Outcome], label: str) -> list[Outcome]:
