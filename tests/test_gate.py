@@ -10,13 +10,18 @@ the launch detector; a ball seen again after ``detection_timeout`` starts the fi
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from tests.test_executor_modes import CFG, FRAME, HELD, NO_LAUNCH, NOISE, RELEASE, THROW, Ball
+from thinkfast.contract.camera_mode import CameraSetup
+from thinkfast.control.config import default_camera_filter
 from thinkfast.control.gate import ThrowGate
 from thinkfast.control.planners.base import CONFIRM, FIRST
 from thinkfast.decide.tree_view import runtime_tree
+from thinkfast.estimate import filter as kf
 from thinkfast.tree.file import load_tree
 
 
@@ -87,3 +92,34 @@ def test_a_ball_seen_again_after_the_timeout_starts_the_filter_afresh(rtree):
     assert gate.belief.n_meas == 1 and gate.confirm == 0
     with pytest.raises(ValueError, match="confirm, first"):
         ThrowGate(rtree, CFG, "second")
+
+
+def test_the_default_camera_mode_leaves_the_filter_as_configured(rtree):
+    """HD720 at 50 fps (the default, or named in a file) uses ``[filter]`` itself."""
+    assert CFG.camera == CameraSetup()
+    gate = ThrowGate(rtree, CFG, CONFIRM)
+    assert gate.sensors[None][1] is CFG.filter and gate.launch.fcfg is CFG.filter
+
+
+def test_in_vga_the_gate_weighs_the_default_cameras_detections_with_twice_the_noise(rtree):
+    """The filter and the launch detector both take VGA's stereo model: at the same disparity
+    and pixel noise every standard deviation is 532 / 265 times HD720's."""
+    vga = dataclasses.replace(CFG, camera=dataclasses.replace(CFG.camera, mode="VGA", fps=100.0))
+    z = np.array([6.5, 0.4, 1.3])
+    sds = {}
+    for name, cfg in (("hd", CFG), ("vga", vga)):
+        gate = ThrowGate(rtree, cfg, CONFIRM)
+        (sensor, fcfg), launch = gate.sensors[None], gate.launch
+        r = kf.stereo_r(z, sensor, fcfg)
+        np.testing.assert_allclose(kf.stereo_r(z, launch.sensor, launch.fcfg), r)
+        sds[name] = np.sqrt(np.linalg.eigvalsh(r))
+    np.testing.assert_allclose(sds["vga"] / sds["hd"], 532.0 / 265.0, rtol=1e-9)
+    assert default_camera_filter(vga).stereo_depth == pytest.approx(0.0027 * 532.0 / 265.0)
+
+
+@pytest.mark.parametrize("fps, window", [(50.0, 6), (60.0, 7), (100.0, 11), (15.0, 4)])
+def test_the_launch_fit_keeps_its_100ms_span_at_the_cameras_frame_rate(rtree, fps, window):
+    cfg = dataclasses.replace(CFG, camera=dataclasses.replace(CFG.camera, mode="VGA", fps=fps))
+    gate = ThrowGate(rtree, cfg, CONFIRM)
+    assert gate.launch.window == window
+    assert (window - 1) / fps == pytest.approx(0.1, abs=0.5 / fps) or window == 4

@@ -1,4 +1,4 @@
-"""ZED 2i model: noise statistics, outliers, dropouts, timing, visibility, payloads."""
+"""ZED 2i model: noise statistics, outliers, dropouts, timing, visibility, payloads, modes."""
 
 import dataclasses
 import json
@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from thinkfast.contract.camera_mode import CameraSetup
 from thinkfast.contract.detection import Detection, parse_detection
 from thinkfast.contract.frames import CameraExtrinsic, to_base
 from thinkfast.sim.camera import (
@@ -18,6 +19,7 @@ from thinkfast.sim.camera import (
     gross_error,
     in_view,
     measure,
+    mode_model,
     noise_covariance,
     observe,
     outlier_probability,
@@ -215,3 +217,56 @@ def test_depth_sigma_matches_the_published_figures():
     # docs/FACTS.md: 0.1-0.25 px -> 2.5-6 cm at 4 m, 10-25 cm at 8 m
     assert depth_sigma(4.0, 0.1, CAM) == pytest.approx(0.025, abs=0.001)
     assert depth_sigma(8.0, 0.25, CAM) == pytest.approx(0.25, abs=0.01)
+
+
+VGA = CameraSetup(mode="VGA", fps=100.0)
+
+
+def test_hd720_at_50_fps_is_the_default_model_and_other_modes_keep_the_pixel_noise():
+    assert mode_model(CameraSetup()) == CAM
+    vga = mode_model(VGA)
+    assert (vga.rate, vga.focal_px, vga.image_size) == (100.0, 265.0, (672, 376))
+    assert (vga.disparity_sigma, vga.pixel_sigma) == (CAM.disparity_sigma, CAM.pixel_sigma)
+    assert mode_model(CameraSetup(fps=60.0)).focal_px == CAM.focal_px
+
+
+@pytest.mark.parametrize("depth", [4.0, 7.0])
+def test_vga_noise_in_metres_is_hd720s_times_the_focal_ratio(depth):
+    """Same disparity and pixel noise, half the focal length: depth noise ``z^2 s / (f B)`` and
+    lateral noise ``z s_px / f`` both about double (4 m, 0.2 px: 10 cm instead of 5 cm)."""
+    p = _points([depth, 0.0, 0.0], n=20000)
+    vga = mode_model(VGA)
+    err_vga = measure(p, 0.2, vga, np.random.default_rng(21)) - p
+    err_hd = measure(p, 0.2, CAM, np.random.default_rng(22)) - p
+    assert err_vga[:, 0].std() == pytest.approx(depth**2 * 0.2 / (265.0 * 0.12), rel=0.05)
+    assert err_vga[:, 1].std() == pytest.approx(depth * 0.5 / 265.0, rel=0.05)
+    ratio = err_vga.std(axis=0) / err_hd.std(axis=0)
+    np.testing.assert_allclose(ratio, 532.0 / 265.0, rtol=0.05)
+
+
+@pytest.mark.parametrize("setup, interval", [(VGA, 0.01), (CameraSetup(fps=60.0), 1.0 / 60.0)])
+def test_frames_come_every_frame_interval_of_the_mode(throws, setup, interval):
+    model = dataclasses.replace(mode_model(setup), dropout_rate=0.0, detect_probs=(1.0,) * 4)
+    th = throws[0]
+    dets = observe(th, model, EXT, np.random.default_rng(23), T0)
+    held = [d for d in dets if d.capture_stamp < T0 - 0.05]  # in the hand: always in view
+    assert len(held) >= 0.9 * (th.t_release - 0.05) / interval
+    np.testing.assert_allclose(np.diff([d.capture_stamp for d in held]), interval, atol=1e-6)
+
+
+def test_vga_misses_far_balls_at_the_measured_rate_and_keeps_every_other_draw():
+    """A held ball 7.0 m deep is found in 91 % of VGA frames (96 % at 6.5 m, 87 % at 7.5 m),
+    one 5 m deep in all; the frames it keeps are exactly those drawn without the misses."""
+    cfg = ThrowConfig()
+    vga = dataclasses.replace(mode_model(VGA), dropout_rate=0.0)
+    found = dataclasses.replace(vga, detect_probs=(1.0, 1.0, 1.0, 1.0))
+    for x, rate in ((EXT.xyz[0] + 7.0, 0.96 - 0.09 * 0.5), (EXT.xyz[0] + 5.0, 1.0)):
+        held = make_throw(cfg, np.array([x, 0.0, EXT.xyz[2]]), (0.0, 1.0), 0.6, t_release=50.0)
+        dets = observe(held, vga, EXT, np.random.default_rng(24), T0, until=-1.0)
+        every = observe(held, found, EXT, np.random.default_rng(24), T0, until=-1.0)
+        n = len(every)
+        assert n >= 4900
+        assert abs(len(dets) / n - rate) <= 4 * math.sqrt(rate * (1 - rate) / n) + 1e-12
+        kept = {d.seq: d for d in every}
+        for d in dets:
+            np.testing.assert_array_equal(d.position_camera, kept[d.seq].position_camera)

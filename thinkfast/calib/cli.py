@@ -27,12 +27,12 @@ def _group() -> None:
 def _assumed_camera(path: Path | None):
     """The ``[camera]`` of a run config (or a detect config / camera file), else the default."""
     from thinkfast.config import from_dict, include_table, load_toml
-    from thinkfast.contract.frames import CameraExtrinsic
+    from thinkfast.contract.camera_mode import CameraSetup
 
     if path is None:
-        return CameraExtrinsic()
-    data = include_table(load_toml(path), path, "camera_file", "camera", CameraExtrinsic)
-    return from_dict(CameraExtrinsic, data.get("camera", {}), str(path), "camera")
+        return CameraSetup()
+    data = include_table(load_toml(path), path, "camera_file", "camera", CameraSetup)
+    return from_dict(CameraSetup, data.get("camera", {}), str(path), "camera")
 
 
 @app.command()

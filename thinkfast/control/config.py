@@ -5,12 +5,13 @@ Defaults describe the default cell; assumed numbers are labelled ASSUMED in the 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 from thinkfast.config import from_dict, include_table, load_toml, spec, to_toml
+from thinkfast.contract.camera_mode import DEFAULT_FPS, CameraSetup, check_camera_setup
 from thinkfast.contract.detection import CAMERA_ID, DetectionLimits
-from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.control.hedge import HedgeConfig
 from thinkfast.control.safety import SafetyConfig
 from thinkfast.decide.choice import ChoiceConfig
@@ -135,7 +136,7 @@ class RunConfig:
     """Everything ``thinkfast-run`` needs besides the tree and the I/O endpoints."""
 
     robot: str = spec("", doc="robot.toml path (default: the robot the tree names, else default)")
-    camera: CameraExtrinsic = spec(CameraExtrinsic())
+    camera: CameraSetup = spec(CameraSetup())
     cameras: tuple[CameraConfig, ...] = spec(
         (),
         doc="more cameras, [[cameras]] tables (docs/CAMERAS.md); [camera] is the default one, "
@@ -176,8 +177,37 @@ def load_run_config(path: str | Path | None) -> RunConfig:
     """
     if path is None:
         return RunConfig()
-    data = include_table(load_toml(path), path, "camera_file", "camera", CameraExtrinsic)
-    return check_lags(check_cameras(from_dict(RunConfig, data, str(path)), str(path)), str(path))
+    data = include_table(load_toml(path), path, "camera_file", "camera", CameraSetup)
+    cfg = from_dict(RunConfig, data, str(path))
+    check_camera_setup(cfg.camera, str(path))
+    return check_lags(check_cameras(cfg, str(path)), str(path))
+
+
+def default_camera_filter(cfg: RunConfig) -> FilterConfig:
+    """The filter parameters for the default camera (``[camera]``) in its mode.
+
+    ``[filter] stereo_depth`` and ``stereo_lateral`` are stated for HD720; another mode
+    measures with the same disparity and pixel noise on coarser pixels, so both are scaled by
+    ``f_HD720 / f`` (VGA: about 2). HD720 returns ``cfg.filter`` itself.
+    """
+    scale = cfg.camera.focal_scale()
+    if scale == 1.0:
+        return cfg.filter
+    f = cfg.filter
+    return dataclasses.replace(
+        f, stereo_depth=f.stereo_depth * scale, stereo_lateral=f.stereo_lateral * scale
+    )
+
+
+def launch_window(cfg: RunConfig) -> int:
+    """Detections per launch fit of the default camera alone, at its frame rate.
+
+    ``[launch] window`` is stated at 50 fps (6: 100 ms); at another ``[camera] fps`` the fit
+    keeps that time span, ``1 + round((window - 1) fps / 50)`` detections within 4..12 (VGA at
+    100 fps: 11). At 50 fps it is ``[launch] window`` itself.
+    """
+    w = cfg.launch.window
+    return min(max(1 + round((w - 1) * cfg.camera.fps / DEFAULT_FPS), 4), 12)
 
 
 def check_lags(cfg: RunConfig, source: str) -> RunConfig:

@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from thinkfast.control.config import RunConfig
+from thinkfast.control.config import RunConfig, default_camera_filter, launch_window
 from thinkfast.control.planners.base import CONFIRM, FIRST
 from thinkfast.decide.tree_view import RuntimeTree
 from thinkfast.estimate import filter as kf
@@ -69,10 +69,11 @@ class ThrowGate:
         self.tree, self.cfg, self.first = tree, cfg, kind == FIRST
         self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
         n_cam = 1 + len(cfg.cameras)
-        window = cfg.fusion.launch_window if cfg.cameras else None
-        self.launch = LaunchDetector(cfg.launch, cfg.filter, self.sensor, n_cam, window)
+        window = cfg.fusion.launch_window if cfg.cameras else launch_window(cfg)
+        own = default_camera_filter(cfg)  # the stereo noise model of [camera]'s mode
+        self.launch = LaunchDetector(cfg.launch, own, self.sensor, n_cam, window)
         self.sensors: dict[str | None, tuple[np.ndarray, kf.FilterConfig]] = {
-            None: (self.sensor, cfg.filter)
+            None: (self.sensor, own)
         }
         self.check: CameraCheck | None = None
         self.reference: str | None = None

@@ -58,7 +58,13 @@ class LaunchConfig:
     """Launch detector parameters (``[launch]`` table of the runtime configuration)."""
 
     enabled: bool = spec(True, doc="detect the launch from a short free-flight fit")
-    window: int = spec(6, lo=4, hi=12, doc="detections per fit (the newest ones)")
+    window: int = spec(
+        6,
+        lo=4,
+        hi=12,
+        doc="detections per fit (the newest ones), at 50 fps: the default camera at another "
+        "[camera] fps keeps the same time span (VGA at 100 fps: 11)",
+    )
     check_hold: bool = spec(
         True, doc="the newest detection must have left the hold position (see the module doc)"
     )

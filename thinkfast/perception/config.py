@@ -10,8 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from thinkfast.config import from_dict, include_table, load_toml, spec, to_toml
+from thinkfast.contract.camera_mode import CameraSetup, check_camera_setup
 from thinkfast.contract.detection import CAMERA_ID
-from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.errors import ConfigError
 
 SOURCES = ("colour", "boxes", "auto")
@@ -111,7 +111,7 @@ class DetectConfig:
         "colour", doc="colour filter, external boxes, or boxes when they come (auto)",
         choices=SOURCES,
     )  # fmt: skip
-    camera: CameraExtrinsic = spec(CameraExtrinsic())
+    camera: CameraSetup = spec(CameraSetup())
     camera_id: str = spec(
         "",
         doc="id of the camera this process serves, stamped on every detection, whose frames "
@@ -138,6 +138,7 @@ def check(cfg: DetectConfig, source: str) -> DetectConfig:
         raise ConfigError(source, "cloud.min_range", "must be below cloud.max_range")
     if cfg.camera_id and not CAMERA_ID.fullmatch(cfg.camera_id):
         raise ConfigError(source, "camera_id", f"{cfg.camera_id!r}: 1-64 of A-Z a-z 0-9 _ . -")
+    check_camera_setup(cfg.camera, source)
     return cfg
 
 
@@ -151,7 +152,7 @@ def load_detect_config(path: str | Path | None) -> DetectConfig:
     """
     if path is None:
         return DetectConfig()
-    data = include_table(load_toml(path), path, "camera_file", "camera", CameraExtrinsic)
+    data = include_table(load_toml(path), path, "camera_file", "camera", CameraSetup)
     return check(from_dict(DetectConfig, data, str(path)), str(path))
 
 

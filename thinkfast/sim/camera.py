@@ -14,7 +14,12 @@ Measurement of a true ball centre ``p = d u`` (depth ``d`` along x, ray ``u = p 
   motion blur in the image, which is largest near the camera): depth off by 0.3-1.5 m either
   way (never closer than ``min_range``) and a smaller lateral error;
 * not seen: outside the image (pinhole, principal point at the centre), nearer than
-  ``min_range``, beyond ``max_range``, or a dropout (two-state Markov chain: bursts).
+  ``min_range``, beyond ``max_range``, a dropout (two-state Markov chain: bursts), or, with
+  ``detect_probs`` below 1, missed at its depth (a ball a few pixels wide: VGA).
+
+The camera's video mode (:mod:`thinkfast.contract.camera_mode`; :func:`mode_model`) sets the
+focal length, image size and frame rate; the noise in pixels stays the same, so in metres it
+grows as ``1 / f``.
 
 Frames are captured every ``1 / rate`` from a random phase; the stamp is the capture time
 (docs/INTERFACES.md) plus ``stamp_bias`` (0: exact); each detection is delivered ``latency`` later,
@@ -30,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from thinkfast.config import spec
+from thinkfast.contract.camera_mode import DEFAULT_MODE, ZED_MODES, CameraSetup
 from thinkfast.contract.detection import encode_detection
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.sim.throws import Throw, ball_states, observed_until
@@ -37,7 +43,8 @@ from thinkfast.sim.throws import Throw, ball_states, observed_until
 
 @dataclasses.dataclass(frozen=True)
 class CameraModelConfig:
-    """ZED 2i at HD720 (docs/FACTS.md). Every noise figure is an ASSUMPTION until measured."""
+    """ZED 2i at HD720, 50 fps (docs/FACTS.md; :func:`mode_model` for another mode). Every
+    noise figure is an ASSUMPTION until measured."""
 
     rate: float = spec(50.0, doc="frame rate (the paper's system)", unit="Hz", lo=0.0, lo_open=True)
     focal_px: float = spec(532.0, doc="focal length, HD720 rectified", unit="px", lo=0.0)
@@ -82,6 +89,48 @@ class CameraModelConfig:
     )
     after_crossing: float = spec(
         0.1, doc="keep observing this long after the ball crosses the plane", unit="s", lo=0.0
+    )
+    detect_ranges: tuple[float, float, float, float] = spec(
+        (6.0, 6.5, 7.5, 8.5), doc="depths of detect_probs", unit="m", length=4, lo=0.0
+    )
+    detect_probs: tuple[float, float, float, float] = spec(
+        (1.0, 1.0, 1.0, 1.0),
+        doc="chance the detector finds the ball at each of detect_ranges (linear between, "
+        "constant beyond; independent per frame, ASSUMED); 1: always (HD720)",
+        length=4, lo=0.0, hi=1.0,
+    )  # fmt: skip
+
+
+# The detector on rendered VGA frames with its VGA settings: 100 % to 6 m, 96 / 87 / 70 % at
+# 6-7 / 7-8 / 8-9 m (docs/BENCHMARKS.md, "Perception front end"); at HD720 100 % to 9 m.
+VGA_DETECT_PROBS = (1.0, 0.96, 0.87, 0.70)
+
+
+def mode_model(cam: CameraSetup, base: CameraModelConfig | None = None) -> CameraModelConfig:
+    """The camera model of ``cam``'s video mode and frame rate.
+
+    Focal length, image size and frame rate come from the mode; the noise in pixels (disparity,
+    lateral) stays ``base``'s, so in metres it scales as ``f_HD720 / f``. Motion blur is counted
+    in the mode's pixels (``blur_full`` scaled by ``f / f_HD720``: the same blur relative to the
+    ball's size gives the same outlier chance), and at VGA the detector misses far balls
+    (:data:`VGA_DETECT_PROBS`). HD720 at ``base``'s rate is ``base`` itself.
+
+    Args:
+        cam: the camera's configured mode and frame rate (``[camera]``).
+        base: the model at HD720 (default :class:`CameraModelConfig`).
+    """
+    base = CameraModelConfig() if base is None else base
+    if cam.mode == DEFAULT_MODE and cam.fps == base.rate:
+        return base
+    mode = ZED_MODES[cam.mode]
+    ratio = mode.focal_px / ZED_MODES[DEFAULT_MODE].focal_px
+    return dataclasses.replace(
+        base,
+        rate=float(cam.fps),
+        focal_px=mode.focal_px,
+        image_size=mode.image_size,
+        blur_full=base.blur_full * ratio,
+        detect_probs=base.detect_probs if cam.mode == DEFAULT_MODE else VGA_DETECT_PROBS,
     )
 
 
@@ -241,6 +290,9 @@ def observe(
     cov = noise_covariance(safe, sigma_disp, cfg)
     latency = rng.uniform(*cfg.latency, n)
     conf = rng.uniform(*cfg.confidence, n)
+    if min(cfg.detect_probs) < 1.0:  # drawn last: a model without misses keeps its draws
+        found = np.interp(np.where(seen, p_cam[:, 0], 0.0), cfg.detect_ranges, cfg.detect_probs)
+        seen &= rng.random(n) < found
     stamp = t_release_wall + t + cfg.stamp_bias
     capture = t_release_wall + t
     delivery = capture + latency

@@ -24,12 +24,13 @@ import numpy as np
 import zenoh
 
 from thinkfast.contract import keys
+from thinkfast.contract.camera_mode import ZED_MODES
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.sim.camera import CameraModelConfig
 from thinkfast.sim.frames import FrameRenderConfig, FrameRenderer
 from thinkfast.sim.throws import Throw, ball_states, observed_until
 
-RESOLUTIONS = {"hd720": ((1280, 720), 532.0), "vga": ((672, 376), 265.0)}  # docs/FACTS.md
+RESOLUTIONS = {k.lower(): (m.image_size, m.focal_px) for k, m in ZED_MODES.items()}
 VGA_DETECT = "[colour]\nsearch_step = 1\nopen_px = 1\nmin_area = 2\n"  # balls 2-3 px wide at 6-9 m
 
 

@@ -37,7 +37,13 @@ from thinkfast.robot.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering
-from thinkfast.sim.camera import CameraModelConfig, SimCamera, detection_payload, observe_cameras
+from thinkfast.sim.camera import (
+    CameraModelConfig,
+    SimCamera,
+    detection_payload,
+    mode_model,
+    observe_cameras,
+)
 from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.planners import ORACLES
@@ -96,13 +102,14 @@ class World:
 
 
 def sim_cameras(cfg: RunConfig, model: CameraModelConfig) -> tuple[SimCamera, ...]:
-    """The simulated cameras of a run config: the default camera (``model``, ``[camera]``),
-    then every ``[[cameras]]`` one (``model`` with its latency), each where the config says."""
+    """The simulated cameras of a run config: the default camera (``model`` in ``[camera]``'s
+    mode and frame rate, :func:`~thinkfast.sim.camera.mode_model`), then every ``[[cameras]]``
+    one (``model`` with its latency), each where the config says."""
     others = tuple(
         SimCamera(c.id, dataclasses.replace(model, latency=c.latency), c.extrinsic())
         for c in cfg.cameras
     )
-    return (SimCamera(None, model, cfg.camera), *others)
+    return (SimCamera(None, mode_model(cfg.camera, model), cfg.camera), *others)
 
 
 def simulate(

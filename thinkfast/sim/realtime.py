@@ -21,13 +21,14 @@ from typing import NamedTuple
 import numpy as np
 
 from thinkfast.contract import keys
+from thinkfast.contract.camera_mode import CameraSetup
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.decide.tree_view import BALL_RADIUS
 from thinkfast.errors import ThinkfastError
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
-from thinkfast.sim.camera import CameraModelConfig, observe
+from thinkfast.sim.camera import CameraModelConfig, mode_model, observe
 from thinkfast.sim.controller import ServoConfig, SimController
 from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
@@ -170,17 +171,23 @@ def run_throws(
     seed: int,
     extrinsic: CameraExtrinsic,
     report=print,
-    camera: CameraModelConfig = CameraModelConfig(),
+    camera: CameraModelConfig | None = None,
     frames=None,
     controller: tuple[WallClockSim, ControllerRunner] | None = None,
 ) -> list[RealtimeResult]:
     """Throw every ball at a running daemon and judge it; ``report`` gets one line per throw.
+
+    ``camera``: the camera model (None: the mode and rate of ``extrinsic`` when it is a run
+    config's :class:`~thinkfast.contract.camera_mode.CameraSetup`, else the default model).
 
     ``frames``: a :class:`~thinkfast.sim.frame_stream.FrameStream` to publish rendered camera
     frames (for a detector) instead of detections. ``controller``: the simulated controller
     already talking EGM to the daemon, and its runner (the simulated IRC5's; kept running);
     None: one is started at the home pose on ``egm`` and stopped at the end.
     """
+    if camera is None:
+        setup = extrinsic if isinstance(extrinsic, CameraSetup) else CameraSetup()
+        camera = mode_model(setup)
     kin = Kinematics(robot)
     if controller is None:
         sim = WallClockSim(ServoConfig(), q0=robot.home)
