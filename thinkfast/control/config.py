@@ -21,6 +21,7 @@ from thinkfast.estimate.early_belief import EarlyConfig
 from thinkfast.estimate.filter import FilterConfig
 from thinkfast.estimate.fusion import DEFAULT_CAMERA, CameraConfig, FusionConfig
 from thinkfast.estimate.launch import LaunchConfig
+from thinkfast.estimate.retract import RetractConfig
 
 
 @dataclass(frozen=True)
@@ -153,6 +154,7 @@ class RunConfig:
         )
     )
     launch: LaunchConfig = spec(LaunchConfig())
+    retract: RetractConfig = spec(RetractConfig())
     early: EarlyConfig = spec(EarlyConfig())
     hedge: HedgeConfig = spec(HedgeConfig())
     value: ValueConfig = spec(ValueConfig())

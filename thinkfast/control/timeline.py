@@ -78,6 +78,19 @@ class Timeline:
         seg = self.home_move(state, t)
         self.segment = seg if seg is not None else hold(state, t)
 
+    def stop_then_home(self, t: float) -> None:
+        """Stop at the full limits from the commanded state at ``t`` (a retracted throw); the
+        stop is the first piece of the way home (kind RETURN): once it ends away from home, the
+        executor plans the rest (:meth:`start_return`). Home at once when it is nothing to stop
+        or Ruckig fails it."""
+        state = self.segment.state(t)
+        traj = self.steer.to_stop(state) if state[3:].any() else None
+        if traj is None:
+            self.start_return(t)
+            return
+        end = np.r_[np.asarray(traj.at_time(traj.duration)[0], dtype=float), np.zeros(6)]
+        self.segment = Segment(RETURN, t, traj, end, traj.duration)
+
     def home_move(self, state: np.ndarray, t: float, ok=None) -> Segment | None:
         """The move home from the commanded ``state`` (9,) at ``t`` [s] with the first of
         :attr:`home_steers` whose move stays within the full velocity and acceleration limits
