@@ -13,7 +13,7 @@ import numpy as np
 
 from thinkfast.control.config import ExecutionConfig
 from thinkfast.control.safety_limits import REL_TOL
-from thinkfast.control.segments import HOLD, RETURN, STEER, Segment, hold, move
+from thinkfast.control.segments import HOLD, RETURN, STEER, Segment, hold, move, stop
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering, peaks
 
@@ -84,12 +84,11 @@ class Timeline:
         executor plans the rest (:meth:`start_return`). Home at once when it is nothing to stop
         or Ruckig fails it."""
         state = self.segment.state(t)
-        traj = self.steer.to_stop(state) if state[3:].any() else None
-        if traj is None:
+        seg = stop(self.steer, RETURN, state, t) if state[3:].any() else None
+        if seg is None:
             self.start_return(t)
             return
-        end = np.r_[np.asarray(traj.at_time(traj.duration)[0], dtype=float), np.zeros(6)]
-        self.segment = Segment(RETURN, t, traj, end, traj.duration)
+        self.segment = seg
 
     def home_move(self, state: np.ndarray, t: float, ok=None) -> Segment | None:
         """The move home from the commanded ``state`` (9,) at ``t`` [s] with the first of

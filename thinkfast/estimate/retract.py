@@ -47,6 +47,13 @@ class RetractConfig:
     window: int = spec(
         10, lo=4, hi=12, doc="detections per free-flight fit (the newest since the confirmation)"
     )
+    min_points: int = spec(
+        8,
+        lo=4,
+        hi=12,
+        doc="detections a fit must use to count (fewer: two depth outliers among them can fake "
+        "a slow ball)",
+    )
     max_span: float = spec(
         0.25,
         unit="s",
@@ -112,7 +119,8 @@ class FlightWatch:
         if not self.fits.insert(t, z, sensor, fcfg):
             return False
         fit = self.fits.fit()
-        if fit is None or not (self.fits.consistent(fit) and not_flying(fit, self.cfg)):
+        shows = fit is not None and fit.n >= self.cfg.min_points and self.fits.consistent(fit)
+        if not (shows and not_flying(fit, self.cfg)):
             self.slow = 0
             return False
         self.slow += 1

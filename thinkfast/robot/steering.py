@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, Result, Ruckig, Trajectory
+from ruckig import InputParameter, Result, Ruckig, Trajectory
 
 from thinkfast.errors import NoSolutionError
 
@@ -63,30 +63,6 @@ class Steering:
         traj = Trajectory(n)
         try:
             result = self._otg.calculate(inp, traj)
-        except Exception:  # ruckig.RuckigError: invalid input or a numerically hard case
-            return None
-        if result not in _OK or not math.isfinite(traj.duration):
-            return None
-        return traj
-
-    def to_stop(self, state: np.ndarray) -> Trajectory | None:
-        """The time-optimal stop from ``state`` (3n,) = p, v, a: every joint at rest at the same
-        time, wherever that is (Ruckig's velocity interface); None on failure."""
-        n = self.n
-        state = _floats(state)
-        inp = InputParameter(n)
-        inp.control_interface = ControlInterface.Velocity
-        inp.current_position = state[:n]
-        inp.current_velocity = state[n : 2 * n]
-        inp.current_acceleration = state[2 * n : 3 * n]
-        inp.target_velocity = [0.0] * n
-        inp.target_acceleration = [0.0] * n
-        inp.max_velocity = _floats(self.v_max)
-        inp.max_acceleration = _floats(self.a_max)
-        inp.max_jerk = _floats(self.j_max)
-        traj = Trajectory(n)
-        try:
-            result = Ruckig(n).calculate(inp, traj)
         except Exception:  # ruckig.RuckigError: invalid input or a numerically hard case
             return None
         if result not in _OK or not math.isfinite(traj.duration):
