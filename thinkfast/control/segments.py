@@ -4,12 +4,12 @@ wrist tracker for joints 4-6. Time comes in as an argument (wall-clock seconds).
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, Result, Ruckig, Trajectory
+from ruckig import Trajectory
 
+from thinkfast.control.safety_brake import stop_trajectory
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering
 from thinkfast.robot.wrist import CoplanarWrist
@@ -61,25 +61,13 @@ def move(steer: Steering, kind: str, state, target, t0: float, ref: int = -1) ->
 
 def stop(steer: Steering, kind: str, state, t0: float) -> Segment | None:
     """The time-optimal stop from ``state`` (3n,) within ``steer``'s limits, every joint at rest
-    at the same time wherever that is (Ruckig's velocity interface), as a Segment commanded from
-    ``t0`` (None when Ruckig fails)."""
+    at the same time wherever that is, as a Segment commanded from ``t0`` (None when Ruckig
+    fails)."""
     n = steer.n
-    inp = InputParameter(n)
-    inp.control_interface = ControlInterface.Velocity
-    state = [float(x) for x in state]
-    inp.current_position = state[:n]
-    inp.current_velocity = state[n : 2 * n]
-    inp.current_acceleration = state[2 * n : 3 * n]
-    inp.target_velocity = inp.target_acceleration = [0.0] * n
-    inp.max_velocity = steer.v_max.tolist()
-    inp.max_acceleration = steer.a_max.tolist()
-    inp.max_jerk = steer.j_max.tolist()
-    traj = Trajectory(n)
-    try:
-        result = Ruckig(n).calculate(inp, traj)
-    except Exception:  # ruckig.RuckigError: a state it cannot plan from
-        return None
-    if result not in (Result.Working, Result.Finished) or not math.isfinite(traj.duration):
+    state = np.asarray(state, dtype=float)
+    limits = (steer.v_max, steer.a_max, steer.j_max)
+    traj = stop_trajectory(state[:n], state[n : 2 * n], state[2 * n :], limits, sync=True)
+    if traj is None:
         return None
     end = np.r_[np.asarray(traj.at_time(traj.duration)[0], dtype=float), np.zeros(2 * n)]
     return Segment(kind, t0, traj, end, traj.duration)
