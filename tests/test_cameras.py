@@ -302,17 +302,25 @@ def test_the_detector_stamps_its_camera_id():
     assert keys.camera_frame("tf") == "tf/camera/frame"
 
 
-def test_a_feint_that_passed_for_a_launch_with_two_cameras_leaves_the_arm_at_home(world):
-    """Feint 9 of the bench's seed 1 (``thinkfast-sim bench --throws 1000 --seed 1 --cameras
-    base,side`` flew it as s1-f9): with the side camera, six detections of the two cameras span
-    only 60 ms, and the hand's forward swing fitted a free flight towards the plane; the arm left
-    home 3 ms before the ball stopped and moved the shield 1.17 m. With several cameras the launch
-    fit takes ``[fusion] launch_window`` (8) detections."""
+# feints j of seeds 1-3 in the bench's numbering (camera noise seed: throw_seed(seed, index));
+# s1-f9 at index 1009 is the feint of `thinkfast-sim bench --throws 1000 --seed 1 --cameras
+# base,side` that a launch fit of six detections of two cameras took for a launch (the arm left
+# home 3 ms before the ball stopped and moved the shield 1.17 m)
+FEINTS = [(s, j, j) for s in (1, 2, 3) for j in range(4)] + [(1, 9, 1009)]
+
+
+@pytest.mark.parametrize(("seed", "j", "index"), FEINTS, ids=lambda x: str(x))
+def test_feints_across_seeds_with_two_cameras_leave_the_shield_near_home(world, seed, j, index):
+    """With two cameras, the default ``[fusion] launch_window`` and the hedge on, a feint moves
+    the shield no more than ``[hedge] bound`` (10 cm) from home and the arm is home again
+    within 2 s of the ball stopping (docs/RESULTS.md, "Feints, held balls": what a feint may
+    cost, asked across seeds rather than of one feint)."""
     from thinkfast.sim.bench import throw_seed
     from thinkfast.sim.lockstep import simulate
     from thinkfast.sim.throws import sample_throws
 
-    th = sample_throws(ThrowConfig(), 0, 1, 10)[9]  # a feint depends on (config, seed, j) only
-    assert th.id == "s1-f9" and th.kind == "feint"
-    out = simulate(world, th, "tree", throw_seed(1, 1009))
-    assert not out.moved and out.displacement < 1e-6, (out.start, out.displacement)
+    th = sample_throws(ThrowConfig(), 0, seed, j + 1)[j]  # a feint depends on (config, seed, j)
+    assert th.id == f"s{seed}-f{j}" and th.kind == "feint"
+    out = simulate(world, th, "tree", throw_seed(seed, index))
+    assert out.displacement <= TWO.hedge.bound, (out.start, out.displacement)
+    assert out.home_again, out.home_after

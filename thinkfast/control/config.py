@@ -22,6 +22,7 @@ from thinkfast.estimate.early_belief import EarlyConfig
 from thinkfast.estimate.filter import FilterConfig
 from thinkfast.estimate.fusion import DEFAULT_CAMERA, CameraConfig, FusionConfig
 from thinkfast.estimate.launch import LaunchConfig
+from thinkfast.estimate.retract import RetractConfig
 
 
 @dataclass(frozen=True)
@@ -154,6 +155,7 @@ class RunConfig:
         )
     )
     launch: LaunchConfig = spec(LaunchConfig())
+    retract: RetractConfig = spec(RetractConfig())
     early: EarlyConfig = spec(EarlyConfig())
     hedge: HedgeConfig = spec(HedgeConfig())
     value: ValueConfig = spec(ValueConfig())

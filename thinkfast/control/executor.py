@@ -19,9 +19,14 @@ the segment timeline (:mod:`thinkfast.control.timeline`) and the wrist tracker. 
   ``executing`` when the arm is off home).
 - ``executing``: the planner plans at every belief (and moves on along its pieces at every
   tick). A throw ends (``returning``) at the first tick after its predicted crossing plus
-  ``controller_lag`` plus ``after_crossing``, after ``max_blind`` without a detection, or after
-  ``detection_timeout`` without one when no crossing was ever predicted: a silence alone does not
-  end a throw whose crossing is still ahead (the ball may leave the camera's view before the plane).
+  ``controller_lag`` plus ``after_crossing`` (``throw_end`` = ``crossed``), after ``max_blind``
+  without a detection (``blind``), or after ``detection_timeout`` without one when no crossing
+  was ever predicted (``silence``): a silence alone does not end a throw whose crossing is still
+  ahead (the ball may leave the camera's view before the plane). It is *retracted*
+  (``retracted``) at the detection that shows its ball is not flying towards the plane (the
+  gate's flight watch, ``[retract]``: a feint the launch detector confirmed; the predicted
+  crossing of a ball at rest keeps receding and would never end it): the arm stops at the full
+  limits it was moving with, then goes home as after any throw.
 - ``returning``: detections are ignored; a move home within the return limits
   (``return_speed_scale``; the full limits when those cannot brake it). When the way home ends
   elsewhere, was replaced by a hold (a :meth:`resync` Ruckig could not plan) or was never
@@ -74,7 +79,8 @@ class Mode(enum.StrEnum):
 
 IDLE, TRACKING, EXECUTING, RETURNING, FAULT = Mode  # the names the rest of the package uses
 HOME_TOLERANCE = 1e-3  # rad: a joint further than this from home is away from home
-__all__ = ["ARM_HOME", "EpisodeLog", "Executor", "Mode"]
+STAGE_KEYS = ("stage", "hedge_end", "hedges", "throw_end")  # the status's and record's stage
+__all__ = ["ARM_HOME", "STAGE_KEYS", "EpisodeLog", "Executor", "Mode"]
 
 
 class Executor:
@@ -152,6 +158,13 @@ class Executor:
         return "" if self.hedge is None else self.hedge.hedge_end
 
     @property
+    def throw_end(self) -> str:
+        """Why the motion of the throw under way, or else of the last one, ended: ``crossed``,
+        ``blind``, ``silence``, ``retracted`` (``""``: none ended)."""
+        ep = self.episode if self.episode.end or self.last_episode is None else self.last_episode
+        return ep.end
+
+    @property
     def hedges(self) -> int:
         """Hedges begun since the start."""
         return 0 if self.hedge is None else self.hedge.hedges
@@ -174,6 +187,10 @@ class Executor:
         fused = gate.fuse(stamp, p_base, camera, armed=self.mode in (IDLE, TRACKING))
         if not fused.ok:
             return fused.refusal
+        if fused.retract and self.mode == EXECUTING:  # not a throw after all: stop, home
+            self.timeline.stop_then_home(t_now)
+            self.mode, self.episode.end = RETURNING, "retracted"
+            return None
         if self.mode == IDLE:
             self.mode = TRACKING
         if gate.belief.n_meas < 2:
@@ -257,16 +274,21 @@ class Executor:
             self.hedge.tick(t, silent)
         if self.mode == TRACKING and silent and (self.hedge is None or self.timeline.at_home(t)):
             self._reset_episode(IDLE)  # with a hedge given up: once the arm is home
-        elif self.mode == EXECUTING and (
-            crossed or since > th.max_blind or (silent and math.isnan(end))
-        ):
+        elif self.mode == EXECUTING:
             # a silence alone does not end a throw whose crossing is still ahead: the camera may
             # lose the ball before the plane (out of view, occluded); the arm holds its plan
-            self._start_return(t)
+            if crossed:
+                self._start_return(t, "crossed")
+            elif since > th.max_blind:
+                self._start_return(t, "blind")
+            elif silent and math.isnan(end):
+                self._start_return(t, "silence")
 
-    def _start_return(self, t: float) -> None:
+    def _start_return(self, t: float, why: str = "") -> None:
         self.timeline.start_return(t)
         self.mode = RETURNING
+        if why:
+            self.episode.end = why
 
     def _finish_return(self, t: float) -> None:
         self._reset_episode(IDLE)

@@ -16,6 +16,11 @@ disagree with the reference camera's is kept out. Two gates (the planner names i
   filter from its fit, and confirms at once when that belief predicts a throw.
 - ``first`` (the paper's baseline): the first belief that predicts a throw at zero sigmas (mean
   approach speed) confirms it, with neither the launch detector, the settling nor the count.
+
+With the ``confirm`` gate, the detections fused while a throw is under way (not ``armed``) also
+go to the flight watch (``[retract]``, :mod:`thinkfast.estimate.retract`): when it shows that
+the ball does not fly towards the plane (a feint the launch detector took for a launch),
+:class:`Fused` says ``retract``. The ``first`` gate keeps the paper's behaviour: no retraction.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from thinkfast.estimate import filter as kf
 from thinkfast.estimate.crossing import Crossing
 from thinkfast.estimate.fusion import DEFAULT_CAMERA, CameraCheck, camera_filter
 from thinkfast.estimate.launch import LaunchDetector
+from thinkfast.estimate.retract import FlightWatch
 
 
 class Fused(NamedTuple):
@@ -40,11 +46,13 @@ class Fused(NamedTuple):
         ok: it updated the filter (False: refused, or too late for it).
         launched: the launch detector restarted the filter from its fit.
         refusal: ``"inconsistent_camera"`` when its camera's detections are refused.
+        retract: the throw under way is to be retracted (module doc).
     """
 
     ok: bool
     launched: bool = False
     refusal: str | None = None
+    retract: bool = False
 
 
 class ThrowGate:
@@ -72,6 +80,7 @@ class ThrowGate:
         window = cfg.fusion.launch_window if cfg.cameras else launch_window(cfg)
         own = default_camera_filter(cfg)  # the stereo noise model of [camera]'s mode
         self.launch = LaunchDetector(cfg.launch, own, self.sensor, n_cam, window)
+        self.watch = FlightWatch(cfg.retract, cfg.launch, own, self.sensor, n_cam)
         self.sensors: dict[str | None, tuple[np.ndarray, kf.FilterConfig]] = {
             None: (self.sensor, own)
         }
@@ -113,10 +122,15 @@ class ThrowGate:
         # one outlier among those two can fake any velocity
         restarted = info.status in ("first", "init") or bool(np.any(info.reset))
         self.settled = 0 if restarted else self.settled + 1
-        if not (armed and self.cfg.launch.enabled and not self.first):
+        cam = (sensor, fcfg) if self.check is not None else ()
+        if not armed:  # a throw is under way: is its ball still flying towards the plane?
+            watch = self.cfg.retract.enabled and not self.first
+            return Fused(True, retract=watch and self.watch.add(stamp, p_base, *cam))
+        self.watch.reset()  # it sees the detections after the confirmation only
+        if not (self.cfg.launch.enabled and not self.first):
             return Fused(True)
         several = self.check is not None
-        fit = self.launch.add(stamp, p_base, *((sensor, fcfg) if several else ()))
+        fit = self.launch.add(stamp, p_base, *cam)
         if fit is None:
             return Fused(True)
         newest = None if fit.t != stamp or not several else sensor
@@ -162,6 +176,8 @@ class ThrowGate:
         return lo[0] - m <= y <= hi[0] + m and lo[1] - m <= z <= hi[1] + m
 
     def drop(self) -> None:
-        """The throw was dropped: an empty filter, no count (the launch detector goes on)."""
+        """The throw was dropped: an empty filter, no count, no flight watch (the launch
+        detector goes on)."""
         self.belief = kf.empty(self.cfg.filter)
         self.confirm = 0
+        self.watch.reset()

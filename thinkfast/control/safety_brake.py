@@ -40,6 +40,32 @@ def brake_velocity(v_p, a_p, lim: SafetyLimits, dt: float) -> np.ndarray:
     return s * u_new
 
 
+def stop_trajectory(p0, v0, a0, limits, sync: bool) -> Trajectory | None:
+    """Ruckig's time-optimal stop (its velocity interface) from positions ``p0`` [rad],
+    velocities ``v0`` [rad/s] and accelerations ``a0`` [rad/s^2] (n,) within ``limits`` =
+    (v_max, a_max, j_max) (n,) each; ``sync``: every joint at rest at the same time, else each
+    as soon as it can. None when Ruckig refuses the state."""
+    n = len(v0)
+    inp = InputParameter(n)
+    inp.control_interface = ControlInterface.Velocity
+    if not sync:
+        inp.synchronization = Synchronization.No
+    inp.current_position = [float(x) for x in p0]
+    inp.current_velocity = [float(x) for x in v0]
+    inp.current_acceleration = [float(x) for x in a0]
+    inp.target_velocity = [0.0] * n
+    inp.target_acceleration = [0.0] * n
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = ([float(x) for x in m] for m in limits)
+    traj = Trajectory(n)
+    try:
+        result = Ruckig(n).calculate(inp, traj)
+    except Exception:  # ruckig.RuckigError: a state it cannot plan from
+        return None
+    if result not in (Result.Working, Result.Finished) or not math.isfinite(traj.duration):
+        return None
+    return traj
+
+
 class JerkLimitedStop:
     """The time-optimal stop of every joint from velocity and acceleration (Ruckig's velocity
     interface, joints independent), sampled tick by tick: the commanded velocity follows a
@@ -58,26 +84,12 @@ class JerkLimitedStop:
         v0, a0 = np.asarray(v0, dtype=float), np.asarray(a0, dtype=float)
         if not (np.isfinite(v0).all() and np.isfinite(a0).all()):
             return None
-        inp = InputParameter(n)
-        inp.control_interface = ControlInterface.Velocity
-        inp.synchronization = Synchronization.No
-        inp.current_position = [0.0] * n
-        inp.current_velocity = v0.tolist()
         # an acceleration that would carry the speed past v_max before it ramps down is the
         # estimate's error, not the plan's: take the largest that just reaches v_max
         a0 = feasible_acceleration(v0, a0, lim.v_max, lim.a_max, lim.j_max)
-        inp.current_acceleration = a0.tolist()
-        inp.target_velocity = [0.0] * n
-        inp.target_acceleration = [0.0] * n
-        inp.max_velocity = np.maximum(lim.v_max, np.abs(v0) * (1 + 1e-9)).tolist()
-        inp.max_acceleration = lim.a_max.tolist()
-        inp.max_jerk = lim.j_max.tolist()
-        traj = Trajectory(n)
-        try:
-            result = Ruckig(n).calculate(inp, traj)
-        except Exception:  # ruckig.RuckigError: a state it cannot plan from
-            return None
-        if result not in (Result.Working, Result.Finished) or not math.isfinite(traj.duration):
+        v_lim = np.maximum(lim.v_max, np.abs(v0) * (1 + 1e-9))
+        traj = stop_trajectory(np.zeros(n), v0, a0, (v_lim, lim.a_max, lim.j_max), sync=False)
+        if traj is None:
             return None
         return cls(traj, v0)
 

@@ -9,6 +9,7 @@ from typing import NamedTuple
 import numpy as np
 from ruckig import Trajectory
 
+from thinkfast.control.safety_brake import stop_trajectory
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering
 from thinkfast.robot.wrist import CoplanarWrist
@@ -56,6 +57,20 @@ def move(steer: Steering, kind: str, state, target, t0: float, ref: int = -1) ->
         return None
     end = np.r_[np.asarray(target, dtype=float), np.zeros(2 * steer.n)]
     return Segment(kind, t0, traj, end, traj.duration, ref)
+
+
+def stop(steer: Steering, kind: str, state, t0: float) -> Segment | None:
+    """The time-optimal stop from ``state`` (3n,) within ``steer``'s limits, every joint at rest
+    at the same time wherever that is, as a Segment commanded from ``t0`` (None when Ruckig
+    fails)."""
+    n = steer.n
+    state = np.asarray(state, dtype=float)
+    limits = (steer.v_max, steer.a_max, steer.j_max)
+    traj = stop_trajectory(state[:n], state[n : 2 * n], state[2 * n :], limits, sync=True)
+    if traj is None:
+        return None
+    end = np.r_[np.asarray(traj.at_time(traj.duration)[0], dtype=float), np.zeros(2 * n)]
+    return Segment(kind, t0, traj, end, traj.duration)
 
 
 def hold(state: np.ndarray, t0: float) -> Segment:

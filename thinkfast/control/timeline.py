@@ -13,7 +13,7 @@ import numpy as np
 
 from thinkfast.control.config import ExecutionConfig
 from thinkfast.control.safety_limits import REL_TOL
-from thinkfast.control.segments import HOLD, RETURN, STEER, Segment, hold, move
+from thinkfast.control.segments import HOLD, RETURN, STEER, Segment, hold, move, stop
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import Steering, peaks
 
@@ -77,6 +77,18 @@ class Timeline:
         state = self.segment.state(t)
         seg = self.home_move(state, t)
         self.segment = seg if seg is not None else hold(state, t)
+
+    def stop_then_home(self, t: float) -> None:
+        """Stop at the full limits from the commanded state at ``t`` (a retracted throw); the
+        stop is the first piece of the way home (kind RETURN): once it ends away from home, the
+        executor plans the rest (:meth:`start_return`). Home at once when it is nothing to stop
+        or Ruckig fails it."""
+        state = self.segment.state(t)
+        seg = stop(self.steer, RETURN, state, t) if state[3:].any() else None
+        if seg is None:
+            self.start_return(t)
+            return
+        self.segment = seg
 
     def home_move(self, state: np.ndarray, t: float, ok=None) -> Segment | None:
         """The move home from the commanded ``state`` (9,) at ``t`` [s] with the first of

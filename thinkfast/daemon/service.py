@@ -43,7 +43,7 @@ import numpy as np
 from thinkfast.config import to_dict
 from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
-from thinkfast.control.executor import EXECUTING, IDLE
+from thinkfast.control.executor import EXECUTING, IDLE, STAGE_KEYS
 from thinkfast.daemon.cycle import Cycle
 from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.home_watch import HomeWatch
@@ -122,7 +122,7 @@ class Daemon:
         self.detection_cost = 0.001  # s, decaying maximum of recent detection handling times
         self.last_throw: dict | None = None  # supervisor interventions in the last throw
         self._throw_mark: tuple[int, int] | None = None  # (ticks, intervened) at its start
-        self._stage: tuple[str, str, int] = ("", "", 0)  # the executor's (stage, hedge_end, hedges)
+        self._stage: tuple = ("", "", 0, "")  # the executor's (stage, hedge_end, hedges, throw_end)
         self._peer = None
 
     # -------------------------------------------------------------- EGM path
@@ -214,12 +214,13 @@ class Daemon:
 
     def _watch_stage(self, t: float) -> None:
         """A ``stage`` event (log and record) whenever the executor's stage of commitment
-        changes: a hedge begins (``hedge``), ends (``hedge_end``: why) or the commit takes over."""
+        changes: a hedge begins (``hedge``), ends (``hedge_end``: why), the commit takes over or
+        a throw's motion ends (``throw_end``: why, ``retracted`` for a feint taken for a throw)."""
         ex = self.executor
-        stage = (ex.stage, ex.hedge_end, ex.hedges)
+        stage = (ex.stage, ex.hedge_end, ex.hedges, ex.throw_end)
         if stage != self._stage:
             self._stage = stage
-            self._event(t, "stage", dict(zip(("stage", "hedge_end", "hedges"), stage, strict=True)))
+            self._event(t, "stage", dict(zip(STAGE_KEYS, stage, strict=True)))
 
     # -------------------------------------------------------------- main loop
     def run(self) -> int:

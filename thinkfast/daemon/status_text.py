@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from thinkfast.control.core import FAULT_REASONS
-from thinkfast.control.executor import FAULT
+from thinkfast.control.executor import FAULT, STAGE_KEYS
 
 if TYPE_CHECKING:
     from thinkfast.daemon.service import Daemon
@@ -35,7 +35,7 @@ def status_message(d: Daemon, now: float) -> dict:
         "node": ex.node,
         "value": value,
         "decision_ms": round(d.decision_ms, 3),
-        "stage": {"stage": ex.stage, "hedge_end": ex.hedge_end, "hedges": ex.hedges},
+        "stage": {k: getattr(ex, k) for k in STAGE_KEYS},
         "detections": d.intake.as_dict(),
         "cameras": {} if ex.check is None else ex.check.as_dict(),
         **({} if d.view is None else {"view": d.view.as_dict()}),
@@ -112,6 +112,7 @@ def episode_text(ex) -> dict:
         "cross_after_start": None if math.isnan(ep.t_cross) else round(ep.t_cross - ep.t_start, 3),
         "value": value,
         "decisions": ep.decisions,
+        "end": ep.end,
     }
 
 

@@ -123,9 +123,9 @@ class FusionConfig:
         lo=4,
         hi=12,
         doc="TUNED: detections per launch fit (for [launch] window) when several cameras are "
-        "fused; chosen on the seed-1 throws with the side camera to stop one feint, not "
-        'confirmed on other seeds (docs/RESULTS.md, "Two cameras (issue 16)": the launch '
-        "window checked on other seeds)",
+        "fused; chosen on the seed-1 throws with the side camera to stop one feint; 6 blocks "
+        "about 2 points more and confirms that feint (docs/RESULTS.md: the launch window "
+        "checked on other seeds; with two cameras, the hedge on)",
     )
     check_alpha: float = spec(
         0.001, lo=1e-9, hi=0.5, doc="false-failure rate of one consistency test (3 dof)"

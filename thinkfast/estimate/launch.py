@@ -234,24 +234,32 @@ class LaunchDetector:
         older than the newest one is put in its place in time (another camera's newer one came
         first) and the window is fitted again; without, it is ignored (the filter rejected it).
         """
-        cfg = self.cfg
-        z = np.asarray(z, dtype=float)
-        if self.points and t <= self.points[-1][0]:
-            if sensor is None or t < self.points[0][0] or any(p[0] == t for p in self.points):
-                return None  # late or duplicated: the filter has rejected it too
-            pts = sorted([*self.points, (float(t), z, self._cov(z, sensor, fcfg))], key=_stamp)
-            self.points = deque(pts, maxlen=self.points.maxlen)
-        else:
-            self.points.append((float(t), z, self._cov(z, sensor, fcfg)))
+        if not self.insert(t, z, sensor, fcfg):
+            return None
         fit = self.fit()
         if fit is None or not self.passes(fit):
             self.passed = 0
             return None
         self.passed += 1
-        if self.passed < cfg.confirm:
+        if self.passed < self.cfg.confirm:
             return None
         self.launches += 1
         return fit
+
+    def insert(
+        self, t: float, z: np.ndarray, sensor=None, fcfg: FilterConfig | None = None
+    ) -> bool:
+        """Keep the detection (arguments as :meth:`add`) in stamp order; False when it is
+        ignored (late or duplicated)."""
+        z = np.asarray(z, dtype=float)
+        if self.points and t <= self.points[-1][0]:
+            if sensor is None or t < self.points[0][0] or any(p[0] == t for p in self.points):
+                return False  # late or duplicated: the filter has rejected it too
+            pts = sorted([*self.points, (float(t), z, self._cov(z, sensor, fcfg))], key=_stamp)
+            self.points = deque(pts, maxlen=self.points.maxlen)
+        else:
+            self.points.append((float(t), z, self._cov(z, sensor, fcfg)))
+        return True
 
     def fit(self) -> FlightFit | None:
         """The free-flight fit of the newest detections (up to ``window`` of them, within
@@ -304,7 +312,9 @@ class LaunchDetector:
         sd_x = math.sqrt(self.points[-1][2][0, 0])
         return bool(hold[0] - fit.z[0] > self.cfg.sigmas * sd_x)
 
-    def _consistent(self, fit: FlightFit) -> bool:
+    def consistent(self, fit: FlightFit) -> bool:
+        """The fit explains its points: residual chi-square within its ``1 - alpha`` quantile
+        (``3 n - 6`` degrees of freedom)."""
         return fit.chi2 <= chi2_limit(self.cfg.alpha, 3 * fit.n - 6)
 
     def _approaching(self, fit: FlightFit) -> bool:
@@ -314,11 +324,11 @@ class LaunchDetector:
     def passes(self, fit: FlightFit) -> bool:
         """Residual and approach-speed tests, on the fit and (``check_without_newest``) on the
         window without its newest point (see the module doc)."""
-        if not (fit.uses_newest and self._consistent(fit) and self._approaching(fit)):
+        if not (fit.uses_newest and self.consistent(fit) and self._approaching(fit)):
             return False
         if self.cfg.check_hold and not self._left_hold(fit):
             return False
         if not self.cfg.check_without_newest:
             return True
         older = self._robust_fit(self._window(list(self.points)[:-1], fit.t))
-        return older is not None and self._consistent(older) and self._approaching(older)
+        return older is not None and self.consistent(older) and self._approaching(older)

@@ -53,6 +53,7 @@ class EpisodeLog:
     chosen_value: float = math.nan
     decisions: int = 0
     t_hedge: float = math.nan  # when the first hedge of the throw began (nan: none)
+    end: str = ""  # why the throw's motion ended (Executor.throw_end; "": not yet)
 
 
 class Belief(NamedTuple):
