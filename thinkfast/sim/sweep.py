@@ -30,7 +30,8 @@ from typing import Any
 from thinkfast import __version__
 from thinkfast.compile.config import CompileConfig, check_compile_config
 from thinkfast.config import from_dict, include_table, load_toml, spec, to_dict, to_toml
-from thinkfast.control.config import CameraExtrinsic, RunConfig
+from thinkfast.contract.camera_mode import CameraSetup
+from thinkfast.control.config import RunConfig
 from thinkfast.errors import ConfigError
 from thinkfast.sim.planners import DEFAULT, check_planners
 
@@ -235,7 +236,7 @@ def load_sweep(path: str | Path) -> Sweep:
     if settings.run_config:
         run_path = _relative(path, settings.run_config)
         base_run = include_table(load_toml(run_path), run_path, "camera_file", "camera",
-                                 CameraExtrinsic)  # fmt: skip
+                                 CameraSetup)  # fmt: skip
         from_dict(RunConfig, base_run, str(run_path))  # its own errors name its own file
     else:
         base_run = {}
