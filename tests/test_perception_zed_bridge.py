@@ -71,7 +71,7 @@ def test_bridge_publishes_the_sdk_frames_in_si_units_in_the_configured_mode(sdk,
     watchdog = threading.Timer(60.0, os.kill, (os.getpid(), signal.SIGINT))
     watchdog.start()
     try:
-        code = run_main(["--config", str(conf), "--key-prefix", "zt", "--camera", "left",
+        code = run_main(["--config", str(conf), "--key-prefix", "zt", "--camera", "left", "--serial", "31234567",
                          "--zenoh-config", str(LOOPBACK),
                          "--zenoh-connect", f"tcp/127.0.0.1:{port}"])  # fmt: skip
     finally:
@@ -85,6 +85,7 @@ def test_bridge_publishes_the_sdk_frames_in_si_units_in_the_configured_mode(sdk,
     assert init.depth_mode == sdk.DEPTH_MODE.QUALITY
     assert init.coordinate_units == sdk.UNIT.MILLIMETER
     assert init.coordinate_system == sdk.COORDINATE_SYSTEM.IMAGE
+    assert init.serial_number == 31234567
     assert all(cam.closed for cam in sdk.cameras)
     w, h = sdk.SIZES[sdk.RESOLUTION.VGA]
     frames = [parse_frame(p) for p in got]

@@ -64,10 +64,14 @@ class InitParameters:
         self.depth_mode = DEPTH_MODE.NEURAL
         self.coordinate_units = UNIT.MILLIMETER
         self.coordinate_system = COORDINATE_SYSTEM.IMAGE
+        self.serial_number = 0  # 0: the first camera found
         for k, v in kw.items():
             if not hasattr(self, k):
                 raise AttributeError(k)
             setattr(self, k, v)
+
+    def set_from_serial_number(self, serial_number: int) -> None:
+        self.serial_number = serial_number
 
 
 class RuntimeParameters:

@@ -31,8 +31,9 @@ class ZedError(ThinkfastError):
     """The camera could not be opened or configured (names the SDK's error code)."""
 
 
-def init_parameters(sl: Any, cfg: DetectConfig) -> Any:
-    """``sl.InitParameters`` for ``cfg``'s camera mode, frame rate and depth mode.
+def init_parameters(sl: Any, cfg: DetectConfig, serial: int | None = None) -> Any:
+    """``sl.InitParameters`` for ``cfg``'s camera mode, frame rate and depth mode, for the
+    camera with serial number ``serial`` (None: the first the SDK finds).
 
     Raises:
         ZedError: a mode or depth mode this SDK does not know (names the config key).
@@ -49,6 +50,8 @@ def init_parameters(sl: Any, cfg: DetectConfig) -> Any:
     init.depth_mode = getattr(sl.DEPTH_MODE, cfg.zed.depth_mode)
     init.coordinate_units = getattr(sl.UNIT, UNIT)
     init.coordinate_system = sl.COORDINATE_SYSTEM.IMAGE
+    if serial is not None:
+        init.set_from_serial_number(serial)
     return init
 
 
@@ -60,15 +63,18 @@ class ZedBridge:
         cfg: detector configuration (``[camera]`` mode and fps, ``camera_id``, ``[zed]``).
         conf: zenoh configuration.
         prefix: key prefix.
+        serial: the camera's serial number (several on one host), or None: the first.
 
     Raises:
         ZedError: the camera did not open (the SDK's error code).
     """
 
-    def __init__(self, sl: Any, cfg: DetectConfig, conf: zenoh.Config, prefix: str):
+    def __init__(
+        self, sl: Any, cfg: DetectConfig, conf: zenoh.Config, prefix: str, serial: int | None = None
+    ):
         self.sl, self.cfg = sl, cfg
         self.cam = sl.Camera()
-        err = self.cam.open(init_parameters(sl, cfg))
+        err = self.cam.open(init_parameters(sl, cfg, serial))
         if err != sl.ERROR_CODE.SUCCESS:
             raise ZedError(f"cannot open the ZED camera: {err} (is it plugged in? ZED_Explorer)")
         info = self.cam.get_camera_information().camera_configuration

@@ -44,6 +44,9 @@ def run(
     camera: str | None = typer.Option(
         None, "--camera", help="camera id: publish on <prefix>/camera/ID/frame (docs/CAMERAS.md)"
     ),
+    serial: int | None = typer.Option(
+        None, "--serial", help="the ZED's serial number (several on one host; default: the first)"
+    ),
     frames: int = typer.Option(0, "--frames", help="stop after this many frames (0: never)"),
 ) -> None:
     """Grab and publish until SIGINT/SIGTERM (or --frames), then print the counts (one JSON
@@ -68,7 +71,7 @@ def run(
     conf = session_config(
         connect=zenoh_connect or (), listen=zenoh_listen or (), config_file=zenoh_config
     )
-    bridge = ZedBridge(sl, cfg, conf, key_prefix)
+    bridge = ZedBridge(sl, cfg, conf, key_prefix, serial)
     stop: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _f: stop.append(signum))
