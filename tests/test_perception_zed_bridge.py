@@ -71,8 +71,8 @@ def test_bridge_publishes_the_sdk_frames_in_si_units_in_the_configured_mode(sdk,
     watchdog = threading.Timer(60.0, os.kill, (os.getpid(), signal.SIGINT))
     watchdog.start()
     try:
-        code = run_main(["--config", str(conf), "--key-prefix", "zt", "--camera", "left", "--serial", "31234567",
-                         "--zenoh-config", str(LOOPBACK),
+        code = run_main(["--config", str(conf), "--key-prefix", "zt", "--camera", "left",
+                         "--serial", "31234567", "--zenoh-config", str(LOOPBACK),
                          "--zenoh-connect", f"tcp/127.0.0.1:{port}"])  # fmt: skip
     finally:
         watchdog.cancel()
