@@ -123,6 +123,15 @@ def test_a_camera_that_does_not_open_is_one_line_exit_1(sdk, monkeypatch, capsys
     assert len(err) == 1 and "CAMERA_NOT_DETECTED" in err[0], err
 
 
+def test_a_rate_the_camera_does_not_run_is_warned_naming_camera_fps(sdk, tmp_path, capsys):
+    conf = tmp_path / "detect.toml"
+    conf.write_text('[camera]\nmode = "HD720"\nfps = 50.0\n')  # the ZED 2i runs 60 at HD720
+    assert run_main(["--config", str(conf), "--zenoh-config", str(LOOPBACK), "--frames", "2"]) == 0
+    assert sdk.opened[0].camera_fps == 50
+    err = capsys.readouterr().err
+    assert "runs at 60 fps, not camera.fps = 50: set camera.fps = 60" in err, err
+
+
 def test_without_the_sdk_one_line_names_it_and_where_to_get_it_exit_2(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "pyzed", None)
     monkeypatch.setitem(sys.modules, "pyzed.sl", None)

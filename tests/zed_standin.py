@@ -40,6 +40,7 @@ MEM = _Enum("MEM", "CPU GPU")
 
 SIZES = {RESOLUTION.HD720: (1280, 720), RESOLUTION.VGA: (672, 376)}
 FOCAL = {RESOLUTION.HD720: 532.0, RESOLUTION.VGA: 265.0}
+RATES = {RESOLUTION.HD720: (15, 30, 60), RESOLUTION.VGA: (15, 30, 60, 100)}  # ZED 2i
 T0_NS = 1_795_000_000_123_456_789  # the first frame's image timestamp [ns since the epoch]
 opened: list[InitParameters] = []  # every InitParameters a Camera was opened with
 cameras: list[Camera] = []
@@ -117,13 +118,18 @@ class Camera:
             return ERROR_CODE.FAILURE
         opened.append(init)
         self.init = init
+        # the SDK runs the closest rate the mode supports (0: the highest)
+        rates = RATES[init.camera_resolution]
+        self.fps = (
+            min(rates, key=lambda r: abs(r - init.camera_fps)) if init.camera_fps else rates[-1]
+        )
         w, h = SIZES[init.camera_resolution]
         f = FOCAL[init.camera_resolution]
         left = types.SimpleNamespace(fx=f, fy=f, cx=(w - 1) / 2.0, cy=(h - 1) / 2.0)
         self._info = types.SimpleNamespace(
             camera_configuration=types.SimpleNamespace(
                 resolution=Resolution(w, h),
-                fps=init.camera_fps,
+                fps=self.fps,
                 calibration_parameters=types.SimpleNamespace(left_cam=left),
             )
         )
@@ -135,7 +141,7 @@ class Camera:
     def grab(self, runtime: RuntimeParameters | None = None) -> ERROR_CODE:
         if self.init is None or self.closed:
             return ERROR_CODE.CAMERA_NOT_DETECTED
-        time.sleep(1.0 / self.init.camera_fps)  # a real grab waits for the next frame
+        time.sleep(1.0 / self.fps)  # a real grab waits for the next frame
         self.seq += 1
         return ERROR_CODE.SUCCESS
 
@@ -153,7 +159,7 @@ class Camera:
 
     def get_timestamp(self, reference=TIME_REFERENCE.IMAGE) -> Timestamp:
         assert reference == TIME_REFERENCE.IMAGE
-        return Timestamp(stamp_ns(self.seq, self.init.camera_fps))
+        return Timestamp(stamp_ns(self.seq, self.fps))
 
     def close(self) -> None:
         self.closed = True

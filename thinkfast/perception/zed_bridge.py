@@ -80,6 +80,7 @@ class ZedBridge:
         info = self.cam.get_camera_information().camera_configuration
         left = info.calibration_parameters.left_cam
         self.intrinsics = (left.fx, left.fy, left.cx, left.cy)
+        self.fps = float(info.fps)  # the SDK runs the nearest rate it supports
         self.step = xyz_step(cfg.camera.mode, cfg.zed.xyz_step)
         self.runtime = sl.RuntimeParameters()
         self.left, self.xyz = sl.Mat(), sl.Mat()

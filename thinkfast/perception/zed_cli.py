@@ -81,6 +81,12 @@ def run(
         f"{cfg.zed.depth_mode} -> {where}",
         file=sys.stderr,
     )
+    if abs(bridge.fps - cfg.camera.fps) > 0.5:
+        print(
+            f"thinkfast-zed: warning: the camera runs at {bridge.fps:g} fps, not camera.fps = "
+            f"{cfg.camera.fps:g}: set camera.fps = {bridge.fps:g} in this and the run config",
+            file=sys.stderr,
+        )
     failed = 0
     try:
         while not stop and not (frames and bridge.counts["published"] >= frames):
