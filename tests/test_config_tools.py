@@ -24,6 +24,7 @@ COMMANDS = {
     "thinkfast-run": "thinkfast.daemon.cli",
     "thinkfast-sim": "thinkfast.sim.cli",
     "thinkfast-detect": "thinkfast.perception.cli",
+    "thinkfast-zed": "thinkfast.perception.zed_cli",
     "thinkfast-calib": "thinkfast.calib.cli",  # skipped until that command exists
 }
 

@@ -102,6 +102,32 @@ class BoxConfig:
     label: str = spec("", doc="use only boxes with this label ('': any)")
 
 
+ZED_DEPTH_MODES = ("PERFORMANCE", "QUALITY", "ULTRA", "NEURAL", "NEURAL_PLUS")
+
+
+@dataclass(frozen=True)
+class ZedConfig:
+    """The ZED bridge (``thinkfast-zed``): what it asks of the SDK and how it packs a frame.
+
+    Resolution and frame rate are ``[camera] mode`` and ``fps`` (the same keys as the detector's
+    and the run config's); this table holds what only the bridge needs.
+    """
+
+    depth_mode: str = spec(
+        "NEURAL", doc="the SDK's sl.DEPTH_MODE (ASSUMED: NEURAL, the SDK 4.x recommendation)",
+        choices=ZED_DEPTH_MODES,
+    )  # fmt: skip
+    xyz_step: int = spec(
+        0, doc="send the XYZ image at 1/n of the image resolution; 0: 2 at HD720, 1 at VGA "
+        "(docs/CAMERA_FRAMES.md, the recommended 4.1 MB a frame)", lo=0, hi=8,
+    )  # fmt: skip
+    xyz_dtype: str = spec("float16", doc="XYZ samples sent", choices=("float16", "float32"))
+    stamp_lag: float = spec(
+        0.0, doc="subtracted from the SDK's image timestamp (host reception) to give the capture "
+        "time; 0 until measured (docs/FACTS.md: tens of ms)", unit="s", lo=0.0, hi=1.0,
+    )  # fmt: skip
+
+
 @dataclass(frozen=True)
 class DetectConfig:
     """Everything ``thinkfast-detect`` needs besides its zenoh endpoints."""
@@ -121,6 +147,7 @@ class DetectConfig:
     shrink: ShrinkConfig = spec(ShrinkConfig())
     cloud: CloudConfig = spec(CloudConfig())
     boxes: BoxConfig = spec(BoxConfig())
+    zed: ZedConfig = spec(ZedConfig())
     max_frame_bytes: int = spec(64 << 20, doc="largest frame payload", unit="byte", lo=64)
     status_rate: float = spec(2.0, doc="status publishing rate", unit="Hz", lo=0.1, hi=50.0)
 
