@@ -36,7 +36,11 @@ under SCHED_FIFO (CAP_SYS_NICE). The ``--serve`` loop honours ``--busy-poll`` an
 (it has no executor, so nothing to prepare ahead).
 
 The first ``--warmup`` exchanges (default 250) are not counted. Round trips include any
-scheduling delay of either process, so a loaded machine shows in the tail (``load_1min``).
+scheduling delay of either process, so a loaded machine shows in the tail (``load_1min``). The
+``wire_*`` figures time the same round trips to the reply's kernel arrival stamp on this side's
+socket (Linux, ``SO_TIMESTAMPNS``) instead of the moment this process read it: the sensor's share
+without this measuring process's own wake-up and preemption (on two cores it shares a CPU with
+the daemon's planner and zenoh), what a controller on its own real-time hardware would see.
 
     python bench/egm_latency.py --n 20000 --rate 0 --json
     python bench/egm_latency.py --daemon --realtime --json   # 10^5 exchanges: ~7 min
@@ -192,6 +196,8 @@ def measure(
     st = runner.stats
     rtt_ms = np.array(st.rtt_s) * 1e3 if st.rtt_s else np.array([np.nan])
     p50, p90, p99, p999 = np.percentile(rtt_ms, [50, 90, 99, 99.9])
+    wire_ms = np.array(st.wire_s) * 1e3 if st.wire_s else np.array([np.nan])
+    w50, w99, w999 = np.percentile(wire_ms, [50, 99, 99.9])
     return {
         "exchanges": st.sent,
         "replies": st.replies,
@@ -204,6 +210,10 @@ def measure(
         "p99_ms": round(float(p99), 4),
         "p999_ms": round(float(p999), 4),
         "max_ms": round(float(np.max(rtt_ms)), 4),
+        "wire_p50_ms": round(float(w50), 4),
+        "wire_p99_ms": round(float(w99), 4),
+        "wire_p999_ms": round(float(w999), 4),
+        "wire_max_ms": round(float(np.max(wire_ms)), 4),
         "rate_hz": rate,
         "wall_s": round(wall, 2),
     }
@@ -411,7 +421,8 @@ def main(argv=None) -> int:
         return 0
     print(f"EGM exchange latency, {args.n} exchanges at {args.rate:g} Hz -> {result['target']}")
     for key in ("realtime", "replies", "missed", "late", "in_time_unread", "malformed", "p50_ms",
-                "p90_ms", "p99_ms", "p999_ms", "max_ms", "wall_s", "throws_published"):  # fmt: skip
+                "p90_ms", "p99_ms", "p999_ms", "max_ms", "wire_p50_ms", "wire_p99_ms",
+                "wire_p999_ms", "wire_max_ms", "wall_s", "throws_published"):  # fmt: skip
         if key in result:
             print(f"  {key:<10} {result[key]}")
     daemon = result.get("daemon") or {}

@@ -28,6 +28,9 @@ class ExchangeStats:
 
     ``in_time_unread``: missed cycles whose reply had reached the socket before the cycle's
     deadline (kernel arrival stamp, Linux): this side, not the sensor, was late to read it.
+    ``wire_s``: the same round trips to the reply's kernel arrival stamp instead of the moment
+    this side read it (Linux; NaN-free, possibly shorter than ``rtt_s``): what a controller that
+    is never itself delayed would see, the sensor's share of the round trip.
     """
 
     sent: int = 0
@@ -38,6 +41,7 @@ class ExchangeStats:
     in_time_unread: int = 0
     skipped: int = 0  # cycles this side could not serve in time (``keep_cycle``): never sent
     rtt_s: list[float] = dataclasses.field(default_factory=list)
+    wire_s: list[float] = dataclasses.field(default_factory=list)
 
 
 class ControllerRunner:
@@ -193,7 +197,10 @@ class ControllerRunner:
                     spinning = False  # spun long enough: block for the rest
                 if not spinning:
                     sock.settimeout(deadline - now)
-                data = sock.recv(65535)
+                if self._stamped:
+                    data, anc, _, _ = sock.recvmsg(65535, 64)
+                else:
+                    data, anc = sock.recv(65535), ()
             except (BlockingIOError, InterruptedError):
                 continue
             except TimeoutError:
@@ -202,10 +209,13 @@ class ControllerRunner:
                 return
             except OSError:
                 continue
-            rtt = time.perf_counter() - t_send
+            now = time.perf_counter()
+            rtt, wire = now - t_send, now - arrival_age(anc) - t_send
             if self.sim.handle_sensor(data):
                 st.replies += 1
                 st.rtt_s.append(rtt)
+                if wire == wire:  # not NaN: the kernel stamped it
+                    st.wire_s.append(min(max(wire, 0.0), rtt))
                 return
             st.malformed += 1
 
