@@ -9,7 +9,10 @@
 Both overall and by kind of throw (the default mix: still holds and wind-ups).
 
     python bench/reaction.py --throws 200 [--tree trees/irb1600_default.h5] [--json]
-        [--cameras base,side]
+        [--cameras base,side] [--planners tree,tree-hedge-none,naive]
+
+``--planners``: the planners of measurement 2 (default: the tree, which hedges, the launch-gated
+tree ``tree-hedge-none`` and naive).
 
 ``--cameras`` (as ``thinkfast-sim bench --cameras``, docs/CAMERAS.md): the cameras that see the
 throws; "seen k" counts flight detections of any camera.
@@ -36,10 +39,12 @@ from thinkfast.sim.throws import ThrowConfig, sample_throws
 from thinkfast.tree.file import load_tree
 
 DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"
+PLANNERS = ("tree", "tree-hedge-none", "naive")  # the default tree hedges; the gated one beside
 _W: dict = {}
 
 
-def _init(tree: str, cameras: str | None = None) -> None:
+def _init(tree: str, cameras: str | None = None, planners: tuple = PLANNERS) -> None:
+    _W["planners"] = planners
     cfg = with_cameras(RunConfig(), cameras)
     _W["world"] = ls.World(load_tree(tree), load_robot(), cfg, ServoConfig(), CameraModelConfig())
 
@@ -60,20 +65,20 @@ def _one(job) -> dict:
         "seen": [k < len(seen) and oracle_from(seen[k] - t_rel) for k in range(5)],
     }
     out["first_seen"] = seen[0] - t_rel if seen else math.nan
-    for p in ("tree", "naive"):
+    for p in _W["planners"]:
         o = ls.simulate(w, th, p, cam_seed)
         out[p] = (o.blocked, math.isfinite(o.start) and oracle_from(o.start), o.start)
     return out
 
 
-def _summary(rows: list[dict]) -> dict:
+def _summary(rows: list[dict], planners: tuple) -> dict:
     n = len(rows)
     out = {
         "throws": n,
         "seen_k": [sum(r["seen"][k] for r in rows) / n for k in range(5)],
         "first_seen_median_s": float(np.nanmedian([r["first_seen"] for r in rows])),
     }
-    for p in ("tree", "naive"):
+    for p in planners:
         starts = [r[p][2] for r in rows if math.isfinite(r[p][2])]
         out[p] = {
             "planner": sum(r[p][0] for r in rows) / n,
@@ -91,14 +96,16 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--cameras", default=None, help="e.g. base,side (default: the base camera)")
+    ap.add_argument("--planners", default=",".join(PLANNERS), help="comma separated")
     args = ap.parse_args()
     throws = sample_throws(ThrowConfig(), args.throws, args.seed)
     jobs = [(i, th, args.seed) for i, th in enumerate(throws)]
-    with mp.get_context("fork").Pool(args.jobs, _init, (args.tree, args.cameras)) as pool:
+    planners = tuple(p for p in args.planners.split(",") if p)
+    with mp.get_context("fork").Pool(args.jobs, _init, (args.tree, args.cameras, planners)) as pool:
         rows = pool.map(_one, jobs)
     kinds = sorted({r["kind"] for r in rows})
-    out = {"seed": args.seed, "cameras": args.cameras or "base", "all": _summary(rows)}
-    out["by_kind"] = {k: _summary([r for r in rows if r["kind"] == k]) for k in kinds}
+    out = {"seed": args.seed, "cameras": args.cameras or "base", "all": _summary(rows, planners)}
+    out["by_kind"] = {k: _summary([r for r in rows if r["kind"] == k], planners) for k in kinds}
     out["machine"] = machine_info()
     if args.json:
         print(json.dumps(out))
@@ -112,10 +119,10 @@ def main() -> None:
         "planner vs the oracle started when the planner first moved (median start after release):"
     )
     for name, g in groups:
-        for p in ("tree", "naive"):
+        for p in planners:
             e = g[p]
             print(
-                f"  {name:<8}{p:<6} {100 * e['planner']:5.1f} %   oracle same start "
+                f"  {name:<8}{p:<16} {100 * e['planner']:5.1f} %   oracle same start "
                 f"{100 * e['oracle_same_start']:5.1f} %   start {1e3 * e['start_median_s']:4.0f} ms"
                 f"   (first detection {1e3 * g['first_seen_median_s']:3.0f} ms)"
             )
