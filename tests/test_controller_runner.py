@@ -180,3 +180,35 @@ def test_an_overrunning_controller_keeps_its_cycle_only_when_asked(keep_cycle):
         assert sim.seqno * DT == pytest.approx(elapsed, rel=0.1, abs=0.02)
     else:
         assert st.skipped == 0 and sim.seqno * DT < elapsed - 0.015 * (st.sent // 25)
+
+
+def test_answers_count_late_or_not_in_answered():
+    """``answered`` counts every well-formed answer applied, in its cycle (``replies``) or read
+    at a later cycle (``late``): the sensor is alive however late it is (the simulated IRC5's
+    comm timeout and the simulators' watchdog count these)."""
+    sensor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sensor.bind(("127.0.0.1", 0))
+    sensor.settimeout(0.5)
+    stop = threading.Event()
+
+    def slow():  # every answer 3 ms after its request: after the controller's 1 ms wait
+        while not stop.is_set():
+            try:
+                data, addr = sensor.recvfrom(65535)
+            except OSError:
+                continue
+            fb = egm.decode_robot(data)
+            time.sleep(0.003)
+            sensor.sendto(egm.encode_sensor(fb.seqno, fb.tm_ms or 0, fb.q_rad, [0.0] * 6), addr)
+
+    thread = threading.Thread(target=slow, daemon=True)
+    thread.start()
+    sim = SimController(q0=np.full(6, 0.1))
+    runner = ControllerRunner(sim, sensor.getsockname(), rate_hz=100, n=60, reply_timeout=0.001)
+    runner.run()
+    stop.set()
+    thread.join(1.0)
+    sensor.close()
+    st = runner.stats
+    assert st.late > 0 and st.malformed == 0
+    assert st.answered == st.replies + st.late

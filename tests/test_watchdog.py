@@ -12,6 +12,7 @@ import pytest
 
 from thinkfast.contract import keys
 from thinkfast.contract.zenoh_session import loopback_endpoint, open_peer
+from thinkfast.sim.controller_runner import ExchangeStats
 from thinkfast.sim.watchdog import READY_REPLIES, DaemonGone, Watchdog
 
 
@@ -28,7 +29,7 @@ def sessions():
 
 def test_not_ready_names_what_is_missing(sessions):
     _, sim = sessions
-    runner = SimpleNamespace(stats=SimpleNamespace(replies=0))
+    runner = SimpleNamespace(stats=ExchangeStats(answered=0))
     dog = Watchdog(runner, sim, "wd", ("127.0.0.1", 6510), silence=3.0)
     with pytest.raises(DaemonGone) as exc:
         dog.wait_ready(lambda: False, timeout=0.3)
@@ -40,7 +41,7 @@ def test_not_ready_names_what_is_missing(sessions):
 
 def test_ready_once_replies_status_and_routes_are_there(sessions):
     daemon, sim = sessions
-    runner = SimpleNamespace(stats=SimpleNamespace(replies=READY_REPLIES))
+    runner = SimpleNamespace(stats=ExchangeStats(answered=READY_REPLIES))
     dog = Watchdog(runner, sim, "wd", ("127.0.0.1", 6510), silence=3.0)
     det = daemon.declare_subscriber(keys.detections("wd"), lambda s: None)
     pub = sim.declare_publisher(keys.detections("wd"))
@@ -59,7 +60,7 @@ def test_ready_once_replies_status_and_routes_are_there(sessions):
 
 
 def test_a_silent_daemon_is_gone(sessions):
-    runner = SimpleNamespace(stats=SimpleNamespace(replies=5))
+    runner = SimpleNamespace(stats=ExchangeStats(answered=5))
     dog = Watchdog(runner, sessions[1], "wd", ("127.0.0.1", 6510), silence=0.1)
     dog.check(0, 3)  # replies changed: fine so far
     time.sleep(0.25)
@@ -69,7 +70,7 @@ def test_a_silent_daemon_is_gone(sessions):
 
 def test_a_daemon_heard_then_silent_is_gone_while_waiting_to_be_ready(sessions):
     daemon, sim = sessions
-    runner = SimpleNamespace(stats=SimpleNamespace(replies=3))  # answered, then silent
+    runner = SimpleNamespace(stats=ExchangeStats(answered=3))  # answered, then silent
     dog = Watchdog(runner, sim, "wd", ("127.0.0.1", 6510), silence=0.3)
     status = daemon.declare_publisher(keys.status("wd"))
     deadline = time.time() + 30

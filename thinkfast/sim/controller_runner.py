@@ -28,10 +28,13 @@ class ExchangeStats:
 
     ``in_time_unread``: missed cycles whose reply had reached the socket before the cycle's
     deadline (kernel arrival stamp, Linux): this side, not the sensor, was late to read it.
+    ``answered``: well-formed replies applied, in their cycle (``replies``) or after it: whether
+    the sensor is alive (a controller's communication timeout), however late it is.
     """
 
     sent: int = 0
     replies: int = 0
+    answered: int = 0
     missed: int = 0
     late: int = 0
     malformed: int = 0
@@ -138,7 +141,9 @@ class ControllerRunner:
                     arrived = time.perf_counter() - arrival_age(anc)  # NaN compares False
                     st.in_time_unread += arrived <= self._miss_deadline
                 self._miss_deadline = None  # only the first late reply answers the missed cycle
-                if not sim.handle_sensor(data):
+                if sim.handle_sensor(data):
+                    st.answered += 1
+                else:
                     st.malformed += 1
             payload = sim.robot_message()
             t_send = time.perf_counter()  # before sendto: loopback may run the server inside it
@@ -205,6 +210,7 @@ class ControllerRunner:
             rtt = time.perf_counter() - t_send
             if self.sim.handle_sensor(data):
                 st.replies += 1
+                st.answered += 1
                 st.rtt_s.append(rtt)
                 return
             st.malformed += 1
