@@ -11,20 +11,8 @@ from types import SimpleNamespace
 import pytest
 
 from thinkfast.contract import keys
-from thinkfast.contract.zenoh_session import loopback_endpoint, open_peer
 from thinkfast.sim.controller_runner import ExchangeStats
 from thinkfast.sim.watchdog import READY_REPLIES, DaemonGone, Watchdog
-
-
-@pytest.fixture
-def sessions():
-    """(the daemon's side, the simulator's side): two peers on loopback."""
-    ep = loopback_endpoint()
-    daemon = open_peer(listen=[ep])
-    sim = open_peer(connect=[ep])
-    yield daemon, sim
-    sim.close()
-    daemon.close()
 
 
 def test_not_ready_names_what_is_missing(sessions):
