@@ -39,6 +39,20 @@ def small_tree_015(tmp_path_factory):
     return compile_small_tree(tmp_path_factory.mktemp("small015"), spacing=0.15)
 
 
+@pytest.fixture()
+def sessions():
+    """Two zenoh peers on loopback, multicast scouting off: (the listening one, the one
+    connected to it)."""
+    from thinkfast.contract.zenoh_session import loopback_endpoint, open_peer
+
+    ep = loopback_endpoint()
+    listening = open_peer(listen=[ep])
+    connected = open_peer(connect=[ep])
+    yield listening, connected
+    connected.close()
+    listening.close()
+
+
 @pytest.fixture(scope="session")
 def checker(robot):
     from thinkfast.robot.collision import CollisionChecker

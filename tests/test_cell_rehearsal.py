@@ -10,6 +10,14 @@ configuration (no multicast scouting: other daemons on a shared host stay out); 
 is the compiled ``trees/irb1600_default.h5`` when the checkout has it, else the tests' small tree
 (``trees/*.h5`` is not in the repository). Of the doc's three simulated throws at least one must
 be blocked (both trees blocked all three on a loaded 2-core host).
+
+Waits are for conditions, with generous time limits (a host 3x slower than an idle one): the
+controller starts once the daemon logs ``serving EGM on`` (its loop runs: before it, the
+simulated IRC5's session would be lost after the program's 2 s ``comm_timeout`` without an
+answer), the RWS once ``thinkfast-cell state`` answers, the throws once the daemon answers EGM
+and zenoh routes both ways (:meth:`thinkfast.sim.watchdog.Watchdog.wait_ready`). Every
+process's output (the daemon's log, the controller's lines, each command's stdout and stderr)
+is printed at the end of each test, so a failure shows it.
 """
 
 from __future__ import annotations
@@ -22,18 +30,18 @@ import subprocess
 import sys
 import tempfile
 import threading
-import time
 from pathlib import Path
 
 import pytest
 
 from tests.daemon_harness import free_port, until
 from thinkfast.contract.zenoh_session import free_tcp_port
-from thinkfast.sim.realtime import LOOPBACK_ZENOH, daemon_log, wait_port
+from thinkfast.sim.realtime import LOOPBACK_ZENOH, daemon_log, daemon_says, wait_port
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 DEFAULT_TREE = "trees/irb1600_default.h5"
+START = 180.0  # s for a process to start serving (imports, tree, zenoh) on a slow host
 pytestmark = pytest.mark.realtime
 
 
@@ -66,6 +74,8 @@ class Cell:
         self.procs: list[tuple[subprocess.Popen, list[str]]] = []
         self.daemon: subprocess.Popen | None = None
         self.controller_lines: list[str] = []
+        self.done: list[subprocess.CompletedProcess] = []  # the commands run, with their output
+        self.log = ""  # the daemon's log, once stopped
 
     def args(self, line: str) -> list[str]:
         """The doc's line with this test's changes (module doc)."""
@@ -73,7 +83,7 @@ class Cell:
             line = re.sub(rf"(?<=:){port}\b|(?<= ){port}\b", mine, line)
         args = [str(self.tree) if a == DEFAULT_TREE else a for a in shlex.split(line)]
         if args[:2] == ["thinkfast-run", "status"]:
-            args += ["--once", "--timeout", "5", "--zenoh-config", str(LOOPBACK_ZENOH)]
+            args += ["--once", "--timeout", "15", "--zenoh-config", str(LOOPBACK_ZENOH)]
         elif args[0] == "thinkfast-run":
             args += ["--zenoh-config", str(LOOPBACK_ZENOH)]
         return [str(BIN / args[0]), *args[1:]]
@@ -83,7 +93,9 @@ class Cell:
         args = self.args(line)
         if "--tree" in args or args[1:2] == ["controller"]:
             return self._start(args)
-        return subprocess.run(args, capture_output=True, text=True, timeout=120, cwd=self.cwd)
+        done = subprocess.run(args, capture_output=True, text=True, timeout=START, cwd=self.cwd)
+        self.done.append(done)
+        return done
 
     def _start(self, args: list[str]) -> subprocess.CompletedProcess:
         if args[1] == "controller":
@@ -96,7 +108,10 @@ class Cell:
                                  cwd=self.cwd)  # fmt: skip
             p.log = log  # for daemon_log
             self.daemon = p
-            wait_port(p, int(self.ports["7447"]), timeout=90)
+            self.procs.append((p, args))  # stopped and its log printed even if it never serves
+            wait_port(p, int(self.ports["7447"]), timeout=START)
+            assert daemon_says(p, "serving EGM on", START), "the daemon's loop did not start"
+            return subprocess.CompletedProcess(args, 0, "", "")
         self.procs.append((p, args))
         return subprocess.CompletedProcess(args, 0, "", "")
 
@@ -112,20 +127,21 @@ class Cell:
         self.url_ready()
         started = self.run(lines[2])
         assert started.returncode == 0, started.stderr
-        done = until(lambda: any(ln.startswith("blocked ") for ln in self.controller_lines), 120)
-        assert done, self.controller_lines
+        ends = ("blocked ", "throws stopped")  # the summary, or the thrower's failure
+        assert until(lambda: any(ln.startswith(ends) for ln in self.controller_lines), 4 * START)
+        assert any(ln.startswith("blocked ") for ln in self.controller_lines), "no summary"
         return started
 
     def url_ready(self) -> None:
         url = f"http://127.0.0.1:{self.ports['8080']}"
-        assert until(lambda: subprocess.run([str(BIN / "thinkfast-cell"), "state", "--url", url],
-                                             capture_output=True).returncode == 0, 60)  # fmt: skip
+        state = [str(BIN / "thinkfast-cell"), "state", "--url", url]
+        assert until(lambda: subprocess.run(state, capture_output=True).returncode == 0, START)
 
     def status(self) -> dict:
         out = subprocess.run(
             [str(BIN / "thinkfast-run"), "status", "--json", "--timeout", "5", "--zenoh-connect",
              f"tcp/127.0.0.1:{self.ports['7447']}", "--zenoh-config", str(LOOPBACK_ZENOH)],
-            capture_output=True, text=True, timeout=60,
+            capture_output=True, text=True, timeout=START,
         )  # fmt: skip
         return json.loads(out.stdout)["thinkfast"]["status"] if out.returncode == 0 else {}
 
@@ -136,12 +152,19 @@ class Cell:
             p.send_signal(signal.SIGINT)
         for p, _ in self.procs:
             try:
-                codes.append(p.wait(30))
+                codes.append(p.wait(START))
             except subprocess.TimeoutExpired:
                 p.kill()
                 codes.append(-9)
-        log = daemon_log(self.daemon) if self.daemon is not None else ""
-        return codes, log
+        self.log = daemon_log(self.daemon) if self.daemon is not None else ""
+        return codes, self.log
+
+    def print_output(self) -> None:
+        """Everything the block's processes said (pytest shows it when the test fails)."""
+        for r in self.done:
+            print(f"$ {shlex.join(r.args)}  -> exit {r.returncode}\n{r.stdout}{r.stderr}")
+        print("--- the controller:", *self.controller_lines, sep="\n")
+        print("--- the daemon's log:", self.log, sep="\n")
 
 
 @pytest.fixture(scope="module")
@@ -151,19 +174,14 @@ def tree(small_tree_015) -> Path:
 
 
 def _foxglove_topics(port: str) -> set[str]:
-    websocket = pytest.importorskip("websocket")
-    ws = websocket.create_connection(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"],
-                                     timeout=10)  # fmt: skip
-    topics: set[str] = set()
+    pytest.importorskip("websocket")
+    from tests.foxglove_client import advertised, connect
+
+    ws = connect(int(port))
     try:
-        deadline = time.time() + 10
-        while "/thinkfast/scene" not in topics and time.time() < deadline:
-            msg = ws.recv()
-            if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
-                topics |= {c["topic"] for c in json.loads(msg)["channels"]}
+        return set(advertised(ws))
     finally:
         ws.close()
-    return topics
 
 
 def test_first_light_in_shadow_as_the_doc_says(tree, tmp_path):
@@ -177,15 +195,15 @@ def test_first_light_in_shadow_as_the_doc_says(tree, tmp_path):
         assert "/thinkfast/scene" in _foxglove_topics(cell.ports["8765"])
         for line in lines[2:]:
             if "status" in line:
-                assert until(lambda: cell.status().get("egm_connected"), 30)
+                assert until(lambda: cell.status().get("egm_connected"), START)
             out[line] = r = cell.run(line)
             assert r.returncode == 0, (line, r.stdout, r.stderr)
-        assert until(lambda: cell.status().get("egm_connected") is False, 30)
+        assert until(lambda: cell.status().get("egm_connected") is False, START)
     finally:
         codes, log = cell.stop()
+        cell.print_output()
     assert codes == [0, 0], log
     state, status = out[lines[2]].stdout, out[lines[4]].stdout
-    print(*(r.stdout for r in out.values()), sep="\n")
     assert "motoron" in state.replace(" ", "").lower() or "motors on" in state.lower(), state
     assert "shadow" in status.lower() or "idle" in status.lower(), status
     for word in ("foxglove on ws://", "egm_connected", "controller_state", "egm_lost"):
@@ -200,6 +218,7 @@ def test_a_slow_recorded_session_and_its_calibration_as_the_doc_says(tree, tmp_p
         assert stopped.returncode == 0, stopped.stderr
     finally:
         codes, log = cell.stop()  # Ctrl-C: the record is complete
+        cell.print_output()
     assert codes == [0, 0], log
     assert len([ln for ln in cell.controller_lines if ln.startswith("throw ")]) == 3
     calib, check = cell.run(lines[4]), cell.run(lines[5])
@@ -214,16 +233,15 @@ def test_a_slow_recorded_session_and_its_calibration_as_the_doc_says(tree, tmp_p
 def test_the_first_simulated_block_as_the_doc_says(tree, tmp_path):
     pytest.importorskip("foxglove")
     lines, cell = rehearsal_blocks()[2], Cell(tree, tmp_path)
-    out: dict[str, subprocess.CompletedProcess] = {}
     try:
-        out[lines[2]] = cell.throw(lines)  # full speed with --foxglove, --throws 3, cell start
+        cell.throw(lines)  # full speed with --foxglove, --throws 3, cell start
         for line in lines[3:]:
-            out[line] = r = cell.run(line)
+            r = cell.run(line)
             assert r.returncode == 0, (line, r.stdout, r.stderr)
     finally:
         codes, log = cell.stop()
+        cell.print_output()
     assert codes == [0, 0], log
-    print("\n".join(cell.controller_lines), *(r.stdout for r in out.values()), sep="\n")
     throws = [ln for ln in cell.controller_lines if ln.startswith("throw ")]
     assert len(throws) == 3, cell.controller_lines
     assert any("BLOCKED" in ln for ln in throws), throws  # the first simulated block

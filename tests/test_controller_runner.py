@@ -55,32 +55,47 @@ def test_udp_loop_on_loopback_accounts_for_every_cycle_and_moves_the_arm(rate_hz
 
 
 @pytest.mark.realtime
-def test_silent_or_garbage_sensor_counts_missed_and_malformed_and_the_arm_holds():
+def _udp_sensor(answer):
+    """A sensor socket on loopback whose thread calls ``answer(sock, data, addr)`` for every
+    datagram; returns (address, stop): ``stop()`` ends the thread and closes the socket."""
     sensor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sensor.bind(("127.0.0.1", 0))
     sensor.settimeout(0.5)
-    stop = threading.Event()
+    done = threading.Event()
 
-    def garbage():  # answers every other request with bytes that are not an EgmSensor
-        k = 0
-        while not stop.is_set():
+    def loop():
+        while not done.is_set():
             try:
-                _, addr = sensor.recvfrom(65535)
+                data, addr = sensor.recvfrom(65535)
             except OSError:
                 continue
-            k += 1
-            if k % 2:
-                sensor.sendto(b"\x0a\x02junk", addr)
+            answer(sensor, data, addr)
 
-    thread = threading.Thread(target=garbage, daemon=True)
+    thread = threading.Thread(target=loop, daemon=True)
     thread.start()
+
+    def stop() -> None:
+        done.set()
+        thread.join(1.0)
+        sensor.close()
+
+    return sensor.getsockname(), stop
+
+
+def test_silent_or_garbage_sensor_counts_missed_and_malformed_and_the_arm_holds():
+    k = [0]
+
+    def garbage(sock, _data, addr):  # every other request: bytes that are not an EgmSensor
+        k[0] += 1
+        if k[0] % 2:
+            sock.sendto(b"\x0a\x02junk", addr)
+
+    address, stop = _udp_sensor(garbage)
     sim = SimController(q0=np.full(6, 0.1))
-    runner = ControllerRunner(sim, sensor.getsockname(), rate_hz=0, n=20, reply_timeout=0.002)
+    runner = ControllerRunner(sim, address, rate_hz=0, n=20, reply_timeout=0.002)
     runner.run()
     runner.join()
-    stop.set()
-    thread.join(1.0)
-    sensor.close()
+    stop()
     st = runner.stats
     assert (st.sent, st.replies, st.missed) == (20, 0, 20)
     assert st.malformed == sim.malformed == 10
@@ -180,3 +195,23 @@ def test_an_overrunning_controller_keeps_its_cycle_only_when_asked(keep_cycle):
         assert sim.seqno * DT == pytest.approx(elapsed, rel=0.1, abs=0.02)
     else:
         assert st.skipped == 0 and sim.seqno * DT < elapsed - 0.015 * (st.sent // 25)
+
+
+def test_answers_count_late_or_not_in_answered():
+    """``answered`` counts every well-formed answer applied, in its cycle (``replies``) or read
+    at a later cycle (``late``): the sensor is alive however late it is (the simulated IRC5's
+    comm timeout and the simulators' watchdog count these)."""
+
+    def slow(sock, data, addr):  # every answer 3 ms after its request: after the 1 ms wait
+        fb = egm.decode_robot(data)
+        time.sleep(0.003)
+        sock.sendto(egm.encode_sensor(fb.seqno, fb.tm_ms or 0, fb.q_rad, [0.0] * 6), addr)
+
+    address, stop = _udp_sensor(slow)
+    sim = SimController(q0=np.full(6, 0.1))
+    runner = ControllerRunner(sim, address, rate_hz=100, n=60, reply_timeout=0.001)
+    runner.run()
+    stop()
+    st = runner.stats
+    assert st.late > 0 and st.malformed == 0
+    assert st.answered == st.replies + st.late

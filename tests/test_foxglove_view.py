@@ -1,86 +1,27 @@
 """``thinkfast-run --foxglove``: the real daemon serves the Foxglove WebSocket protocol; an
-independent client (websocket-client, the protocol's JSON control messages and binary message
-frames, protobuf decoded from the advertised FileDescriptorSet, CDR decoded from the advertised
-ROS 2 message definition) receives the scene of a simulated throw: arm and shield, the ball's
-belief, the crossing Gaussian, the plan, the joints and the status."""
+independent client (tests/foxglove_client.py: websocket-client, the protocol's JSON control
+messages and binary message frames, protobuf decoded from the advertised FileDescriptorSet, CDR
+decoded from the advertised ROS 2 message definition) receives the scene of a simulated throw:
+arm and shield, the ball's belief, the crossing Gaussian, the plan, the joints and the status."""
 
 from __future__ import annotations
 
-import base64
 import json
-import struct
 import time
 
 import numpy as np
 import pytest
 
 pytest.importorskip("foxglove")
-websocket = pytest.importorskip("websocket")
-
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory  # noqa: E402
+pytest.importorskip("websocket")
 
 from tests.daemon_harness import DaemonRun, ballistic_throw, publish_throw  # noqa: E402
+from tests.foxglove_client import listen, protobuf_class, ros2_decoder  # noqa: E402
 from thinkfast.contract.zenoh_session import free_tcp_port  # noqa: E402
 from thinkfast.daemon.foxglove_view import parse_hostport  # noqa: E402
 from thinkfast.errors import ConfigError  # noqa: E402
 
 AIM = (0.25, 1.25)  # y, z [m] on the plane where the simulated ball crosses
-
-
-def protobuf_class(channel: dict):
-    """The message class of a protobuf channel from its advertised FileDescriptorSet."""
-    fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"]))
-    pool = descriptor_pool.DescriptorPool()
-    for f in fds.file:
-        pool.Add(f)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
-
-
-def ros2_decoder(channel: dict):
-    """A CDR decoder built from the channel's advertised ROS 2 message definition alone (a
-    fresh rosbags type store that knows no types but the advertised ones)."""
-    from rosbags.typesys import Stores, get_typestore
-    from rosbags.typesys.msg import get_types_from_msg
-
-    assert channel["schemaEncoding"] == "ros2msg" and channel["encoding"] == "cdr"
-    ts = get_typestore(Stores.EMPTY)
-    name, text = channel["schemaName"], channel["schema"]
-    types, parts = {}, text.split("=" * 80 + "\n")
-    types.update(get_types_from_msg(parts[0], name))
-    for part in parts[1:]:  # dependencies: "MSG: pkg/Type" then its definition
-        head, _, body = part.partition("\n")
-        dep = head.removeprefix("MSG: ").strip()
-        types.update(get_types_from_msg(body, dep if "/msg/" in dep else dep.replace("/", "/msg/")))
-    ts.register(types)
-    return lambda data: ts.deserialize_cdr(data, name)
-
-
-def _listen(port: int, until, timeout: float) -> tuple[dict, dict]:
-    """Subscribe to every advertised channel; collect (log time, payload) per topic until
-    ``until(got)`` or ``timeout`` [s]."""
-    ws = websocket.create_connection(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"],
-                                     timeout=10)  # fmt: skip
-    channels: dict[str, dict] = {}
-    deadline = time.time() + 10
-    while len(channels) < 10 and time.time() < deadline:
-        msg = json.loads(ws.recv())
-        if msg["op"] == "advertise":
-            channels.update({c["topic"]: c for c in msg["channels"]})
-    topics = sorted(channels)
-    subs = [{"id": i, "channelId": channels[t]["id"]} for i, t in enumerate(topics)]
-    ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-    got: dict[str, list] = {t: [] for t in topics}
-    deadline = time.time() + timeout
-    while time.time() < deadline and not until(got):
-        try:
-            data = ws.recv()
-        except websocket.WebSocketTimeoutException:
-            continue
-        if isinstance(data, bytes) and data[0] == 1:  # messageData: sub id, log time, payload
-            sub, ts = struct.unpack_from("<IQ", data, 1)
-            got[topics[sub]].append((ts, data[13:]))
-    ws.close()
-    return channels, got
 
 
 @pytest.mark.realtime
@@ -99,7 +40,7 @@ def test_an_independent_client_receives_the_scene_of_a_throw(small_tree_015, rob
         th = threading.Thread(target=publish_throw, args=(run, at, t_release, flight), daemon=True)
         th.start()
         until = lambda got: _enough(got, result["t_cross"])  # noqa: E731
-        result["ch"], result["got"] = _listen(port, until, timeout=60.0)
+        result["ch"], result["got"] = listen(port, until, timeout=60.0)
         th.join(20)
 
     try:

@@ -72,3 +72,53 @@ def test_first_light_rehearsal_with_the_simulated_controller(small_tree_015):
     for line in ("egm_connected", "controller_state", "egm_lost", '"tree_fingerprint"'):
         assert line in log
     assert f"RWS on {url}" in out and "tf_status session" in err
+
+
+def test_a_session_answered_late_is_kept_not_lost(robot, monkeypatch):
+    """A sensor whose every answer comes after the controller stopped waiting for it (a daemon
+    on a loaded host: the controller reads it at its next cycle, ``late``) is alive: the
+    session outlives the program's comm_timeout. Before, only answers within their cycle
+    counted, and the session was lost (``no EGM answer for 2.0 s: session lost`` in the
+    rehearsal at load 12). The controller's UDP side stands in: answers counted late only."""
+    import time
+
+    from thinkfast.sim import irc5 as irc5_module
+    from thinkfast.sim.controller_runner import ExchangeStats
+    from thinkfast.sim.rws_server import ProgramTiming
+
+    class LateAnswers:  # the runner's counts on a loaded host: every answer after its cycle
+        def __init__(self, sim, target, keep_cycle=False):
+            self.stats = ExchangeStats()
+
+        def start(self):
+            return self
+
+        def stop(self) -> None: ...
+
+        def join(self, timeout=None) -> None: ...
+
+        def cycle(self) -> None:
+            self.stats.sent += 1
+            self.stats.missed += 1
+            self.stats.late += 1
+            self.stats.answered += 1
+
+    monkeypatch.setattr(irc5_module, "ControllerRunner", LateAnswers)
+    timing = ProgramTiming(home_time=0.05, ramp_out=0.1, comm_timeout=0.1)
+    irc5 = irc5_module.SimIrc5(("127.0.0.1", 9), q0=robot.home, timing=timing).start()
+    try:
+        with irc5.rws.lock:
+            irc5.rws.execstate = "running"
+        assert until(lambda: irc5.step() or irc5.rws.status() == "waiting", 30, poll=0.01)
+        with irc5.rws.lock:
+            irc5.rws.variables["T_ROB1/tf_start_request"] = "TRUE"
+        assert until(lambda: irc5.step() or irc5.runner is not None, 30, poll=0.01)
+        t_end = time.monotonic() + 10 * timing.comm_timeout
+        while time.monotonic() < t_end and irc5.runner is not None:
+            irc5.runner.cycle()  # an answer, late, every 10 ms: well within comm_timeout
+            irc5.step()
+            time.sleep(0.01)
+        status = irc5.rws.status()
+    finally:
+        irc5.close()
+    assert status == "session", status

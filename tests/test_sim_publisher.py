@@ -10,7 +10,6 @@ import pytest
 from thinkfast.contract import keys
 from thinkfast.contract.detection import Detection, parse_detection
 from thinkfast.contract.frames import CameraExtrinsic
-from thinkfast.contract.zenoh_session import loopback_endpoint, open_peer
 from thinkfast.sim.camera import CameraModelConfig, observe
 from thinkfast.sim.publisher import publish_detections
 from thinkfast.sim.throws import ThrowConfig, sample_throws
@@ -22,16 +21,6 @@ KEY = keys.detections("simtest")
 def detections():
     (th,) = sample_throws(ThrowConfig(), 1, seed=21)
     return observe(th, CameraModelConfig(), CameraExtrinsic(), np.random.default_rng(0))
-
-
-@pytest.fixture()
-def sessions():
-    ep = loopback_endpoint()
-    pub = open_peer(listen=[ep])
-    sub = open_peer(connect=[ep])
-    yield pub, sub
-    sub.close()
-    pub.close()
 
 
 def _wait_for_route(pub, sub, timeout=5.0):

@@ -13,10 +13,13 @@ the MCAP export's ROS 2 topics with the same schemas and CDR bytes
 ``best_goal``), ``/thinkfast/scene`` (``foxglove.SceneUpdate``, the entities of
 :data:`thinkfast.record.scene.ENTITY_IDS`) and ``/thinkfast/status`` (JSON, the status message,
 twice a second). Needs the ``foxglove`` extra (``foxglove-sdk``; rosbags for the CDR);
-imported only with the option.
+imported only with the option. The same server and channels play flight records
+(``thinkfast-sim replay --foxglove``, :mod:`thinkfast.daemon.foxglove_replay`).
 """
 
 from __future__ import annotations
+
+import threading
 
 from thinkfast.daemon.live_view import DaemonView
 from thinkfast.errors import ConfigError
@@ -38,9 +41,18 @@ def parse_hostport(text: str) -> tuple[str, int]:
 
 class FoxgloveSink:
     """The SDK's server and one channel per topic of
-    :func:`~thinkfast.record.channels.channel_specs`; :meth:`emit` logs one message."""
+    :func:`~thinkfast.record.channels.channel_specs`; :meth:`emit` logs one message.
 
-    def __init__(self, host: str, port: int):
+    Args:
+        host, port: where the WebSocket server listens (port 0: any free one, see ``port``).
+        name: the server's name, shown by Foxglove.
+        status: serve the status channel (the daemon's; a record has no status messages).
+        count: keep ``subscriptions`` (a :class:`Subscriptions`: how many clients' channel
+            subscriptions are open) up to date; else it is None.
+    """
+
+    def __init__(self, host: str, port: int, name: str = "thinkfast-run", status: bool = True,
+                 count: bool = False):  # fmt: skip
         try:
             import foxglove
         except ImportError:
@@ -48,15 +60,18 @@ class FoxgloveSink:
                               "'thinkfast[foxglove]'") from None  # fmt: skip
         from thinkfast.record.channels import channel_specs
 
+        self.subscriptions = Subscriptions() if count else None
+        listener = None if self.subscriptions is None else self.subscriptions.listener()
         self.server = foxglove.start_server(
-            name="thinkfast-run", host=host, port=port, message_backlog_size=BACKLOG
-        )
+            name=name, host=host, port=port, message_backlog_size=BACKLOG,
+            server_listener=listener,
+        )  # fmt: skip
         self.channels = {
             topic: foxglove.Channel(
-                topic, schema=foxglove.Schema(name=name, encoding=enc, data=data),
+                topic, schema=foxglove.Schema(name=schema, encoding=enc, data=data),
                 message_encoding=msg_enc,
             )
-            for topic, (name, enc, data, msg_enc) in channel_specs().items()
+            for topic, (schema, enc, data, msg_enc) in channel_specs(status).items()
         }  # fmt: skip
 
     @property
@@ -68,6 +83,35 @@ class FoxgloveSink:
 
     def close(self) -> None:
         self.server.stop()
+
+
+class Subscriptions:
+    """The clients' open channel subscriptions, counted from the SDK's callbacks (its thread):
+    ``open`` now, ``first`` set at the first one."""
+
+    def __init__(self):
+        self.open = 0
+        self.first = threading.Event()
+        self._lock = threading.Lock()
+
+    def listener(self):
+        """A foxglove-sdk server listener keeping the count (an unsubscription comes for each
+        of a client's subscriptions when it disconnects)."""
+        from foxglove.websocket import ServerListener
+
+        subs = self
+
+        class Listener(ServerListener):
+            def on_subscribe(self, client, channel) -> None:
+                with subs._lock:
+                    subs.open += 1
+                subs.first.set()
+
+            def on_unsubscribe(self, client, channel) -> None:
+                with subs._lock:
+                    subs.open -= 1
+
+        return Listener()
 
 
 class FoxgloveView(DaemonView):

@@ -19,6 +19,22 @@ from thinkfast.record.replay import log_record, plane_and_goals
 from thinkfast.record.tables import run_config
 
 
+def drawing_inputs(record: Record, tree: Path | None):
+    """What a view draws ``record`` with: (its run configuration, the robot it names, the
+    plane's x [m] or None, the goal grid (G, 2) [m] or None; see
+    :func:`~thinkfast.record.replay.plane_and_goals`).
+
+    Raises:
+        ConfigError: the record's run configuration does not validate.
+        TreeFileError: ``tree`` cannot be read.
+    """
+    from thinkfast.robot.model import load_robot
+
+    cfg = run_config(record)
+    robot = load_robot(Path(cfg.robot) if cfg.robot else None)
+    return (cfg, robot, *plane_and_goals(record, tree))
+
+
 def record_to_rerun(
     record: Record, sink: ViewSink, tree: Path | None = None, joint_rate: float = 50.0
 ) -> dict[str, int]:
@@ -29,11 +45,7 @@ def record_to_rerun(
             configuration does not validate.
         TreeFileError: ``tree`` cannot be read.
     """
-    from thinkfast.robot.model import load_robot
-
-    cfg = run_config(record)
-    robot = load_robot(Path(cfg.robot) if cfg.robot else None)
-    px, goal_yz = plane_and_goals(record, tree)
+    cfg, robot, px, goal_yz = drawing_inputs(record, tree)
     rec = open_stream(sink, f"record {record.path.name}")
     p = Painter(rec, robot, px if px is not None else 0.0, goal_yz)
     counts = log_record(p, record, cfg, joint_rate, crossings=px is not None)

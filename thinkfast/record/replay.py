@@ -6,7 +6,8 @@
 with what the record holds, at the record's Unix times: raw and accepted detections, beliefs and
 their plane crossings, decisions (mode, node, value, best goal; a record keeps no motion, so no
 shield path), the arm at the commanded and measured joints (EGM rows, at most ``joint_rate`` per
-second) and the daemon's events.
+second) and the daemon's events. :func:`timed_calls` keeps the same calls in time order, for a
+replay at the record's pace (``thinkfast-sim replay --foxglove``).
 """
 
 from __future__ import annotations
@@ -87,3 +88,29 @@ def log_record(p, record: Record, cfg, joint_rate: float, crossings=True) -> dic
         "joints": len(keep),
         "events": len(record.events),
     }
+
+
+PAINTER_CALLS = ("raw", "accepted", "belief", "crossing", "decision", "joints", "arm", "event")
+
+
+class CallList:
+    """A painter that keeps the calls made to it: ``calls`` holds (time [s], method name,
+    the other arguments) in the order they were made."""
+
+    def __init__(self):
+        self.calls: list[tuple[float, str, tuple]] = []
+
+    def __getattr__(self, name: str):
+        if name not in PAINTER_CALLS:
+            raise AttributeError(name)
+        return lambda t, *args: self.calls.append((float(t), name, args))
+
+
+def timed_calls(record: Record, cfg, joint_rate: float, crossings=True) -> list:
+    """The painter calls :func:`log_record` makes for ``record``, as (time [s], method name,
+    other arguments) in time order. The sort is stable: calls at one time keep
+    :func:`log_record`'s order, so a painter fed these draws what it draws from
+    :func:`log_record` sorted by time (the MCAP's scene, ``channels.scene_messages``)."""
+    painter = CallList()
+    log_record(painter, record, cfg, joint_rate, crossings)
+    return sorted(painter.calls, key=lambda call: call[0])

@@ -14,16 +14,18 @@ from thinkfast.sim.bench_cli import WorldFactory as _WorldFactory  # noqa: F401 
 from thinkfast.sim.bench_cli import bench as bench_cmd
 from thinkfast.sim.cli_options import (
     FEINTS_HELP,
+    FOXGLOVE_HELP,
     MIX_HELP,
     RERUN_HELP,
     SCHEDULER_HELP,
+    live_view_args,
     with_cameras,  # noqa: F401 (bench/ scripts, tests)
 )
 from thinkfast.sim.cli_options import load_throws as _throws
 from thinkfast.sim.cli_options import throw_config as _throw_config
 from thinkfast.sim.irc5_cli import controller as controller_cmd
 from thinkfast.sim.planners import check_planners, online_planners
-from thinkfast.sim.record_cli import SCENE_HELP, convert, record_app
+from thinkfast.sim.record_cli import REPLAY_FOXGLOVE_HELP, SCENE_HELP, convert, record_app
 
 app = make_app("Simulated throws, camera and ABB controller for thinkfast.")
 
@@ -77,11 +79,13 @@ def run(
         None, "--detect-config", help="thinkfast-detect config (TOML, with --frames)"
     ),
     rerun: str | None = typer.Option(None, "--rerun", help=RERUN_HELP),
+    foxglove: str | None = typer.Option(None, "--foxglove", help=FOXGLOVE_HELP),
 ) -> None:
     """Real time, end to end: daemon process, EGM over UDP, detections over zenoh.
 
     With --frames the simulator renders the ZED's left and XYZ images of every frame instead
     (docs/CAMERA_FRAMES.md) and a thinkfast-detect process turns them into detections.
+    --rerun and --foxglove are the daemon's live view (passed on to the daemon it starts).
     """
     from thinkfast.control.config import load_run_config
     from thinkfast.daemon.egm_address import parse_hostport
@@ -89,10 +93,7 @@ def run(
     from thinkfast.robot.model import load_robot
     from thinkfast.sim.realtime import run_throws, run_with_daemon
 
-    if rerun is not None:
-        from thinkfast.daemon.live_view import parse_sink
-
-        parse_sink(rerun)  # fail here, not in the daemon
+    view = live_view_args(rerun, foxglove)  # fail here, not in the daemon
     check_planners([planner], "--planner", None, online=True)
     if frames_resolution not in ("hd720", "vga"):
         raise ConfigError("--frames-resolution", None, f"{frames_resolution!r}: hd720 or vga")
@@ -111,8 +112,8 @@ def run(
     if egm is not None or zenoh_endpoint is not None:
         if egm is None or zenoh_endpoint is None:
             raise ConfigError("--egm/--zenoh", None, "give both to use a running daemon")
-        if rerun is not None:
-            raise ConfigError("--rerun", None, "not with --egm/--zenoh: give it to that daemon")
+        if view:
+            raise ConfigError(view[0], None, "not with --egm/--zenoh: give it to that daemon")
         hostport = parse_hostport(egm, "--egm")
         pipeline = None
         if frames:
@@ -133,7 +134,7 @@ def run(
         res = run_with_daemon(
             tree, planner, robot, balls, seed, cfg.camera, key_prefix, record, config,
             frames=frames_resolution if frames else None, detect_config=detect_config,
-            daemon_args=() if rerun is None else ("--rerun", rerun),
+            daemon_args=view,
         )  # fmt: skip
     k = sum(r.blocked for r in res)
     nt = sum(r.kind != "feint" for r in res)
@@ -225,14 +226,18 @@ def replay(
     mcap: Path | None = typer.Option(
         None, "--mcap", help="write the record as MCAP with ROS 2 messages (Foxglove)"
     ),
-    tree: Path | None = typer.Option(None, "--tree", help="with --rerun: draw its goal grid"),
+    foxglove: str | None = typer.Option(None, "--foxglove", help=REPLAY_FOXGLOVE_HELP),
+    tree: Path | None = typer.Option(
+        None, "--tree", help="with --rerun, --foxglove: draw its goal grid"
+    ),
     scene: bool = typer.Option(False, "--scene", help=SCENE_HELP),
 ) -> None:
     """Re-publish a flight record's detections (raw payloads) with their original timing
     (schema 1 and 2 records, also a partial one).
 
     With --rerun or --mcap the record is converted instead (docs/LIVE_VIEW.md), and its
-    detections are re-published only when --zenoh-connect is given as well.
+    detections are re-published only when --zenoh-connect is given as well. With --foxglove
+    the record is drawn live in Foxglove at its own pace.
     """
     from thinkfast.contract.zenoh_session import open_peer
     from thinkfast.errors import ConfigError
@@ -240,10 +245,18 @@ def replay(
 
     if speed <= 0:
         raise ConfigError("--speed", None, "must be > 0")
+    if foxglove is not None:
+        fox = _foxglove_replay_address(foxglove, zenoh_connect)
     if rerun is not None or mcap is not None:
         convert(record, rerun, mcap, tree, scene)
-        if not zenoh_connect:
-            return
+    if foxglove is not None:
+        from thinkfast.daemon.foxglove_replay import record_to_foxglove
+        from thinkfast.record.format import read_record
+
+        record_to_foxglove(read_record(record), *fox, tree, speed)
+        return
+    if (rerun is not None or mcap is not None) and not zenoh_connect:
+        return
     t, payloads = read_detections(record)  # RecordFileError: one line naming the file
     session = open_peer(connect=list(zenoh_connect or ()))
     pub = session.declare_publisher(keys.detections(key_prefix))
@@ -263,6 +276,17 @@ def replay(
             "--zenoh-connect to its endpoint)",
             file=sys.stderr,
         )
+
+
+def _foxglove_replay_address(text: str, zenoh_connect) -> tuple[str, int]:
+    """``--foxglove`` of replay: (host, port); not with ``--zenoh-connect``."""
+    from thinkfast.daemon.foxglove_view import parse_hostport
+    from thinkfast.errors import ConfigError
+
+    if zenoh_connect:
+        raise ConfigError("--foxglove", None, "not with --zenoh-connect: the daemon receiving "
+                          "the detections draws them, with its own --foxglove")  # fmt: skip
+    return parse_hostport(text)
 
 
 app.command("controller")(controller_cmd)  # the simulated IRC5 (EGM + RWS), thinkfast/sim/irc5.py

@@ -19,12 +19,39 @@ RERUN_HELP = (
     "view extra)"
 )
 
+FOXGLOVE_HELP = (
+    "live view in Foxglove: serve its WebSocket protocol on [HOST:]PORT (loopback by default; "
+    "docs/LIVE_VIEW.md; needs the foxglove extra); not with --rerun"
+)
+
 
 CAMERAS_HELP = (
     "cameras that see the throws, comma separated: base (the run config's [camera]) first, then "
     "ids of its [[cameras]] or side (the default side camera, docs/CAMERAS.md); default: the "
     "run config's. Compare two set-ups by running the same --seed with each"
 )
+
+
+def live_view_args(rerun: str | None, foxglove: str | None) -> tuple[str, ...]:
+    """The daemon's options for ``--rerun`` / ``--foxglove`` of a simulator, checked here (a bad
+    value fails before the daemon starts).
+
+    Raises:
+        ConfigError: a bad sink or address, or both options (one live view at a time).
+    """
+    if rerun is not None:
+        from thinkfast.daemon.live_view import parse_sink
+
+        parse_sink(rerun)
+    if foxglove is None:
+        return () if rerun is None else ("--rerun", rerun)
+    from thinkfast.daemon.foxglove_view import parse_hostport
+    from thinkfast.errors import ConfigError
+
+    parse_hostport(foxglove)
+    if rerun is not None:
+        raise ConfigError("--foxglove", None, "not with --rerun: one live view at a time")
+    return ("--foxglove", foxglove)
 
 
 def with_cameras(cfg, cameras: str | None):

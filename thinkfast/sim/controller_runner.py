@@ -31,10 +31,13 @@ class ExchangeStats:
     ``wire_s``: the same round trips to the reply's kernel arrival stamp instead of the moment
     this side read it (Linux; NaN-free, possibly shorter than ``rtt_s``): what a controller that
     is never itself delayed would see, the sensor's share of the round trip.
+    ``answered``: well-formed replies applied, in their cycle (``replies``) or after it: whether
+    the sensor is alive (a controller's communication timeout), however late it is.
     """
 
     sent: int = 0
     replies: int = 0
+    answered: int = 0
     missed: int = 0
     late: int = 0
     malformed: int = 0
@@ -142,7 +145,9 @@ class ControllerRunner:
                     arrived = time.perf_counter() - arrival_age(anc)  # NaN compares False
                     st.in_time_unread += arrived <= self._miss_deadline
                 self._miss_deadline = None  # only the first late reply answers the missed cycle
-                if not sim.handle_sensor(data):
+                if sim.handle_sensor(data):
+                    st.answered += 1
+                else:
                     st.malformed += 1
             payload = sim.robot_message()
             t_send = time.perf_counter()  # before sendto: loopback may run the server inside it
@@ -213,6 +218,7 @@ class ControllerRunner:
             rtt, wire = now - t_send, now - arrival_age(anc) - t_send
             if self.sim.handle_sensor(data):
                 st.replies += 1
+                st.answered += 1
                 st.rtt_s.append(rtt)
                 if wire == wire:  # not NaN: the kernel stamped it
                     st.wire_s.append(min(max(wire, 0.0), rtt))

@@ -91,8 +91,8 @@ class SimIrc5:
             self._last_reply = (0, now)
         elif not session and self.runner is not None:
             self._stop_egm()
-        if self.runner is not None:
-            replies = self.runner.stats.replies
+        if self.runner is not None:  # an answer is an answer, late or not (a loaded host)
+            replies = self.runner.stats.answered
             if replies != self._last_reply[0]:
                 self._last_reply = (replies, now)
             elif now - self._last_reply[1] > rws.timing.comm_timeout:
@@ -131,7 +131,7 @@ class SimIrc5:
 
         while not stop():
             runner = self.runner
-            if runner is not None and runner.stats.replies >= 250:
+            if runner is not None and runner.stats.answered >= 250:
                 return run_throws(robot, throws, self.target, zenoh_endpoint, prefix, seed,
                                   extrinsic, report, controller=(self.sim, runner))  # fmt: skip
             time.sleep(0.05)

@@ -25,7 +25,6 @@ from thinkfast.contract.camera_mode import CameraSetup
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.decide.tree_view import BALL_RADIUS
-from thinkfast.errors import ThinkfastError
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.sim.camera import CameraModelConfig, mode_model, observe
@@ -34,54 +33,11 @@ from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.publisher import publish_detections
 from thinkfast.sim.throws import Throw, plane_crossing
+from thinkfast.sim.watchdog import SILENCE, DaemonGone, Watchdog  # noqa: F401 (DaemonGone: API)
 
 GAP = 3.5  # s between throws: crossing + return home + the contract's 3 s
-SILENCE = 3.0  # s without an EGM reply or a status: the daemon is gone (status comes at 20 Hz)
+READY_TIMEOUT = 60.0  # s for a started daemon to answer EGM and be heard on zenoh, both ways
 LOOPBACK_ZENOH = Path(__file__).with_name("loopback_zenoh.json5")  # the daemon's zenoh session
-
-
-class DaemonGone(ThinkfastError):
-    """The daemon stopped answering EGM or publishing its status while throws were running."""
-
-
-class Watchdog:
-    """Notices a daemon that died: no EGM reply to the simulated controller, or no status on
-    zenoh, for ``silence`` seconds (checked while the thrower waits)."""
-
-    def __init__(self, runner: ControllerRunner, session, prefix: str, egm, silence: float):
-        self.runner, self.egm, self.silence = runner, egm, silence
-        now = time.monotonic()
-        self._replies, self._reply_at, self.status_at = 0, now, now
-        self._sub = session.declare_subscriber(keys.status(prefix), self._on_status)
-
-    def _on_status(self, _sample) -> None:
-        self.status_at = time.monotonic()  # only a time: nothing else in zenoh's thread
-
-    def check(self, done: int, total: int) -> None:
-        """Raise :class:`DaemonGone` (naming what went silent) when the daemon is gone."""
-        now = time.monotonic()
-        replies = self.runner.stats.replies
-        if replies != self._replies:
-            self._replies, self._reply_at = replies, now
-        quiet = []
-        if now - self._reply_at > self.silence:
-            quiet.append(f"no EGM reply for {now - self._reply_at:.1f} s")
-        if now - self.status_at > self.silence:
-            quiet.append(f"no status for {now - self.status_at:.1f} s")
-        if quiet:
-            raise DaemonGone(
-                f"the daemon at EGM {self.egm[0]}:{self.egm[1]} stopped ({', '.join(quiet)}) "
-                f"after {done} of {total} throws"
-            )
-
-    def sleep_until(self, t_wall: float, done: int, total: int) -> None:
-        """Sleep until wall time ``t_wall`` [s], checking the daemon every 0.1 s."""
-        while True:
-            self.check(done, total)
-            left = t_wall - time.time()
-            if left <= 0.0:
-                return
-            time.sleep(min(left, 0.1))
 
 
 class WallClockSim(SimController):
@@ -162,6 +118,24 @@ def daemon_log(proc: subprocess.Popen) -> str:
     return proc.log.read()
 
 
+def daemon_says(proc: subprocess.Popen, text: str, timeout: float) -> str | None:
+    """The first line of the daemon's log (:func:`daemon_log`) holding ``text``, once it is
+    written (polled every 0.1 s for ``timeout`` [s]); None when it was not.
+
+    Raises:
+        RuntimeError: the daemon exited first (its log in the message).
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        log = daemon_log(proc)
+        line = next((ln for ln in log.splitlines() if text in ln), None)
+        if line is not None or time.monotonic() > deadline:
+            return line
+        if proc.poll() is not None:
+            raise RuntimeError(f"thinkfast-run exited: {log.strip()}")
+        time.sleep(0.1)
+
+
 def run_throws(
     robot: Robot,
     throws: list[Throw],
@@ -198,7 +172,11 @@ def run_throws(
     results = []
     try:
         dog = Watchdog(runner, session, prefix, egm, SILENCE)
-        time.sleep(1.0)  # EGM exchange running, zenoh routes up
+        detections = session.declare_publisher(keys.detections(prefix))
+        try:  # a second of EGM, zenoh routes both ways: conditions, not a sleep (a slow host)
+            dog.wait_ready(lambda: detections.matching_status.matching, READY_TIMEOUT, len(throws))
+        finally:
+            detections.undeclare()
         for i, th in enumerate(throws):
             dog.check(i, len(throws))
             if frames is not None:  # frames in real time from the ball's appearance in the hand
@@ -304,6 +282,9 @@ def run_with_daemon(
     pipeline = None
     try:
         wait_port(proc, zport)
+        if "--foxglove" in daemon_args:  # logged once its server listens (the port may be 0)
+            line = daemon_says(proc, "foxglove on ws://", READY_TIMEOUT)
+            report(f"live view in Foxglove: {line.rsplit(' ', 1)[-1] if line else '?'}")
         if frames is not None:
             from thinkfast.sim.frame_stream import FramePipeline
 

@@ -15,6 +15,11 @@ SCENE_HELP = (
     "channel: leave it out for rosbags"
 )
 
+REPLAY_FOXGLOVE_HELP = (
+    "play the record at its pace (--speed) on a Foxglove WebSocket server at [HOST:]PORT, once "
+    "a client subscribes (docs/LIVE_VIEW.md; needs the foxglove extra); not with --zenoh-connect"
+)
+
 
 def convert(
     record: Path, rerun: str | None, mcap: Path | None, tree: Path | None, scene: bool = False
