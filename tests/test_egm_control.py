@@ -191,6 +191,28 @@ def test_a_restart_waits_for_a_velocity_at_most_a_few_packets(rtree, robot):
     np.testing.assert_allclose(replies[-1].q, q1, atol=1e-12)
 
 
+def test_packets_each_after_a_silence_are_answered_after_a_few(rtree, robot):
+    """A starved controller whose every packet comes after a silence (250 ms apart): each
+    silence does not start the wait for a velocity again, so the stream restarts after at
+    most DEFER_MAX unanswered packets instead of never (the controller's communication
+    timeout would end the session)."""
+    from thinkfast.control.core import DEFER_MAX
+
+    ctl = _control(rtree, robot)
+    ctl.on_feedback(0, _away(robot), T0)
+    for k in range(1, 40):
+        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+    assert not ctl.at_rest()
+    q1, tm = ctl.sup.q.copy(), 4 * 39
+    replies = []
+    for k in range(1, 3 * (DEFER_MAX + 1) + 1):
+        replies.append(ctl.on_feedback(tm + 250 * k, q1, T0 + (tm + 250 * k) / 1000))
+    assert replies[:DEFER_MAX] == [None] * DEFER_MAX and replies[DEFER_MAX] is not None
+    np.testing.assert_allclose(replies[DEFER_MAX].q, q1, atol=1e-12)
+    answered = sum(r is not None for r in replies)  # each restart in motion measures again
+    assert answered >= 3 and ctl.deferred <= 3 * DEFER_MAX
+
+
 def test_a_superseded_packet_measures_the_velocity_a_restart_starts_with(rtree, robot):
     """After this host stalled (the controller went on sending), the restart takes the measured
     velocity from the peer's packet just before the answered one."""

@@ -239,8 +239,8 @@ class ControlCore:
             return self.last._replace(tick=tick)
         qd_meas = self.rate.measure(tick, q_meas, span_before(tm_ms, seqno, before, self.cfg.dt))
         if tick.resync and self.last is not None and not self.latched and not self.at_rest():
-            self._waiting = 0  # a silence in motion: measure the velocity
-            self.rate.track.clear()
+            self._waiting = max(self._waiting, 0)  # a silence in motion: measure the velocity;
+            self.rate.track.clear()  # another silence while waiting does not restart the count
         if self._waiting >= 0:
             qd_end = self.rate.track_velocity(tick, q_meas, qd_meas)
             if qd_end is None and self._waiting < DEFER_MAX:
