@@ -38,10 +38,15 @@ import numpy as np
 from thinkfast.config import spec
 from thinkfast.decide import iso_disk
 from thinkfast.decide.path_value import PathValueConfig, block_probability
-from thinkfast.decide.shield_paths import block_geometry, shield_paths
+from thinkfast.decide.shield_paths import block_geometry, pack, shield_paths
 from thinkfast.robot.batch_traj import TrajectoryTable
 from thinkfast.robot.shield_path import ShieldSampler
 from thinkfast.robot.steering import Steering
+
+try:  # the gufunc behind np.linalg.inv (numpy's own module; absent: np.linalg.inv)
+    from numpy.linalg._umath_linalg import inv as _lapack_inv
+except ImportError:  # pragma: no cover
+    _lapack_inv = None
 
 CONTINUE, DIRECT, BRANCH = "continue", "direct", "branch"
 BATCH_SAMPLES = 64  # from this many samples, paths are read in one numpy pass (not at_time)
@@ -128,6 +133,7 @@ class Chooser:
         self.sampler = ShieldSampler(robot)
         self.geom = block_geometry(robot, plane_x, ball_radius)
         self.rho = self.geom.shield_radius + self.geom.ball_radius
+        self._widen = self.rho**2 * np.eye(2)
         self.steer = steer
         self.cfg = cfg
         self.quadrature = quadrature
@@ -137,16 +143,22 @@ class Chooser:
     # ------------------------------------------------------------------ candidates
     def candidate_goals(self, mean_yz: np.ndarray, cov_yz: np.ndarray) -> np.ndarray:
         """Goals to try, nearest first under the widened lateral covariance, shape (<=K,)."""
-        d = self.goal_yz - np.asarray(mean_yz, dtype=float)
-        s = np.asarray(cov_yz, dtype=float) + self.rho**2 * np.eye(2)
-        m = np.einsum("gi,ij,gj->g", d, np.linalg.inv(s), d)
+        d, m = self._distances(mean_yz, cov_yz)
         k = min(self.cfg.candidates, len(m))
         near = np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
         near = near[np.argsort(m[near], kind="stable")]
-        nearest = int(np.argmin(np.sum(d * d, axis=1)))  # naive's goal is always a candidate
+        d *= d
+        nearest = int(np.argmin(d[:, 0] + d[:, 1]))  # naive's goal is always a candidate
         if nearest not in near:
-            near = np.r_[nearest, near[:-1]]
+            near = np.concatenate(([nearest], near[:-1]))
         return near
+
+    def _distances(self, mean_yz, cov_yz) -> tuple[np.ndarray, np.ndarray]:
+        """Goal offsets from the crossing mean (G, 2) [m] and their squared Mahalanobis
+        distances under the lateral covariance widened by the block radius (G,)."""
+        d = self.goal_yz - np.asarray(mean_yz, dtype=float)
+        s = np.asarray(cov_yz, dtype=float) + self._widen
+        return d, np.einsum("gi,ij,gj->g", d, _inverse(s), d)
 
     def choose(
         self,
@@ -215,9 +227,7 @@ class Chooser:
 
     def candidate_goals_k(self, mean_yz, cov_yz, k: int) -> np.ndarray:
         """The ``k`` goals nearest the crossing mean under the widened lateral covariance."""
-        d = self.goal_yz - np.asarray(mean_yz, dtype=float)
-        s = np.asarray(cov_yz, dtype=float) + self.rho**2 * np.eye(2)
-        m = np.einsum("gi,ij,gj->g", d, np.linalg.inv(s), d)
+        m = self._distances(mean_yz, cov_yz)[1]
         return np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
 
     def _window(self, tau: float, var_tau: float, t_start: float) -> np.ndarray:
@@ -232,13 +242,29 @@ class Chooser:
     def score_joint_paths(self, joints, times, mean, cov, approach, t_start) -> np.ndarray:
         """P(block) of joint 1-3 paths (M, T, 3) sampled at ``times`` (T,) [s, path clock]
         whose clock reads 0 at ``t_start`` [s] after the belief, shape (M,)."""
-        centres = self.sampler.centres(joints)
-        return self.score_paths(times, centres, mean, cov, approach, t_start)
+        m, n_t = joints.shape[:2]
+        planes = np.empty((6, m * n_t))  # the packed layout, filled by rows
+        planes[:3] = self.sampler.centres(joints.reshape(m * n_t, 3)).T
+        if not np.isfinite(planes[:3]).all():
+            raise ValueError("times and centres must be finite")
+        packed = pack(times, planes, self.geom)
+        return block_probability(packed, mean, cov, self.geom, approach, t_start, self.quadrature)
 
     def score_paths(self, times, centres, mean, cov, approach, t_start) -> np.ndarray:
         """P(block) of shield-centre paths (M, T, 3) [m] in ``base``, shape (M,)."""
         packed = shield_paths(times, centres, self.geom)
         return block_probability(packed, mean, cov, self.geom, approach, t_start, self.quadrature)
+
+
+def _inverse(s: np.ndarray) -> np.ndarray:
+    """``np.linalg.inv`` of ``s`` (2, 2): the same LAPACK routine, called without the wrapper's
+    checks and error state (tens of microseconds a decision); a result that is not finite is
+    left to ``np.linalg.inv`` (which raises for a singular matrix, as before)."""
+    if _lapack_inv is not None:
+        out = _lapack_inv(s, signature="d->d")
+        if np.isfinite(out).all():
+            return out
+    return np.linalg.inv(s)
 
 
 def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndarray):
@@ -267,8 +293,5 @@ def _sample(traj, times: np.ndarray, end) -> np.ndarray:
     trajectory-less segment stays at ``end[:3]``."""
     if traj is None:
         return np.broadcast_to(np.asarray(end[:3], dtype=float), (len(times), 3)).copy()
-    dur = traj.duration
-    out = np.empty((len(times), 3))
-    for i, t in enumerate(np.clip(times, 0.0, dur).tolist()):
-        out[i] = traj.at_time(t)[0]
-    return out
+    at = traj.at_time
+    return np.array([at(t)[0] for t in np.clip(times, 0.0, traj.duration).tolist()], dtype=float)
