@@ -192,8 +192,7 @@ def replay(calls_path: Path, repeat: int, limit: int | None) -> dict:
     fns = [rp.prepare(c) for c in calls]
     values = []
     for c, fn in zip(calls, fns, strict=True):  # once untimed: warm and check
-        out = None if fn is None else fn()
-        values.append(None if c[0] != CHOOSE else [o.value for o in out[1]])
+        values.append(_outcome(c[0], None if fn is None else fn()))
     gc.collect()
     gc.freeze()  # as the daemon's planner does at start
     times = np.full((len(calls), repeat), -1, dtype=np.int64)
@@ -211,6 +210,16 @@ def replay(calls_path: Path, repeat: int, limit: int | None) -> dict:
         "values": values,
         "recorded_values": [c[3] for c in calls],
     }
+
+
+def _outcome(kind: str, out) -> list | None:
+    """What a decision returned, comparable across checkouts: the option values of a choice,
+    the target and duration of a hedge move (None: none)."""
+    if out is None:
+        return None
+    if kind == CHOOSE:
+        return [o.value for o in out[1]]
+    return [*map(float, out.end[:3]), float(out.traj.duration)]
 
 
 def profile(calls_path: Path, limit: int | None) -> dict:

@@ -39,17 +39,14 @@ from thinkfast.config import spec
 from thinkfast.decide import iso_disk
 from thinkfast.decide.path_value import PathValueConfig, block_probability
 from thinkfast.decide.shield_paths import block_geometry, pack, shield_paths
+from thinkfast.estimate.linalg import inv
 from thinkfast.robot.batch_traj import TrajectoryTable
 from thinkfast.robot.shield_path import ShieldSampler
 from thinkfast.robot.steering import Steering
 
-try:  # the gufunc behind np.linalg.inv (numpy's own module; absent: np.linalg.inv)
-    from numpy.linalg._umath_linalg import inv as _lapack_inv
-except ImportError:  # pragma: no cover
-    _lapack_inv = None
-
 CONTINUE, DIRECT, BRANCH = "continue", "direct", "branch"
-BATCH_SAMPLES = 64  # from this many samples, paths are read in one numpy pass (not at_time)
+BATCH_SAMPLES = 768  # from this many samples, paths are read in one numpy pass, not by at_time
+# (below it the numpy pass costs more: docs/BENCHMARKS.md, "The tree planner's choice, replayed")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,7 +155,7 @@ class Chooser:
         distances under the lateral covariance widened by the block radius (G,)."""
         d = self.goal_yz - np.asarray(mean_yz, dtype=float)
         s = np.asarray(cov_yz, dtype=float) + self._widen
-        return d, np.einsum("gi,ij,gj->g", d, _inverse(s), d)
+        return d, np.einsum("gi,ij,gj->g", d, inv(s), d)
 
     def choose(
         self,
@@ -254,17 +251,6 @@ class Chooser:
         """P(block) of shield-centre paths (M, T, 3) [m] in ``base``, shape (M,)."""
         packed = shield_paths(times, centres, self.geom)
         return block_probability(packed, mean, cov, self.geom, approach, t_start, self.quadrature)
-
-
-def _inverse(s: np.ndarray) -> np.ndarray:
-    """``np.linalg.inv`` of ``s`` (2, 2): the same LAPACK routine, called without the wrapper's
-    checks and error state (tens of microseconds a decision); a result that is not finite is
-    left to ``np.linalg.inv`` (which raises for a singular matrix, as before)."""
-    if _lapack_inv is not None:
-        out = _lapack_inv(s, signature="d->d")
-        if np.isfinite(out).all():
-            return out
-    return np.linalg.inv(s)
 
 
 def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndarray):
