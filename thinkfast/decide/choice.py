@@ -183,19 +183,16 @@ class Chooser:
         """
         mean = np.asarray(crossing_mean, dtype=float)
         goals = self.candidate_goals(mean[:2], np.asarray(crossing_cov)[:2, :2])
-        trajs, options = [], []
-        for g in goals.tolist():
-            traj = self.steer.to_rest(state, self.goal_q[g])
-            if traj is not None:
-                trajs.append(traj)
-                options.append(Option(DIRECT, g, traj, math.nan))
+        moves = [(g, self.steer.to_rest(state, self.goal_q[g])) for g in goals.tolist()]
+        moves = [(g, traj) for g, traj in moves if traj is not None]
+        trajs = [traj for _, traj in moves]
         times = self._window(mean[2], crossing_cov[2][2], t_plan + lag - t_belief)
         joints = _joint_paths(current, times + (t_plan - current.t0), trajs, times)
         values = self.score_joint_paths(
             joints, times, mean, crossing_cov, approach, t_plan + lag - t_belief
-        )
-        options = [Option(CONTINUE, -1, None, float(values[0]))] + [
-            o._replace(value=float(v)) for o, v in zip(options, values[1:], strict=True)
+        ).tolist()
+        options = [Option(CONTINUE, -1, None, values[0])] + [
+            Option(DIRECT, g, traj, v) for (g, traj), v in zip(moves, values[1:], strict=True)
         ]
         if branch_at is not None and table is not None:
             options += self._branches(
@@ -260,8 +257,10 @@ def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndar
     n_t = len(times)
     moving = ([current.traj] if current.traj is not None else []) + list(trajs)
     if len(moving) * n_t < BATCH_SAMPLES:
-        joints = [_sample(current.traj, current_times, current.end)]
-        return np.stack(joints + [_sample(tr, times, None) for tr in trajs])
+        rows = _rows(current.traj, current_times, current.end)
+        for tr in trajs:
+            rows += _rows(tr, times, None)
+        return np.array(rows, dtype=float).reshape(1 + len(trajs), n_t, 3)
     out = np.empty((1 + len(trajs), n_t, 3))
     table = TrajectoryTable(moving)
     owner = np.repeat(np.arange(len(moving)), n_t)
@@ -277,7 +276,17 @@ def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndar
 def _sample(traj, times: np.ndarray, end) -> np.ndarray:
     """Joints 1-3 of ``traj`` at ``times`` [s] (clipped to the trajectory), shape (T, 3); a
     trajectory-less segment stays at ``end[:3]``."""
+    return np.array(_rows(traj, times, end), dtype=float).reshape(len(times), 3)
+
+
+def _rows(traj, times: np.ndarray, end) -> list:
+    """:func:`_sample` as a list of T rows (lists of 3 floats); ``times`` ascending: the clipped
+    times repeat at the ends, and a repeated time is read once."""
     if traj is None:
-        return np.broadcast_to(np.asarray(end[:3], dtype=float), (len(times), 3)).copy()
-    at = traj.at_time
-    return np.array([at(t)[0] for t in np.clip(times, 0.0, traj.duration).tolist()], dtype=float)
+        return [[float(x) for x in end[:3]]] * len(times)
+    at, out, last_t, last = traj.at_time, [], None, None
+    for t in np.clip(times, 0.0, traj.duration).tolist():
+        if t != last_t:
+            last_t, last = t, at(t)[0]
+        out.append(last)
+    return out

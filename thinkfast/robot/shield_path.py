@@ -53,6 +53,7 @@ class ShieldSampler:
             )
         self.offset = float(local[0])  # L [m]
         self._wrist_point, self._chain = self._wrist_chain()
+        self._offsets: dict[tuple, np.ndarray] = {}
 
     def _wrist_chain(self) -> tuple[np.ndarray, list]:
         """The joints from ``base`` to the wrist centre, last first, as the point they move
@@ -117,10 +118,13 @@ class ShieldSampler:
             normal: shield normal in ``base`` (unit (3,)); +x is the coplanar rule.
         """
         q123 = np.asarray(q123, dtype=float)
-        flat = q123.reshape(-1, 3)
-        wc = self.wrist_centres(flat)
-        n = np.asarray(normal, dtype=float)
-        return (wc + self.offset * (n / np.linalg.norm(n))).reshape(q123.shape)
+        wc = self.wrist_centres(q123.reshape(-1, 3))
+        key = tuple(map(float, normal))
+        if key not in self._offsets:  # the centre's offset from the wrist centre, per normal
+            n = np.asarray(key)
+            self._offsets[key] = self.offset * (n / np.linalg.norm(n))
+        wc += self._offsets[key]
+        return wc.reshape(q123.shape)
 
 
 def _place(p: np.ndarray, R0: np.ndarray | None, t0: np.ndarray | None) -> np.ndarray:
