@@ -106,11 +106,20 @@ def record(tree_path: Path, n_throws: int, seed: int) -> dict:
             calls.append((HEDGE, (float(t_now), float(stamp), pts, state), None, None))
         return on_belief(self, t_now, stamp, points, ep)
 
+    each = getattr(Steering, "to_rest_each", None)
+
+    def rec_to_rest_each(self, state, targets):
+        return [rec_to_rest(self, state, target) for target in targets]
+
     Steering.to_rest, Chooser.choose, HedgeStage.on_belief = rec_to_rest, rec_choose, rec_on_belief
+    if each is not None:
+        Steering.to_rest_each = rec_to_rest_each
     try:
         decision.time_planners(tree_path, ["tree"], n_throws, seed)
     finally:
         Steering.to_rest, Chooser.choose, HedgeStage.on_belief = to_rest, choose, on_belief
+        if each is not None:
+            Steering.to_rest_each = each
     return {"tree": str(tree_path), "throws": n_throws, "seed": seed, "calls": calls}
 
 

@@ -183,7 +183,8 @@ class Chooser:
         """
         mean = np.asarray(crossing_mean, dtype=float)
         goals = self.candidate_goals(mean[:2], np.asarray(crossing_cov)[:2, :2])
-        moves = [(g, self.steer.to_rest(state, self.goal_q[g])) for g in goals.tolist()]
+        goals = goals.tolist()
+        moves = zip(goals, self.steer.to_rest_each(state, self.goal_q[goals]), strict=True)
         moves = [(g, traj) for g, traj in moves if traj is not None]
         trajs = [traj for _, traj in moves]
         times = self._window(mean[2], crossing_cov[2][2], t_plan + lag - t_belief)
@@ -257,9 +258,10 @@ def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndar
     n_t = len(times)
     moving = ([current.traj] if current.traj is not None else []) + list(trajs)
     if len(moving) * n_t < BATCH_SAMPLES:
-        rows = _rows(current.traj, current_times, current.end)
+        rows = _rows(current.traj, current_times.tolist(), current.end)
+        shared = times.tolist()
         for tr in trajs:
-            rows += _rows(tr, times, None)
+            rows += _rows(tr, shared, None)
         return np.array(rows, dtype=float).reshape(1 + len(trajs), n_t, 3)
     out = np.empty((1 + len(trajs), n_t, 3))
     table = TrajectoryTable(moving)
@@ -276,16 +278,17 @@ def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndar
 def _sample(traj, times: np.ndarray, end) -> np.ndarray:
     """Joints 1-3 of ``traj`` at ``times`` [s] (clipped to the trajectory), shape (T, 3); a
     trajectory-less segment stays at ``end[:3]``."""
-    return np.array(_rows(traj, times, end), dtype=float).reshape(len(times), 3)
+    return np.array(_rows(traj, np.asarray(times).tolist(), end), dtype=float).reshape(-1, 3)
 
 
-def _rows(traj, times: np.ndarray, end) -> list:
-    """:func:`_sample` as a list of T rows (lists of 3 floats); ``times`` ascending: the clipped
-    times repeat at the ends, and a repeated time is read once."""
+def _rows(traj, times: list, end) -> list:
+    """:func:`_sample` as a list of T rows (lists of 3 floats) for ``times`` ascending (a list):
+    the clipped times repeat at the ends, and a repeated time is read once."""
     if traj is None:
         return [[float(x) for x in end[:3]]] * len(times)
-    at, out, last_t, last = traj.at_time, [], None, None
-    for t in np.clip(times, 0.0, traj.duration).tolist():
+    at, dur, out, last_t, last = traj.at_time, traj.duration, [], None, None
+    for t in times:
+        t = min(max(t, 0.0), dur)  # np.clip(t, 0, dur)
         if t != last_t:
             last_t, last = t, at(t)[0]
         out.append(last)
