@@ -191,13 +191,13 @@ class _Current:
         self.t0, self.traj, self.end = t0, traj, end
 
 
-def replay(calls_path: Path, repeat: int, limit: int | None) -> dict:
-    """CPU time [ns] of every call, ``repeat`` times (calls in recorded order each time), and
-    each choice's option values."""
+def replay(calls_path: Path, repeat: int, limit: int | None, kind: str | None = None) -> dict:
+    """CPU time [ns] of every call (of ``kind``, the first ``limit``), ``repeat`` times (calls
+    in recorded order each time), and each decision's outcome."""
     with open(calls_path, "rb") as f:
         rec = pickle.load(f)
     rp = Replayer(rec["tree"])
-    calls = rec["calls"][:limit]
+    calls = [c for c in rec["calls"] if kind is None or c[0] == kind][:limit]
     fns = [rp.prepare(c) for c in calls]
     values = []
     for c, fn in zip(calls, fns, strict=True):  # once untimed: warm and check
@@ -342,6 +342,9 @@ def compare(args) -> dict:
             ms = summary(merged[name].tolist(), kinds, kind)
             rows[f"{name} {kind or 'all'}"] = stats(ms)
     result["rows"] = rows
+    result["max_single_ms"] = {  # the slowest single replay of any call
+        n: round(float(merged[n].max()) * 1e-6, 4) for n in ("old", "new")
+    }
     o, n = rows[f"old {CHOOSE}"], rows[f"new {CHOOSE}"]
     result["ratio_choose"] = {k: round(n[k] / o[k], 3) for k in ("p50_ms", "p99_ms", "max_ms")}
     na = rows["new all"]
@@ -373,6 +376,7 @@ def main(argv=None) -> int:
     p.add_argument("calls", type=Path)
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--limit", type=int, default=None, help="the first N calls only")
+    p.add_argument("--kind", choices=(CHOOSE, HEDGE), help="calls of this kind only")
     p.add_argument("--profile", action="store_true", help="cProfile call counts instead")
     p.add_argument("--raw", action="store_true", help="print the raw JSON (for compare)")
     p.add_argument("--json", action="store_true")
@@ -397,7 +401,7 @@ def main(argv=None) -> int:
         if args.profile:
             print(json.dumps(profile(args.calls, args.limit), indent=None if args.json else 1))
             return 0
-        out = replay(args.calls, args.repeat, args.limit)
+        out = replay(args.calls, args.repeat, args.limit, args.kind)
         if args.raw:
             print(json.dumps(out))
             return 0
@@ -430,6 +434,7 @@ def main(argv=None) -> int:
     print(f"  new (choices and hedge) / old choices: {res['ratio_all_new_over_old_choose']}")
     if "hedge_over_choose_p99" in res:
         print(f"  hedge p99 / choose p99 (new): {res['hedge_over_choose_p99']}")
+    print(f"  slowest single replay [ms]: {res['max_single_ms']}")
     print(f"  same option values old and new: {res['same_values']}")
     print(f"  load average (1 min) over the run: {res['load_average_1min']}")
     return 0
