@@ -144,12 +144,12 @@ def test_joint_paths_in_one_pass_equal_at_time_sampling_bit_for_bit(setup):
     Ruckig's at_time, for a moving segment in progress and for a held one."""
     from types import SimpleNamespace
 
-    from thinkfast.decide.choice import _joint_paths, _sample
+    from thinkfast.decide.choice import BATCH_SAMPLES, _joint_paths, _sample
 
     chooser, goal_q, _, home = setup
     state = np.r_[home, np.zeros(6)]
     trajs = [chooser.steer.to_rest(state, goal_q[g]) for g in (0, 6, 12, 24)]
-    times = np.arange(-2, 60) * 0.02
+    times = np.arange(-2, 200) * 0.02
     moving = SimpleNamespace(traj=trajs[0], end=None)
     held = SimpleNamespace(traj=None, end=np.r_[goal_q[3], np.zeros(6)])
     for current in (moving, held):
@@ -159,5 +159,5 @@ def test_joint_paths_in_one_pass_equal_at_time_sampling_bit_for_bit(setup):
             [_sample(current.traj, shifted, current.end)]
             + [_sample(t, times, None) for t in trajs[1:]]
         )
-        assert len(times) * len(trajs) >= 64  # the one-pass path is the one tested
+        assert len(times) * len(trajs) >= BATCH_SAMPLES  # the one-pass path is the one tested
         assert np.array_equal(got, want)

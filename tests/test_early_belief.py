@@ -93,3 +93,41 @@ def test_without_a_hold_to_leave_there_is_no_early_belief():
     pts = _points(_flight(v0, 0.02 * np.arange(4)))
     assert eb.flight_run(pts, CFG) == (0, None)
     assert eb.early_fit(pts, CFG, PLANE_X, YZ_LO, YZ_HI, G) is None
+
+
+def _flight_run_reference(points, cfg):
+    """The definition: the longest run of newest points each nearer the plane than the median
+    of the points before it by depart_sigmas of its depth noise (at least min_hold before)."""
+    n = len(points)
+    for k in range(n, 0, -1):
+        before = points[: n - k]
+        if len(before) < cfg.min_hold:
+            continue
+        hold = np.median(np.array([p[1] for p in before]), axis=0)
+        gap = [cfg.depart_sigmas * np.sqrt(p[2][0, 0]) for p in points[n - k :]]
+        if all(hold[0] - p[1][0] > g for p, g in zip(points[n - k :], gap, strict=True)):
+            return k, hold
+    if n >= cfg.min_hold:
+        return 0, np.median(np.array([p[1] for p in points]), axis=0)
+    return 0, None
+
+
+def test_flight_run_is_the_longest_run_that_left_the_median_hold_bit_for_bit():
+    rng = np.random.default_rng(7)
+    runs = set()
+    for _ in range(3000):
+        n = int(rng.integers(0, 16))
+        flying = int(rng.integers(0, n + 1))
+        pts = []
+        for i in range(n):
+            p = HAND + rng.normal(0.0, 0.05, 3)
+            if i >= n - flying:
+                p[0] -= rng.uniform(0.0, 1.5)
+            s = rng.uniform(0.01, 0.3)
+            pts.append((0.02 * i, p, np.diag([s * s, 1e-4, 1e-4])))
+        k, hold = eb.flight_run(pts, CFG)
+        k_ref, hold_ref = _flight_run_reference(pts, CFG)
+        assert k == k_ref
+        assert (hold is None and hold_ref is None) or np.array_equal(hold, hold_ref)
+        runs.add(k)
+    assert len(runs) > 5  # runs of many lengths were met, 0 among them

@@ -101,3 +101,21 @@ def test_a_feasible_acceleration_keeps_the_plan_within_the_velocity_limit(robot)
         np.testing.assert_array_equal(
             feasible_acceleration(v, acc, steer.v_max, steer.a_max, steer.j_max), acc
         )
+
+
+def test_moves_from_one_state_to_many_targets_are_the_single_moves_bit_for_bit(robot):
+    steer = Steering.for_robot(robot)
+    rng = np.random.default_rng(11)
+    state = np.r_[rng.uniform(-1, 1, 3), rng.uniform(-0.5, 0.5, 3), rng.uniform(-1, 1, 3)]
+    targets = rng.uniform(-1, 1, (5, 3))
+    targets[2] = np.inf  # a failure in the middle leaves the others alone
+    each = steer.to_rest_each(state, targets)
+    assert each[2] is None
+    for target, traj in zip(targets, each, strict=True):
+        one = steer.to_rest(state, target)
+        if one is None:
+            assert traj is None
+            continue
+        assert traj.duration == one.duration
+        for t in np.linspace(0.0, one.duration, 17):
+            assert traj.at_time(t) == one.at_time(t)

@@ -38,13 +38,15 @@ import numpy as np
 from thinkfast.config import spec
 from thinkfast.decide import iso_disk
 from thinkfast.decide.path_value import PathValueConfig, block_probability
-from thinkfast.decide.shield_paths import block_geometry, shield_paths
+from thinkfast.decide.shield_paths import block_geometry, pack, shield_paths
+from thinkfast.estimate.linalg import inv
 from thinkfast.robot.batch_traj import TrajectoryTable
 from thinkfast.robot.shield_path import ShieldSampler
 from thinkfast.robot.steering import Steering
 
 CONTINUE, DIRECT, BRANCH = "continue", "direct", "branch"
-BATCH_SAMPLES = 64  # from this many samples, paths are read in one numpy pass (not at_time)
+BATCH_SAMPLES = 768  # from this many samples, paths are read in one numpy pass, not by at_time
+# (below it the numpy pass costs more: docs/BENCHMARKS.md, "The tree planner's choice, replayed")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,6 +130,7 @@ class Chooser:
         self.sampler = ShieldSampler(robot)
         self.geom = block_geometry(robot, plane_x, ball_radius)
         self.rho = self.geom.shield_radius + self.geom.ball_radius
+        self._widen = self.rho**2 * np.eye(2)
         self.steer = steer
         self.cfg = cfg
         self.quadrature = quadrature
@@ -137,16 +140,22 @@ class Chooser:
     # ------------------------------------------------------------------ candidates
     def candidate_goals(self, mean_yz: np.ndarray, cov_yz: np.ndarray) -> np.ndarray:
         """Goals to try, nearest first under the widened lateral covariance, shape (<=K,)."""
-        d = self.goal_yz - np.asarray(mean_yz, dtype=float)
-        s = np.asarray(cov_yz, dtype=float) + self.rho**2 * np.eye(2)
-        m = np.einsum("gi,ij,gj->g", d, np.linalg.inv(s), d)
+        d, m = self._distances(mean_yz, cov_yz)
         k = min(self.cfg.candidates, len(m))
         near = np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
         near = near[np.argsort(m[near], kind="stable")]
-        nearest = int(np.argmin(np.sum(d * d, axis=1)))  # naive's goal is always a candidate
+        d *= d
+        nearest = int(np.argmin(d[:, 0] + d[:, 1]))  # naive's goal is always a candidate
         if nearest not in near:
-            near = np.r_[nearest, near[:-1]]
+            near = np.concatenate(([nearest], near[:-1]))
         return near
+
+    def _distances(self, mean_yz, cov_yz) -> tuple[np.ndarray, np.ndarray]:
+        """Goal offsets from the crossing mean (G, 2) [m] and their squared Mahalanobis
+        distances under the lateral covariance widened by the block radius (G,)."""
+        d = self.goal_yz - np.asarray(mean_yz, dtype=float)
+        s = np.asarray(cov_yz, dtype=float) + self._widen
+        return d, np.einsum("gi,ij,gj->g", d, inv(s), d)
 
     def choose(
         self,
@@ -174,19 +183,17 @@ class Chooser:
         """
         mean = np.asarray(crossing_mean, dtype=float)
         goals = self.candidate_goals(mean[:2], np.asarray(crossing_cov)[:2, :2])
-        trajs, options = [], []
-        for g in goals.tolist():
-            traj = self.steer.to_rest(state, self.goal_q[g])
-            if traj is not None:
-                trajs.append(traj)
-                options.append(Option(DIRECT, g, traj, math.nan))
+        goals = goals.tolist()
+        moves = zip(goals, self.steer.to_rest_each(state, self.goal_q[goals]), strict=True)
+        moves = [(g, traj) for g, traj in moves if traj is not None]
+        trajs = [traj for _, traj in moves]
         times = self._window(mean[2], crossing_cov[2][2], t_plan + lag - t_belief)
         joints = _joint_paths(current, times + (t_plan - current.t0), trajs, times)
         values = self.score_joint_paths(
             joints, times, mean, crossing_cov, approach, t_plan + lag - t_belief
-        )
-        options = [Option(CONTINUE, -1, None, float(values[0]))] + [
-            o._replace(value=float(v)) for o, v in zip(options, values[1:], strict=True)
+        ).tolist()
+        options = [Option(CONTINUE, -1, None, values[0])] + [
+            Option(DIRECT, g, traj, v) for (g, traj), v in zip(moves, values[1:], strict=True)
         ]
         if branch_at is not None and table is not None:
             options += self._branches(
@@ -215,9 +222,7 @@ class Chooser:
 
     def candidate_goals_k(self, mean_yz, cov_yz, k: int) -> np.ndarray:
         """The ``k`` goals nearest the crossing mean under the widened lateral covariance."""
-        d = self.goal_yz - np.asarray(mean_yz, dtype=float)
-        s = np.asarray(cov_yz, dtype=float) + self.rho**2 * np.eye(2)
-        m = np.einsum("gi,ij,gj->g", d, np.linalg.inv(s), d)
+        m = self._distances(mean_yz, cov_yz)[1]
         return np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
 
     def _window(self, tau: float, var_tau: float, t_start: float) -> np.ndarray:
@@ -232,8 +237,13 @@ class Chooser:
     def score_joint_paths(self, joints, times, mean, cov, approach, t_start) -> np.ndarray:
         """P(block) of joint 1-3 paths (M, T, 3) sampled at ``times`` (T,) [s, path clock]
         whose clock reads 0 at ``t_start`` [s] after the belief, shape (M,)."""
-        centres = self.sampler.centres(joints)
-        return self.score_paths(times, centres, mean, cov, approach, t_start)
+        m, n_t = joints.shape[:2]
+        planes = np.empty((6, m * n_t))  # the packed layout, filled by rows
+        planes[:3] = self.sampler.centres(joints.reshape(m * n_t, 3)).T
+        if not np.isfinite(planes[:3]).all():
+            raise ValueError("times and centres must be finite")
+        packed = pack(times, planes, self.geom)
+        return block_probability(packed, mean, cov, self.geom, approach, t_start, self.quadrature)
 
     def score_paths(self, times, centres, mean, cov, approach, t_start) -> np.ndarray:
         """P(block) of shield-centre paths (M, T, 3) [m] in ``base``, shape (M,)."""
@@ -248,8 +258,11 @@ def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndar
     n_t = len(times)
     moving = ([current.traj] if current.traj is not None else []) + list(trajs)
     if len(moving) * n_t < BATCH_SAMPLES:
-        joints = [_sample(current.traj, current_times, current.end)]
-        return np.stack(joints + [_sample(tr, times, None) for tr in trajs])
+        rows = _rows(current.traj, current_times.tolist(), current.end)
+        shared = times.tolist()
+        for tr in trajs:
+            rows += _rows(tr, shared, None)
+        return np.array(rows, dtype=float).reshape(1 + len(trajs), n_t, 3)
     out = np.empty((1 + len(trajs), n_t, 3))
     table = TrajectoryTable(moving)
     owner = np.repeat(np.arange(len(moving)), n_t)
@@ -265,10 +278,18 @@ def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndar
 def _sample(traj, times: np.ndarray, end) -> np.ndarray:
     """Joints 1-3 of ``traj`` at ``times`` [s] (clipped to the trajectory), shape (T, 3); a
     trajectory-less segment stays at ``end[:3]``."""
+    return np.array(_rows(traj, np.asarray(times).tolist(), end), dtype=float).reshape(-1, 3)
+
+
+def _rows(traj, times: list, end) -> list:
+    """:func:`_sample` as a list of T rows (lists of 3 floats) for ``times`` ascending (a list):
+    the clipped times repeat at the ends, and a repeated time is read once."""
     if traj is None:
-        return np.broadcast_to(np.asarray(end[:3], dtype=float), (len(times), 3)).copy()
-    dur = traj.duration
-    out = np.empty((len(times), 3))
-    for i, t in enumerate(np.clip(times, 0.0, dur).tolist()):
-        out[i] = traj.at_time(t)[0]
+        return [[float(x) for x in end[:3]]] * len(times)
+    at, dur, out, last_t, last = traj.at_time, traj.duration, [], None, None
+    for t in times:
+        t = min(max(t, 0.0), dur)  # np.clip(t, 0, dur)
+        if t != last_t:
+            last_t, last = t, at(t)[0]
+        out.append(last)
     return out

@@ -121,7 +121,7 @@ def rim_table(sigma: float, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         j = min(max(int(pos) - 1, 0), n - 4)
         u = pos - j - 1.0
         prof = np.array([1.0, u, u * u, u * u * u]) @ _LAGRANGE @ rows[j : j + 4]
-        np.clip(prof, 0.0, 1.0, out=prof)
+        np.minimum(np.maximum(prof, 0.0, out=prof), 1.0, out=prof)  # np.clip, no wrapper
         return prof[:-1], prof[1:] - prof[:-1]
     prof = disk_profiles(sigma, radii)
     return prof[:, :-1].ravel(), np.diff(prof, axis=1).ravel()

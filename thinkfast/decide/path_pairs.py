@@ -103,7 +103,7 @@ def relative(paths: ShieldPaths, path, start, b: CrossingConditional, z, geom, a
     pos -= i
     pos *= paths.dt  # seconds into the segment
     i += path * n_t
-    x, y, z_, vx, vy, vz = (plane.take(i) for plane in paths.planes)  # each of shape S
+    x, y, z_, vx, vy, vz = paths.planes[:, i]  # each of shape S
     dx = vx * pos
     dx += x - geom.plane_x
     r_y = vy * pos
@@ -150,11 +150,17 @@ def disk_mean(
     d2 = r_y * r_y
     d2 += r_z * r_z
     reach = REACH_A * b.sig_a + min(float(np.abs(eta).max()), REACH_Z * b.sig_e)
-    radius = geom.shield_radius + geom.ball_radius if rho is None else rho
-    inner = np.maximum(radius - reach, 0.0)
-    inner *= inner
-    outer = radius + reach
-    outer *= outer
+    if rho is None:  # one radius: bounds as floats
+        radius = geom.shield_radius + geom.ball_radius
+        inner = max(radius - reach, 0.0)
+        inner *= inner
+        outer = radius + reach
+        outer *= outer
+    else:
+        inner = np.maximum(rho - reach, 0.0)
+        inner *= inner
+        outer = rho + reach
+        outer *= outer
     band = d2 > inner
     band &= d2 < outer
     n_band = int(np.count_nonzero(band))
@@ -201,7 +207,8 @@ def _lookup(
         np.sqrt(d, out=d)
     d *= scale
     d += offset
-    np.clip(d, 0.0, n_col - 1.0 - 1e-9, out=d)
+    np.maximum(d, 0.0, out=d)  # np.clip(d, 0, n_col - 1 - 1e-9), without its wrapper
+    np.minimum(d, n_col - 1.0 - 1e-9, out=d)
     ci = np.floor(d)
     d -= ci
     ci = ci.astype(np.intp)

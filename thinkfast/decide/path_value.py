@@ -135,13 +135,17 @@ def block_probability(
             packed edges); default all.
     """
     b = conditional(o_mean, o_cov, cfg.sigma_floor)
-    cand = np.arange(paths.n_paths) if index is None else np.asarray(index, dtype=np.intp)
-    n_paths = len(cand)
+    cand = None if index is None else np.asarray(index, dtype=np.intp)  # None: all paths
+    n_paths = paths.n_paths if cand is None else len(cand)
     keep = _reachable(paths, cand, b, geom, approach)  # positions in cand
     if keep.size == 0:
         return np.zeros(n_paths)
-    alive = cand[keep]
-    start = np.broadcast_to(np.asarray(t_start, dtype=float), (n_paths,))[keep]
+    alive = keep if cand is None else cand[keep]
+    start = np.asarray(t_start, dtype=float)
+    if start.ndim == 0:
+        start = np.full(keep.size, float(start))
+    else:
+        start = np.broadcast_to(start, (n_paths,))[keep]
     ze, we = normal_rule(
         b.sig_a / b.sig_e / cfg.refine if b.sig_e > 0 else math.inf,
         cfg.max_lateral_nodes,
@@ -192,10 +196,10 @@ def block_probability(
 def _reachable(
     paths: ShieldPaths, cand, b: CrossingConditional, geom: BlockGeometry, approach
 ) -> np.ndarray:
-    """Positions in ``cand`` of the paths whose bounding box (widened by the meeting shift) comes
-    within reach of a node that weighs: |z| <= 4 along tau and the major axis, 4.5 sigma_a
-    across."""
-    box = paths.box[:, cand]
+    """Positions in ``cand`` (None: all paths) of the paths whose bounding box (widened by the
+    meeting shift) comes within reach of a node that weighs: |z| <= 4 along tau and the major
+    axis, 4.5 sigma_a across."""
+    box = paths.box if cand is None else paths.box[:, cand]
     reach = REACH_A * b.sig_a + geom.shield_radius + geom.ball_radius
     ry = reach + REACH_Z * (abs(b.k[0]) * b.sd_t + abs(b.e[0]) * b.sig_e)
     rz = reach + REACH_Z * (abs(b.k[1]) * b.sd_t + abs(b.e[1]) * b.sig_e)
@@ -207,8 +211,11 @@ def _reachable(
         ok &= box[3] > mz - rz
         return np.flatnonzero(ok)
     v = [float(x) for x in approach]
-    shift = paths.speed[cand] + math.hypot(v[1], v[2])
-    shift *= paths.front[cand]
+    speed, front = paths.speed, paths.front
+    if cand is not None:
+        speed, front = speed[cand], front[cand]
+    shift = speed + math.hypot(v[1], v[2])
+    shift *= front
     shift *= 1.0 / max(abs(v[0]), 1e-9)
     ok = box[0] - shift < my + ry
     ok &= box[2] + shift > my - ry

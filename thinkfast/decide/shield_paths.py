@@ -97,43 +97,58 @@ def shield_paths(times: np.ndarray, centre: np.ndarray, geom: BlockGeometry) -> 
         c = c[None]
     if times.ndim != 1 or c.ndim != 3 or c.shape[1:] != (len(times), 3) or len(times) == 0:
         raise ValueError(f"need times (T,) and centre (M, T, 3), got {times.shape}, {c.shape}")
-    if not (np.all(np.isfinite(times)) and np.all(np.isfinite(c))):
+    if not (np.isfinite(times).all() and np.isfinite(c).all()):
         raise ValueError("times and centres must be finite")
     dt = float(times[1] - times[0]) if len(times) > 1 else 1.0
     # np.allclose(np.diff(times), dt, rtol=1e-6, atol=1e-12), without its overhead
     if len(times) > 1 and not (
-        dt > 0.0 and np.all(np.abs(np.diff(times) - dt) <= 1e-12 + 1e-6 * abs(dt))
+        dt > 0.0 and (np.abs((times[1:] - times[:-1]) - dt) <= 1e-12 + 1e-6 * abs(dt)).all()
     ):
         raise ValueError("times must be uniformly spaced and increasing")
     m, t = c.shape[:2]
-    vel = np.zeros_like(c)
-    vel[:, :-1] = np.diff(c, axis=1) * (1.0 / dt)
-    planes = np.ascontiguousarray(np.concatenate([c, vel], axis=2).reshape(m * t, 6).T)
-    speed = np.sqrt(np.max(np.sum(np.square(vel[:, :, 1:]), axis=2), axis=1))
-    box = np.concatenate([c[:, :, 1:].min(axis=1), c[:, :, 1:].max(axis=1)], axis=1).T.copy()
-    x_range = np.stack([c[:, :, 0].min(axis=1), c[:, :, 0].max(axis=1)], axis=1)
-    x_speed = np.abs(vel[:, :, 0]).max(axis=1)
+    planes = np.empty((6, m * t))
+    planes[:3] = c.reshape(m * t, 3).T
+    return pack(times, planes, geom)
+
+
+def pack(times: np.ndarray, planes: np.ndarray, geom: BlockGeometry) -> ShieldPaths:
+    """:func:`shield_paths` of centres already in ``planes[:3]`` (the layout of
+    :attr:`ShieldPaths.planes`), unchecked: ``times`` (T,) uniform and increasing, ``planes``
+    (6, M * T) finite. Fills the velocity rows ``planes[3:]`` in place."""
+    n_t = len(times)
+    m = planes.shape[1] // n_t
+    dt = float(times[1] - times[0]) if n_t > 1 else 1.0
+    pos = planes[:3].reshape(3, m, n_t)
+    vel = planes[3:].reshape(3, m, n_t)
+    np.subtract(pos[:, :, 1:], pos[:, :, :-1], out=vel[:, :, :-1])
+    vel[:, :, :-1] *= 1.0 / dt
+    vel[:, :, -1] = 0.0
+    lateral = vel[1] * vel[1]
+    lateral += vel[2] * vel[2]
+    lo, hi = pos.min(axis=2), pos.max(axis=2)  # (3, M)
+    x_range = np.stack([lo[0], hi[0]], axis=1)
     return ShieldPaths(
         float(times[0]),
         dt,
         planes,
-        t,
-        speed,
-        box,
-        np.maximum(x_range[:, 1] - geom.plane_x, 0.0),
+        n_t,
+        np.sqrt(lateral.max(axis=1)),
+        np.concatenate([lo[1:], hi[1:]]),
+        np.maximum(hi[0] - geom.plane_x, 0.0),
         x_range,
-        x_speed,
-        *_cuts(times, c, geom.touch_x),
+        np.abs(vel[0]).max(axis=1),
+        *_cuts(times, pos, geom.touch_x),
     )
 
 
-def _cuts(times: np.ndarray, c: np.ndarray, touch_x: float) -> tuple[np.ndarray, ...]:
-    """Times (M, MAX_CUTS) at which the paths ``c`` (M, T, 3) cross ``x = touch_x`` (linear
+def _cuts(times: np.ndarray, pos: np.ndarray, touch_x: float) -> tuple[np.ndarray, ...]:
+    """Times (M, MAX_CUTS) at which the paths ``pos`` (3, M, T) cross ``x = touch_x`` (linear
     between samples), the (y, z) there (M, MAX_CUTS, 2) and whether x rises (M, MAX_CUTS)."""
-    times_out = np.full((len(c), MAX_CUTS), np.inf)
-    yz_out = np.full((len(c), MAX_CUTS, 2), np.nan)
-    in_out = np.zeros((len(c), MAX_CUTS), dtype=bool)
-    depth = c[:, :, 0] - touch_x
+    m = pos.shape[1]
+    times_out = np.full((m, MAX_CUTS), np.inf)
+    yz_out = np.full((m, MAX_CUTS, 2), np.nan)
+    in_out = np.zeros((m, MAX_CUTS), dtype=bool)
+    depth = pos[0] - touch_x
     above = depth >= 0.0
     m_idx, i_idx = np.nonzero(above[:, 1:] != above[:, :-1])
     if m_idx.size == 0:
@@ -144,7 +159,8 @@ def _cuts(times: np.ndarray, c: np.ndarray, touch_x: float) -> tuple[np.ndarray,
     keep = rank < MAX_CUTS
     mk, rk, ik, uk = m_idx[keep], rank[keep], i_idx[keep], u[keep]
     times_out[mk, rk] = times[ik] + (times[ik + 1] - times[ik]) * uk
-    yz_out[mk, rk] = c[mk, ik, 1:] + (c[mk, ik + 1, 1:] - c[mk, ik, 1:]) * uk[:, None]
+    yz0, yz1 = pos[1:, mk, ik], pos[1:, mk, ik + 1]  # (2, K)
+    yz_out[mk, rk] = (yz0 + (yz1 - yz0) * uk).T
     in_out[mk, rk] = above[mk, ik + 1]
     times_out[np.unique(m_idx[~keep]), 0] = -np.inf
     return times_out, yz_out, in_out

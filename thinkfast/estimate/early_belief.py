@@ -31,6 +31,7 @@ or more does not. This is the hedge stage's trigger; the launch detector still c
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import NamedTuple
 
@@ -38,6 +39,7 @@ import numpy as np
 
 from thinkfast.config import spec
 from thinkfast.estimate.chi2 import chi2_limit
+from thinkfast.estimate.linalg import inv
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,18 +103,29 @@ def velocity_prior(
     """Mean (3,) [m/s] and covariance (3, 3) of the velocity of a ball at ``p`` [m] (3,) that
     crosses the plane ``x = plane_x`` uniformly inside the box ``yz_lo``..``yz_hi`` [m] (2,)
     after a time uniform in ``tau`` [s] (2,): moments over an ``n``^3 lattice of cell centres."""
-    u = (np.arange(n) + 0.5) / n
-    y = yz_lo[0] + u * (yz_hi[0] - yz_lo[0])
-    z = yz_lo[1] + u * (yz_hi[1] - yz_lo[1])
-    t = tau[0] + u * (tau[1] - tau[0])
-    yy, zz, tt = (a.ravel() for a in np.meshgrid(y, z, t, indexing="ij"))
-    v = np.stack(
-        [(plane_x - p[0]) / tt, (yy - p[1]) / tt, (zz - p[2] + 0.5 * gravity * tt * tt) / tt],
-        axis=1,
-    )
+    yy, zz, tt, fall = _lattice(*map(float, (*yz_lo, *yz_hi, *tau, gravity)), n)
+    v = np.empty((len(tt), 3))  # the columns as np.stack lays them out
+    np.divide(plane_x - p[0], tt, out=v[:, 0])
+    np.divide(yy - p[1], tt, out=v[:, 1])
+    np.divide(zz - p[2] + fall, tt, out=v[:, 2])
     mean = v.mean(axis=0)
     d = v - mean
     return mean, d.T @ d / len(v)
+
+
+@functools.lru_cache(maxsize=8)
+def _lattice(y0, z0, y1, z1, t0, t1, gravity, n) -> tuple[np.ndarray, ...]:
+    """The ``n``^3 lattice of :func:`velocity_prior` (crossing y, z [m], time tau [s], each
+    (n^3,)) and the fall ``0.5 g tau^2`` [m] there (read-only, cached: one prior per cell)."""
+    u = (np.arange(n) + 0.5) / n
+    y = y0 + u * (y1 - y0)
+    z = z0 + u * (z1 - z0)
+    t = t0 + u * (t1 - t0)
+    yy, zz, tt = (a.ravel() for a in np.meshgrid(y, z, t, indexing="ij"))
+    out = (yy, zz, tt, 0.5 * gravity * tt * tt)
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def fit_with_prior(
@@ -131,17 +144,17 @@ def fit_with_prior(
         at ``times[-1]``. Defined from one point on.
     """
     dt = np.asarray(times, dtype=float) - float(times[-1])
-    w = np.linalg.inv(covs)
+    w = inv(covs)
     y = np.array(points, dtype=float)
     y[:, 2] += 0.5 * gravity * dt * dt  # remove the known gravity term
-    wp = np.linalg.inv(v_cov)
+    wp = inv(v_cov)
     info = np.zeros((6, 6))
     info[:3, :3] = w.sum(axis=0)
     info[:3, 3:] = info[3:, :3] = np.einsum("n,nij->ij", dt, w)
     info[3:, 3:] = np.einsum("n,nij->ij", dt * dt, w) + wp
     wy = np.einsum("nij,nj->ni", w, y)
     rhs = np.r_[wy.sum(axis=0), dt @ wy + wp @ v_mean]
-    cov = np.linalg.inv(info)
+    cov = inv(info)
     cov = 0.5 * (cov + cov.T)
     x = cov @ rhs
     res = y - (x[:3] + dt[:, None] * x[3:])
@@ -154,19 +167,29 @@ def flight_run(points: list, cfg: EarlyConfig) -> tuple[int, np.ndarray | None]:
     """How many of the newest ``points`` (stamp, position (3,), noise covariance (3, 3)), oldest
     first, have left the hold towards the plane, and the hold position (None: fewer than
     ``min_hold`` detections before them, the hold is not known)."""
-    n = len(points)
-    for k in range(n, 0, -1):  # the longest run first: a flight is a few points, the hold many
-        before = points[: n - k]
-        if len(before) < cfg.min_hold:
-            continue
-        hold = np.median(np.array([p[1] for p in before]), axis=0)
-        if all(
-            hold[0] - p[1][0] > cfg.depart_sigmas * math.sqrt(p[2][0, 0]) for p in points[n - k :]
-        ):
-            return k, hold
-    if n >= cfg.min_hold:
-        return 0, np.median(np.array([p[1] for p in points]), axis=0)
+    n, k = len(points), _run(points, cfg)
+    if k > 0 or n >= cfg.min_hold:
+        return k, np.median(np.array([p[1] for p in points[: n - k]]), axis=0)
     return 0, None
+
+
+def _run(points: list, cfg: EarlyConfig) -> int:
+    """The length of :func:`flight_run`'s run (0: none)."""
+    n = len(points)
+    xs = [float(p[1][0]) for p in points]
+    gap = [cfg.depart_sigmas * math.sqrt(p[2][0, 0]) for p in points]  # to leave the hold
+    for k in range(n - cfg.min_hold, 0, -1):  # the longest run first: a flight is a few points
+        # only the hold's x decides: the median of the x before the run (as np.median)
+        hold_x = _median(sorted(xs[: n - k]))
+        if all(hold_x - x > g for x, g in zip(xs[n - k :], gap[n - k :], strict=True)):
+            return k
+    return 0
+
+
+def _median(v: list[float]) -> float:
+    """``np.median`` of sorted floats: the middle one, or the mean of the middle two."""
+    h = len(v) // 2
+    return v[h] if len(v) % 2 else (v[h - 1] + v[h]) / 2.0
 
 
 def early_fit(
@@ -174,9 +197,10 @@ def early_fit(
 ) -> EarlyFit | None:
     """The early belief from the flight detections among ``points`` (see :func:`flight_run`;
     the ``max_points`` newest), or None when none has left a known hold."""
-    k, hold = flight_run(points, cfg)
-    if k == 0 or hold is None:
+    k = _run(points, cfg)
+    if k == 0:
         return None
+    hold = np.median(np.array([p[1] for p in points[: len(points) - k]]), axis=0)
     run = points[-min(k, cfg.max_points) :]
     times = np.array([p[0] for p in run])
     pts = np.array([p[1] for p in run])

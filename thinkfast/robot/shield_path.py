@@ -52,43 +52,63 @@ class ShieldSampler:
                 "shield path: the shield centre must lie on link_5's x axis, normal along it"
             )
         self.offset = float(local[0])  # L [m]
-        self._chain = self._wrist_chain()
+        self._wrist_point, self._chain = self._wrist_chain()
+        self._offsets: dict[tuple, np.ndarray] = {}
 
-    def _wrist_chain(self) -> list:
-        """The joints from ``base`` to the wrist centre, last first, as (R0, t0, axis, index):
-        the wrist centre needs joints 1-3 only (joints 4 and 5 turn about axes through it)."""
+    def _wrist_chain(self) -> tuple[np.ndarray, list]:
+        """The joints from ``base`` to the wrist centre, last first, as the point they move
+        (the wrist centre after the steps that do not depend on joints 1-3, which are fixed
+        transforms for joints 4 and 5: they turn about axes through it) and the remaining steps
+        (R0, t0, rotation, index): a rotation about a frame axis is (k, i, j, sign), else the
+        unit axis (Rodrigues); R0 None where it is the identity, t0 None where it is zero."""
         steps, link = [], self.wrist_link
         by_child = {j.child: j for j in self.robot.chain}
         while link in by_child:
             j = by_child[link]
             index = j.index if 0 <= j.index < 3 else -1
-            steps.append((j.T_parent_joint[:3, :3].copy(), j.T_parent_joint[:3, 3].copy(),
-                          np.asarray(j.axis, dtype=float), index))  # fmt: skip
+            R0, t0 = j.T_parent_joint[:3, :3].copy(), j.T_parent_joint[:3, 3].copy()
+            axis = np.asarray(j.axis, dtype=float)
+            k = int(np.argmax(np.abs(axis)))
+            rot = axis
+            if abs(abs(axis[k]) - 1.0) < 1e-12:  # about a frame axis: mix two components
+                rot = (k, (k + 1) % 3, (k + 2) % 3, float(np.sign(axis[k])))
+            steps.append((None if np.array_equal(R0, np.eye(3)) else R0,
+                          None if not t0.any() else t0, rot, index))  # fmt: skip
             link = j.parent
-        return steps
+        p = np.zeros((1, 3))
+        while steps and steps[0][3] < 0:  # the same arithmetic on one point
+            R0, t0, _, _ = steps.pop(0)
+            p = _place(p, R0, t0)
+        return p[0], steps
 
     def wrist_centres(self, q123: np.ndarray) -> np.ndarray:
         """Wrist centres [m] (N, 3) in ``base`` for joints 1-3 (N, 3) [rad]: the chain applied
         to a point from the wrist back to ``base`` (the tests hold it to the batched FK)."""
         q123 = np.asarray(q123, dtype=float)
-        p = np.zeros((len(q123), 3))
-        for R0, t0, axis, index in self._chain:
+        p = np.broadcast_to(self._wrist_point, (len(q123), 3))
+        for R0, t0, rot, index in self._chain:
             if index >= 0:  # p <- Rot(axis, q) p
                 a = q123[:, index]
-                k = int(np.argmax(np.abs(axis)))
-                if abs(abs(axis[k]) - 1.0) < 1e-12:  # about a frame axis: mix two components
-                    i, j = (k + 1) % 3, (k + 2) % 3
-                    c, s = np.cos(a), np.sign(axis[k]) * np.sin(a)
-                    p = p.copy()
-                    p[:, i], p[:, j] = c * p[:, i] - s * p[:, j], s * p[:, i] + c * p[:, j]
+                if isinstance(rot, tuple):
+                    k, i, j, sign = rot
+                    c, s = np.cos(a), np.sin(a)
+                    if sign < 0.0:
+                        s = -s
+                    out = np.empty((len(q123), 3))
+                    pi, pj = p[:, i], p[:, j]
+                    np.subtract(c * pi, s * pj, out=out[:, i])
+                    np.add(s * pi, c * pj, out=out[:, j])
+                    out[:, k] = p[:, k]
+                    p = out
                 else:  # Rodrigues
+                    axis = rot
                     c, s = np.cos(a)[:, None], np.sin(a)[:, None]
                     cross = np.column_stack([axis[1] * p[:, 2] - axis[2] * p[:, 1],
                                              axis[2] * p[:, 0] - axis[0] * p[:, 2],
                                              axis[0] * p[:, 1] - axis[1] * p[:, 0]])  # fmt: skip
                     p = c * p + s * cross + (1.0 - c) * (p @ axis)[:, None] * axis
-            p = p @ R0.T + t0
-        return p
+            p = _place(p, R0, t0)
+        return np.array(p)
 
     def centres(self, q123: np.ndarray, normal=(1.0, 0.0, 0.0)) -> np.ndarray:
         """Shield centres [m], shape (..., 3), for joints 1-3 [rad], shape (..., 3).
@@ -98,10 +118,20 @@ class ShieldSampler:
             normal: shield normal in ``base`` (unit (3,)); +x is the coplanar rule.
         """
         q123 = np.asarray(q123, dtype=float)
-        flat = q123.reshape(-1, 3)
-        wc = self.wrist_centres(flat)
-        n = np.asarray(normal, dtype=float)
-        return (wc + self.offset * (n / np.linalg.norm(n))).reshape(q123.shape)
+        wc = self.wrist_centres(q123.reshape(-1, 3))
+        key = tuple(map(float, normal))
+        if key not in self._offsets:  # the centre's offset from the wrist centre, per normal
+            n = np.asarray(key)
+            self._offsets[key] = self.offset * (n / np.linalg.norm(n))
+        wc += self._offsets[key]
+        return wc.reshape(q123.shape)
+
+
+def _place(p: np.ndarray, R0: np.ndarray | None, t0: np.ndarray | None) -> np.ndarray:
+    """``p @ R0.T + t0`` (N, 3), skipping an identity ``R0`` or a zero ``t0`` (None)."""
+    if R0 is not None:
+        p = p @ R0.T
+    return p if t0 is None else p + t0
 
 
 def sample_joint_paths(trajectories: Sequence, times: np.ndarray) -> np.ndarray:

@@ -54,13 +54,25 @@ class Steering:
 
     def to_rest(self, state: np.ndarray, target: np.ndarray) -> Trajectory | None:
         """Trajectory from ``state`` (3n,) = p, v, a to rest at ``target`` (n,); None on failure."""
+        self._set_state(state)
+        return self._solve(target)
+
+    def to_rest_each(self, state: np.ndarray, targets) -> list[Trajectory | None]:
+        """:meth:`to_rest` from one ``state`` (3n,) to each of ``targets`` (K, n) in turn."""
+        self._set_state(state)
+        return [self._solve(target) for target in targets]
+
+    def _set_state(self, state) -> None:
         n, inp = self.n, self._inp
         state = _floats(state)
         inp.current_position = state[:n]
         inp.current_velocity = state[n : 2 * n]
         inp.current_acceleration = state[2 * n : 3 * n]
+
+    def _solve(self, target) -> Trajectory | None:
+        inp = self._inp
         inp.target_position = _floats(target)
-        traj = Trajectory(n)
+        traj = Trajectory(self.n)
         try:
             result = self._otg.calculate(inp, traj)
         except Exception:  # ruckig.RuckigError: invalid input or a numerically hard case
