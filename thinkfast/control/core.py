@@ -133,6 +133,13 @@ class ControlCore:
         return self.rate.fb
 
     @property
+    def prepared(self) -> Ahead | None:
+        """The reply prepared for the next cycle (:meth:`prepare`), filtered ahead; None when
+        nothing is (or its setpoint failed)."""
+        p = self._prepared
+        return None if p is None or p.t != self.t_next else p.ahead
+
+    @property
     def t_next(self) -> float:
         """Controller time of the next cycle [s] (-inf before the first packet)."""
         return self.clock.t + self.cfg.dt
@@ -159,6 +166,7 @@ class ControlCore:
         t = self.t_next
         if self.last is None or (self._prepared is not None and self._prepared.t == t):
             return
+        self.invalidate()  # one for an earlier cycle (packets left unanswered since)
         try:
             q_req, qd_req = self.ex.setpoint(t)
         except Exception:
@@ -167,8 +175,14 @@ class ControlCore:
         self._prepared = Prepared(t, self.sup.filter_ahead(q_req, qd_req))
 
     def invalidate(self) -> None:
-        """The plan changed: a prepared setpoint is void."""
-        self._prepared = None
+        """The plan is about to change (call it first): a prepared setpoint is void, and an
+        executor that can (``retract()``: the reply process's follower) forgets having been
+        asked for it, so that preparing ahead changes no reply."""
+        if self._prepared is not None:
+            self._prepared = None
+            retract = getattr(self.ex, "retract", None)
+            if retract is not None:
+                retract()
 
     def on_detection(self, payload: bytes, now: float | None, t_plan: float) -> Accepted | None:
         """One detection ``payload`` received at ``now`` [s] (None: no clock checks, lockstep):
@@ -179,7 +193,7 @@ class ControlCore:
         det = self.intake.take(payload, now)
         if det is None:
             return None
-        self._prepared = None  # the plan changes: prepare again
+        self.invalidate()  # the plan changes: prepare again
         try:
             refused = self.ex.on_detection(t_plan, det.stamp, det.position, det.camera)
             if refused is not None:
@@ -251,9 +265,13 @@ class ControlCore:
             return self._restart(tick, q_meas, qd_end if qd_end is not None else qd_meas)
         if tick.resync or self.last is None:
             return self._restart(tick, q_meas, qd_meas)
-        prepared, self._prepared = self._prepared, None
+        prepared = self._prepared
         steps = max(1, round(tick.elapsed / self.cfg.dt))
         h = tick.elapsed / steps
+        ahead = prepared.ahead if prepared is not None and prepared.t == tick.t else None
+        if ahead is None or steps > 1 or (late and not self._repeated_late):
+            self.invalidate()  # not used: the setpoint is asked afresh
+        self._prepared = None
         if late and not self._repeated_late:  # the controller takes this reply where it kept
             self._repeated_late = True  # the one before the last (once: a lasting lag is steady)
             self._catch_up(tick.t, steps)
@@ -264,7 +282,6 @@ class ControlCore:
             self._catch_up(tick.t - h, steps - 1)
         was_braking = self.sup.braking
         q_fb = None if self.shadow else q_meas
-        ahead = prepared.ahead if prepared is not None and prepared.t == tick.t else None
         if ahead is not None and steps == 1:
             cmd = self.sup.step_ahead(ahead, q_meas=q_fb, dt=h)
         else:
@@ -291,6 +308,7 @@ class ControlCore:
         """The controller does not follow references: command the measured position at rest
         and keep the planner's state on the arm (module doc)."""
         tick = self.clock.tick(tm_ms, now, True, seqno)
+        self.invalidate()
         q = np.array(q_meas, dtype=float)
         first = self.last is None
         self.sup.reset(q)
@@ -341,6 +359,7 @@ class ControlCore:
 
     def _restart(self, tick: ClockTick, q_meas, qd_meas) -> Reply:
         """First packet or after a silence: command the measured state, plan on from it."""
+        self.invalidate()
         first = self.last is None
         if first:
             self.sup.reset(q_meas)

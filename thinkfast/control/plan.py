@@ -175,11 +175,17 @@ class PlanFollower:
         self.plan_id, self.epoch = -1, 0
         self.calls: list[tuple[str, float, np.ndarray, np.ndarray, np.ndarray]] = []
         self.t_set = -math.inf  # the last time a setpoint was asked for
+        self._undo: tuple | None = None  # the state before the last setpoint (retract)
+
+    def takes(self, plan: Plan) -> bool:
+        """``plan`` is new and was made after every replan made here (:meth:`adopt` takes it)."""
+        return plan.epoch == self.epoch and plan.id != self.plan_id
 
     def adopt(self, plan: Plan) -> bool:
         """Follow ``plan`` when it is new and was made after every replan made here."""
-        if plan.epoch != self.epoch or plan.id == self.plan_id:
+        if not self.takes(plan):
             return False
+        self._undo = None
         self.plan_id, self.mode = plan.id, plan.mode
         # a plan that starts after the next cycle: the one in effect goes on until it starts
         # (it starts from that one's state then)
@@ -190,6 +196,7 @@ class PlanFollower:
 
     def setpoint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions [rad] (6,) and velocities [rad/s] (6,) of the plan at ``t`` [s]."""
+        self._undo = (self.t_set, self.timeline.segment, self.wrist.memo())
         segs = self.segments
         seg = segs[0]
         for later in segs[1:]:  # the last one started by t
@@ -201,7 +208,18 @@ class PlanFollower:
         self.t_set = t
         return np.r_[s[:3], w[:3]], np.r_[s[3:6], w[3:6]]
 
+    def retract(self) -> None:
+        """Undo the last :meth:`setpoint` (asked ahead for a reply that will not use it: a new
+        plan, a replan or a skipped cycle came first): the follower is as if it had not been
+        asked, so that the setpoint asked again is the one it would have given then. Only
+        right after that call (a replan or a new plan in between forgets it)."""
+        undo, self._undo = self._undo, None
+        if undo is not None:
+            self.t_set, self.timeline.segment, memo = undo
+            self.wrist.recall(memo)
+
     def _replanned(self, name: str, t: float, q, qd, qdd) -> None:
+        self._undo = None
         self.segments = (self.timeline.segment,)
         self.epoch += 1
         z = np.zeros(6)
