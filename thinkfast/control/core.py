@@ -122,6 +122,7 @@ class ControlCore:
         self.fault_count = 0
         self.latched = False
         self.rate = FeedbackRate(cfg.dt)  # velocity and rest measured from the feedback
+        self._unmeasured: tuple | None = None  # (tick, q, span) to measure (settle)
         self._prepared: Prepared | None = None  # the next cycle's reply, computed ahead
         self.errors = 0  # executor.setpoint failures (each brakes)
         self.last_error: Exception | None = None
@@ -130,6 +131,7 @@ class ControlCore:
     @property
     def measured(self) -> tuple[float, np.ndarray] | None:
         """(controller time [s], joints [rad] (6,)) of the last feedback, None before any."""
+        self.settle()
         return self.rate.fb
 
     @property
@@ -229,6 +231,7 @@ class ControlCore:
 
         In shadow mode the reply's ``q``/``qd`` are the virtual arm's; the caller sends
         :attr:`hold_q` at rest instead."""
+        self.settle()
         if not (ready or self.shadow):
             return self._standby(tm_ms, q_meas, now, seqno)
         if self.shadow:  # hold where the arm stands when the stream (re)starts
@@ -251,7 +254,10 @@ class ControlCore:
         if tick.repeat and self.last is not None:
             self.repeats += 1
             return self.last._replace(tick=tick)
-        qd_meas = self.rate.measure(tick, q_meas, span_before(tm_ms, seqno, before, self.cfg.dt))
+        span = span_before(tm_ms, seqno, before, self.cfg.dt)
+        if not (tick.resync or self.last is None or self._waiting >= 0):
+            return self._on_cycle(tick, q_meas, span, late)
+        qd_meas = self.rate.measure(tick, q_meas, span)
         if tick.resync and self.last is not None and not self.latched and not self.at_rest():
             self._waiting = 0  # a silence in motion: measure the velocity
             self.rate.track.clear()
@@ -263,8 +269,13 @@ class ControlCore:
                 return None
             self._waiting = -1
             return self._restart(tick, q_meas, qd_end if qd_end is not None else qd_meas)
-        if tick.resync or self.last is None:
-            return self._restart(tick, q_meas, qd_meas)
+        return self._restart(tick, q_meas, qd_meas)
+
+    def _on_cycle(self, tick: ClockTick, q_meas, span, late: bool) -> Reply:
+        """The reply to a packet a cycle or more on, in a running stream: the prepared one when
+        it applies. The feedback's velocity is measured after it (:meth:`settle`): nothing
+        here needs it but a brake's recovery."""
+        self._unmeasured = (tick, q_meas, span)
         prepared = self._prepared
         steps = max(1, round(tick.elapsed / self.cfg.dt))
         h = tick.elapsed / steps
@@ -300,7 +311,8 @@ class ControlCore:
         if cmd.kinds and not cmd.braking:  # the plan goes on from what was commanded
             self.ex.resync(cmd.q, cmd.qd, self.sup.qdd, tick.t)
         if cmd.braking:
-            self._while_braking(tick.t, q_meas, qd_meas)
+            self.settle()
+            self._while_braking(tick.t, q_meas)
         self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
         return self.last
 
@@ -322,6 +334,14 @@ class ControlCore:
         self.rate.fb = (tick.t, q)
         self.last = Reply(self.sup.q, np.zeros(6), "standby", tick)
         return self.last
+
+    def settle(self) -> None:
+        """Measure the last feedback's velocity if its reply left that for after it (the rest
+        the recovery waits for, :class:`FeedbackRate`): call it between packets; every call
+        that needs it makes it first."""
+        if self._unmeasured is not None:
+            args, self._unmeasured = self._unmeasured, None
+            self.rate.measure(*args)
 
     def brake(self, reason: str) -> None:
         """Latch a smooth stop (``signal``, or ``nonfinite`` for a planner failure)."""
@@ -381,7 +401,7 @@ class ControlCore:
         self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
         return self.last
 
-    def _while_braking(self, t: float, q_meas, qd_meas) -> None:
+    def _while_braking(self, t: float, q_meas) -> None:
         reason = self.sup.brake_reason
         if reason not in FAULT_REASONS or not self.sup.stopped or self.latched:
             return

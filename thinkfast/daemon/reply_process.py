@@ -98,9 +98,10 @@ class ReplyLoop:
         and the deadlines (:meth:`watch_plan`, at ``now_mono`` [s]), then the next reply
         prepared ahead (:meth:`ControlCore.prepare`: again after a new plan) and its
         ``EgmSensor`` body encoded, so that a packet finds its reply ready."""
+        core = self.core
+        core.settle()  # the last feedback's velocity: left for after its reply
         self.after(replied)
         self.watch_plan(now_mono)
-        core = self.core
         core.prepare()
         ahead = core.prepared
         if ahead is None or ahead.result is None:
