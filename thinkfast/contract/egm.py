@@ -308,14 +308,12 @@ def decode_robot(data: bytes) -> RobotFeedback:
     q = _joints_from_wire(msg.feedBack.joints.joints, "EgmRobot feedBack")
     header = msg.header
     return RobotFeedback(
-        seqno=header.seqno,
-        tm_ms=header.tm if header.HasField("tm") else None,
-        q_rad=q,
-        motors_on=msg.motorState.state == MOTORS_ON,
-        mci_running=msg.mciState.state == MCI_RUNNING,
-        rapid_running=(
-            msg.rapidExecState.state == RAPID_RUNNING if msg.HasField("rapidExecState") else None
-        ),
+        header.seqno,
+        header.tm if header.HasField("tm") else None,
+        q,
+        msg.motorState.state == MOTORS_ON,
+        msg.mciState.state == MCI_RUNNING,
+        msg.rapidExecState.state == RAPID_RUNNING if msg.HasField("rapidExecState") else None,
     )
 
 

@@ -267,8 +267,10 @@ class SafetySupervisor:
             return Ahead(q_req, qd_req, self.state, None)
         with np.errstate(over="ignore", invalid="ignore"):  # as in filter_step
             res = filter_tick(self.q, self.qd, q_r, v_r, self.limits, self.config.dt, self._k)
+        res.q.setflags(write=False)  # fresh arrays, handed out read-only once committed
+        res.qd.setflags(write=False)
         bounds = tuple(b.tolist() for b in self._envelope())
-        return Ahead(q_req, qd_req, self.state, res, bounds, (res[1] - self.qd) / self.config.dt)
+        return Ahead(q_req, qd_req, self.state, res, bounds, (res.qd - self.qd) / self.config.dt)
 
     def step_ahead(self, ahead: Ahead, q_meas=None, dt: float | None = None) -> SafeCommand:
         """:meth:`step` on the request of ``ahead``, using its filter result when it still
@@ -339,8 +341,9 @@ class SafetySupervisor:
         if kinds or self.braking:
             self.intervened += 1
         self._qdd_prev, self.qdd = self.qdd, (v - self.qd) / h if qdd is None else qdd
-        q.setflags(write=False)  # fresh arrays each tick: safe to hand out read-only
-        v.setflags(write=False)
+        if qdd is None:  # (filtered ahead: frozen already)
+            q.setflags(write=False)  # fresh arrays each tick: safe to hand out read-only
+            v.setflags(write=False)
         self.q, self.qd = q, v
         self.state += 1
         self._head = (self._head + 1) % self._window

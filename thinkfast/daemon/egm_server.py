@@ -197,7 +197,7 @@ class EgmServer:
         """
         c = self.counters
         timing = self.timing
-        peer_packets: list[tuple[bytes, tuple, float, float, float]] = []  # oldest first
+        peer_packets: list[tuple] = []  # (data, addr, t_read, stamp, wait, source), oldest first
         for k in range(max_packets):
             if k and not self._pending.poll(0):
                 break
@@ -218,7 +218,7 @@ class EgmServer:
                 continue
             t_read = time.perf_counter() if timing is not None else 0.0
             stamp = arrival_stamp(anc) if self._stamped and timing is not None else math.nan
-            peer_packets.append((data, addr, t_read, stamp, time.time() - stamp))
+            peer_packets.append((data, addr, t_read, stamp, time.time() - stamp, src))
         return self._answer_newest(peer_packets)
 
     def _may_serve(self, src: tuple[str, int]) -> bool:
@@ -244,7 +244,15 @@ class EgmServer:
         the sender of the oldest valid packet becomes the peer. Count the rest: the peer's
         older packets superseded, other senders' foreign."""
         c = self.counters
-        sources = [_source(p[1]) for p in packets]
+        if len(packets) == 1 and packets[0][5] == self.peer:  # the usual: one, from the peer
+            data, addr, t_read, stamp, wait, _ = packets[0]
+            try:
+                fb = decode_robot(data)
+            except EgmDecodeError:
+                c.malformed += 1
+                return 0
+            return self._reply(fb, None, addr, t_read, stamp, wait)
+        sources = [p[5] for p in packets]
         peer = self.peer if self.peer in sources else None
         bad: set[int] = set()
         if peer is None:  # a handover is due (_may_serve let these in): the first valid sender
@@ -279,7 +287,7 @@ class EgmServer:
                     c.malformed += 1
                     continue
                 answered = k
-                data, addr, t_read, stamp, wait = packets[k]
+                data, addr, t_read, stamp, wait, _ = packets[k]
         if answered < 0:
             return 0
         return self._reply(fb, before or None, addr, t_read, stamp, wait)
