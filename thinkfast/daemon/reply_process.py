@@ -48,6 +48,8 @@ from thinkfast.daemon.reply_rows import WIDTH, call_row, event_row, reply_row
 from thinkfast.daemon.rt_thread import pin_thread, set_fifo
 from thinkfast.daemon.shared_plan import RowRing, Seqlock
 
+PARENT_CHECK = 0.001  # s: how often the loop looks whether its planner process is still there
+
 
 class ReplyLoop:
     """The reply process's state (module doc).
@@ -75,6 +77,7 @@ class ReplyLoop:
         self._fb = None
         self._now = 0.0
         self._body: tuple | None = None  # (q, qd, sensor_body) of the reply prepared ahead
+        self._parent_checked = -math.inf  # monotonic time the parent was last looked at [s]
 
     def _on_event(self, t: float, kind: str, detail: dict) -> None:
         self.events.append(event_row(t, kind, detail.get("reason")))
@@ -100,7 +103,8 @@ class ReplyLoop:
         ``EgmSensor`` body encoded, so that a packet finds its reply ready."""
         core = self.core
         core.settle()  # the last feedback's velocity: left for after its reply
-        self.after(replied)
+        if replied or self.events or self.follower.calls:
+            self.after(replied)
         self.watch_plan(now_mono)
         core.prepare()
         ahead = core.prepared
@@ -139,17 +143,7 @@ class ReplyLoop:
                     core.invalidate()  # first: the follower forgets the reply prepared ahead
                     self.follower.adopt(plan)
                     self._join_late(plan, following)
-        if self.lost:
-            return
-        if os.getppid() != self.parent:
-            self.lost = True
-            core.brake("planner_lost")
-            core.invalidate()
-            self.events.append(event_row(core.clock.t, "planner_lost", "planner_lost"))
-            msg = f"planner process {self.parent} lost: braking to a stop and holding"
-            print(f"thinkfast reply process: {msg}; stop this process to end", file=sys.stderr)
-            if self.zenoh is not None:  # the status goes on, from here
-                orphan_status.start(*self.zenoh, self)
+        if self.lost or self._parent_lost(now_mono):
             return
         beat = self.plan.heartbeat
         stale = math.isfinite(beat) and now_mono - beat > self.timeout
@@ -163,6 +157,25 @@ class ReplyLoop:
             z = np.zeros(6)
             self.follower.resync(np.array(sup.q), z, z, core.clock.t)
             self.events.append(event_row(core.clock.t, "planner_resumed"))
+
+    def _parent_lost(self, now_mono: float) -> bool:
+        """The planner process is gone (looked at every :data:`PARENT_CHECK` at most): brake
+        ``planner_lost``, say so and publish a status of our own (module doc)."""
+        if now_mono < self._parent_checked + PARENT_CHECK:
+            return False
+        self._parent_checked = now_mono
+        if os.getppid() == self.parent:
+            return False
+        core = self.core
+        self.lost = True
+        core.brake("planner_lost")
+        core.invalidate()
+        self.events.append(event_row(core.clock.t, "planner_lost", "planner_lost"))
+        msg = f"planner process {self.parent} lost: braking to a stop and holding"
+        print(f"thinkfast reply process: {msg}; stop this process to end", file=sys.stderr)
+        if self.zenoh is not None:  # the status goes on, from here
+            orphan_status.start(*self.zenoh, self)
+        return True
 
     def _join_late(self, plan, following) -> None:
         """A plan that starts at or before the last reply (the planner was late: a slow
