@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import gc
 import json
 import os
 import platform
@@ -49,7 +50,7 @@ import numpy as np
 from thinkfast.contract.egm import decode_sensor, encode_robot
 from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
-from thinkfast.control.plan import SIZE, executor_plan
+from thinkfast.control.plan import SIZE, executor_plan, plan_key
 from thinkfast.daemon import reply_process
 from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.reply_process import ReplyLoop
@@ -117,10 +118,7 @@ class Planner:
 
     def publish(self) -> bool:
         ex = self.ex
-        tl = ex.timeline
-        normal, goal = ex.wrist_inputs()
-        key = (id(tl.segment), tl.pending, ex.mode, normal.tobytes(),
-               None if goal is None else goal.tobytes(), self.epoch)  # fmt: skip
+        key = plan_key(ex, self.epoch)
         if key == self.key:
             return False
         self.key = key
@@ -171,6 +169,8 @@ def run(args) -> dict:
     prepared = np.zeros(n, bool)
     replies = np.zeros((n, 12))
     k_det = 0
+    gc.collect()
+    gc.disable()  # as the reply process: collected between packets, never inside a reply
     for k in range(n):
         t_pkt = k * DT
         # the planner's turn lands at a random phase of the cycle before this packet
@@ -208,6 +208,9 @@ def run(args) -> dict:
         q_arm = np.array(cmd.q_rad)
         replies[k] = np.r_[loop.core.last.q, loop.core.last.qd]
         loop_work(True)
+        if gc.get_count()[0] >= gc.get_threshold()[0]:
+            gc.collect(0)
+    gc.enable()
     loop.egm.close()
     ctl.close()
     block.close()

@@ -155,6 +155,15 @@ def executor_plan(ex, plan_id: int, epoch: int) -> np.ndarray:
     return plan_vector(plan_id, epoch, ex.mode.value, segs, normal, goal)
 
 
+def plan_key(ex, epoch: int) -> tuple:
+    """What :func:`executor_plan` of ``ex`` depends on, in the follower's ``epoch``: the planner
+    process publishes a plan when this changes."""
+    tl = ex.timeline
+    normal, goal = ex.wrist_inputs()
+    return (id(tl.segment), tl.pending, ex.mode, normal.tobytes(),
+            None if goal is None else goal.tobytes(), epoch)  # fmt: skip
+
+
 class PlanFollower:
     """The executor's stand-in in the reply process: evaluates the plans it is given (module
     doc). ``calls``: ``(name, t, q, qd, qdd)`` of each replan made here, for the planner."""
