@@ -50,7 +50,7 @@ import numpy as np
 from thinkfast.contract.egm import decode_sensor, encode_robot
 from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
-from thinkfast.control.plan import SIZE, executor_plan, plan_key
+from thinkfast.control.plan import SIZE, executor_plan
 from thinkfast.daemon import reply_process
 from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.reply_process import ReplyLoop
@@ -117,14 +117,17 @@ class Planner:
                 ex.setpoint(t)
 
     def publish(self) -> bool:
-        ex = self.ex
-        key = plan_key(ex, self.epoch)
+        # when the plan vector changes (the planner process: when plan_key does; this runs on
+        # the code before plan_key too)
+        plan = executor_plan(self.ex, 0, self.epoch)
+        key = plan.tobytes()
         if key == self.key:
             return False
         self.key = key
         self.plan_id += 1
         self.published += 1
-        self.block.write(executor_plan(ex, self.plan_id, self.epoch))
+        plan[0] = self.plan_id
+        self.block.write(plan)
         return True
 
 
