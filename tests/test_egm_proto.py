@@ -210,6 +210,14 @@ def test_sensor_bytes_are_the_protobuf_runtimes_own():
         tm, mtype = int(rng.integers(0, 2**33)), int(rng.integers(0, 5))
         data = egm.encode_sensor(seq, tm, q, qd, mtype=mtype)
         assert data == _runtime_sensor_bytes(seq, tm, q, qd, mtype)
+        body = egm.sensor_body(q, qd)  # encoded ahead of the header: the same bytes
+        assert egm.encode_sensor(seq, tm, None, None, mtype=mtype, body=body) == data
+
+
+def test_a_body_encoded_ahead_refuses_what_the_encoder_refuses():
+    for q, qd in ((np.zeros(5), np.zeros(6)), (np.zeros(6), np.r_[np.zeros(5), np.nan])):
+        with pytest.raises(egm.EgmEncodeError):
+            egm.sensor_body(q, qd)
 
 
 def test_unknown_message_type_is_refused():

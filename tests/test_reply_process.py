@@ -227,3 +227,74 @@ def test_a_dead_reply_process_stops_the_daemon_with_exit_1_and_says_why(tree_fil
         _, err = run.stop()
     assert code == 1
     assert f"the EGM reply process {child} died (exit code -9)" in err
+
+
+def _replies_with_plans_landing(robot, monkeypatch, prepare: bool) -> tuple[np.ndarray, int]:
+    """ReplyLoop packet by packet on a simulated clock, an arm that follows exactly, and a new
+    plan (another target, another shield normal) every few packets, landing after the next
+    reply was prepared (``prepare``) or with nothing prepared: (the replies (n, 12), how many
+    were the prepared ones)."""
+    from types import SimpleNamespace
+
+    from thinkfast.contract.egm import RobotFeedback
+    from thinkfast.control.config import RunConfig
+    from thinkfast.control.plan import SIZE, plan_vector
+    from thinkfast.control.segments import STEER, move
+    from thinkfast.daemon import reply_process
+    from thinkfast.daemon.egm_server import EgmServer
+    from thinkfast.daemon.reply_process import ReplyLoop
+    from thinkfast.daemon.reply_rows import WIDTH
+    from thinkfast.daemon.shared_plan import RowRing, Seqlock
+
+    now = [100.0]
+    clock = SimpleNamespace(time=lambda: now[0], monotonic=lambda: now[0])
+    monkeypatch.setattr(reply_process, "time", clock)
+    cfg = RunConfig()
+    block, ring = Seqlock(SIZE), RowRing(WIDTH)
+    loop = ReplyLoop(robot, cfg, block, ring, os.getppid())
+    loop.egm = EgmServer(("127.0.0.1", 0), loop.reply, timing=True)
+    rng = np.random.default_rng(4)
+    out, used, q, plan_id, seg = [], 0, robot.home, 0, None
+    try:
+        core, f = loop.core, loop.follower
+        for k in range(1, 160):
+            now[0] = 100.0 + k * DT
+            ahead = core._prepared.ahead if core._prepared is not None else None
+            q, qd = loop.reply(RobotFeedback(k, 4 * k, q, True, True, True))[:2]
+            used += ahead is not None and q is ahead.result[0]
+            out.append(np.r_[q, qd])
+            loop.after(True)
+            if prepare:
+                core.prepare()
+            if k % 6 == 1:  # the planner's next plan lands before the next packet
+                plan_id, t_next = plan_id + 1, core.t_next
+                target = robot.home[:3] + rng.uniform(-0.4, 0.4, 3)
+                state = np.r_[robot.home[:3], np.zeros(6)] if seg is None else seg.state(t_next)
+                seg = move(f.timeline.steer, STEER, state, target, core.t_next, 2)
+                normal = np.r_[1.0, rng.uniform(-0.5, 0.5, 2)]
+                normal /= np.linalg.norm(normal)
+                block.write(plan_vector(plan_id, f.epoch, "executing", [seg], normal, None))
+            block.beat(now[0])
+            loop.watch_plan(now[0])
+            if prepare:
+                core.prepare()
+        assert f.plan_id == plan_id and core.sup.intervened == 0
+    finally:
+        loop.egm.close()
+        block.close()
+        ring.close()
+    return np.array(out), used
+
+
+def test_a_reply_prepared_ahead_is_bit_for_bit_the_one_computed_when_its_packet_comes(
+    robot, monkeypatch
+):
+    """The loop prepares each reply as soon as it can, before the planner's next plan may land:
+    a new plan voids it, the follower forgets having been asked (the wrist steps again from
+    where it was, towards the new plan's normal) and the reply is prepared again. Every reply
+    is the one computed without preparing anything, and nearly all are the prepared ones."""
+    want, _ = _replies_with_plans_landing(robot, monkeypatch, prepare=False)
+    got, used = _replies_with_plans_landing(robot, monkeypatch, prepare=True)
+    assert np.abs(want[:, 9:]).max() > 0.05  # the wrist turns: the normals make a difference
+    assert np.array_equal(got.view(np.int64), want.view(np.int64))
+    assert used >= len(got) - 2  # all but the first ones (nothing to prepare from)

@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from thinkfast.control.safety import BRAKE_REASONS, KINDS, SafetyConfig, SafetySupervisor
-from thinkfast.control.safety_limits import make_limits
+from thinkfast.control.safety_limits import beyond_envelope, make_limits
 from thinkfast.errors import ThinkfastError
 
 D = math.pi / 180.0
@@ -242,6 +242,36 @@ def test_a_step_filtered_ahead_gives_exactly_what_step_computes_and_counts_the_s
         assert ca.q.tobytes() == cb.q.tobytes() and ca.qd.tobytes() == cb.qd.tobytes()
         assert ca.kinds == cb.kinds and not ca.braking
     assert a.counts == b.counts and sum(a.counts.values()) > 0
+
+
+def test_the_feedback_check_ahead_decides_as_the_deviation_does_at_the_threshold():
+    """step_ahead checks the feedback in plain floats against the envelope filtered ahead:
+    the same decision as deviation() > max_deviation, for feedback on either side of the
+    threshold by one rounding step, non-finite and misshapen feedback included."""
+    rng = np.random.default_rng(11)
+    sup = SafetySupervisor(LIM, CFG, np.zeros(6))
+    braked = passed = 0
+    for k in range(300):
+        sup.step(sup.q + sup.qd * DT, sup.qd + rng.normal(0.0, 0.3 * LIM.a_max * DT, 6))
+        ahead = sup.filter_ahead(sup.q, sup.qd)
+        hi, lo, over = (np.array(b) for b in ahead.bounds)
+        edge = np.where(rng.random(6) < 0.5, hi + over + CFG.max_deviation,
+                        lo - over - CFG.max_deviation)  # fmt: skip
+        q = sup.q.copy()
+        j = k % 6
+        q[j] = edge[j]
+        for step in (-2, -1, 0, 1, 2):
+            qj = q.copy()
+            qj[j] = edge[j] + step * np.spacing(edge[j])
+            dev = sup.deviation(qj)
+            want = dev is None or bool((dev > CFG.max_deviation).any())
+            assert beyond_envelope(qj, ahead.bounds, CFG.max_deviation) == want, (k, step)
+            braked += want
+            passed += not want
+    for bad in ([math.nan] * 6, np.zeros(5), [0.0, 0.0, 0.0, 0.0, 0.0, math.inf]):
+        assert beyond_envelope(bad, ahead.bounds, CFG.max_deviation)
+    assert beyond_envelope(list(sup.q), ahead.bounds, CFG.max_deviation) is False
+    assert braked > 100 and passed > 100
 
 
 def test_a_step_filtered_ahead_is_not_used_after_the_state_changed_a_brake_or_another_tick():

@@ -186,12 +186,15 @@ def _wire_joints(values, what: str) -> list[float]:
 
 
 def _joints_from_wire(joints, what: str) -> np.ndarray:
-    if len(joints) != N_JOINTS:
-        raise EgmDecodeError(f"{what}: expected {N_JOINTS} joints, got {len(joints)}")
-    deg = np.fromiter(joints, float, N_JOINTS)
-    if np.count_nonzero(np.abs(deg) <= MAX_ABS_DEG) != N_JOINTS:  # NaN compares false
-        raise EgmDecodeError(f"{what}: non-finite or absurd joint value (|deg| > {MAX_ABS_DEG:g})")
-    q = deg * DEG_TO_RAD
+    deg = list(joints)  # plain floats: cheaper than numpy's calls for six (on every packet)
+    if len(deg) != N_JOINTS:
+        raise EgmDecodeError(f"{what}: expected {N_JOINTS} joints, got {len(deg)}")
+    for x in deg:
+        if not -MAX_ABS_DEG <= x <= MAX_ABS_DEG:  # NaN compares false
+            raise EgmDecodeError(
+                f"{what}: non-finite or absurd joint value (|deg| > {MAX_ABS_DEG:g})"
+            )
+    q = np.array(deg) * DEG_TO_RAD
     q.setflags(write=False)
     return q
 
@@ -208,7 +211,12 @@ def _parse(cls, data: bytes):
 
 
 def encode_sensor(
-    seqno: int, tm_ms: int, q_rad, qd_rad_s, mtype: int = MSGTYPE_CORRECTION
+    seqno: int,
+    tm_ms: int,
+    q_rad,
+    qd_rad_s,
+    mtype: int = MSGTYPE_CORRECTION,
+    body: bytes | None = None,
 ) -> bytes:
     """Serialize one ``EgmSensor`` (planned joints + speed reference).
 
@@ -218,6 +226,7 @@ def encode_sensor(
         q_rad: joint position setpoint [rad], 6 finite values.
         qd_rad_s: joint velocity setpoint [rad/s], 6 finite values.
         mtype: header message type.
+        body: :func:`sensor_body` of ``q_rad, qd_rad_s``, encoded ahead (None: encoded here).
 
     Returns:
         The datagram payload (degrees and deg/s on the wire).
@@ -227,8 +236,8 @@ def encode_sensor(
     """
     if mtype not in _MTYPES:
         raise EgmEncodeError(f"mtype {mtype!r} is not one of {list(_MTYPES)}")
-    q = _wire_joints(q_rad, "planned joints")
-    qd = _wire_joints(qd_rad_s, "speedRef joints")
+    if body is None:
+        body = sensor_body(q_rad, qd_rad_s)
     header = b"".join(
         (
             b"\x08",
@@ -238,9 +247,19 @@ def encode_sensor(
             _MTYPES[mtype],
         )
     )
-    return b"".join(
-        (b"\x0a", bytes((len(header),)), header, _PLANNED, _joints(q), _SPEED_REF, _joints(qd))
-    )
+    return b"".join((b"\x0a", bytes((len(header),)), header, body))
+
+
+def sensor_body(q_rad, qd_rad_s) -> bytes:
+    """The ``planned`` and ``speedRef`` fields of an ``EgmSensor`` (all of it but the header),
+    to encode ahead of the header (:func:`encode_sensor`'s ``body``).
+
+    Raises:
+        EgmEncodeError: wrong count or a non-finite value.
+    """
+    q = _wire_joints(q_rad, "planned joints")
+    qd = _wire_joints(qd_rad_s, "speedRef joints")
+    return b"".join((_PLANNED, _joints(q), _SPEED_REF, _joints(qd)))
 
 
 # EgmSensor on the wire, field by field (tag = number << 3 | wire type), as protobuf writes it:
@@ -287,15 +306,14 @@ def decode_robot(data: bytes) -> RobotFeedback:
     if not (msg.HasField("feedBack") and msg.feedBack.HasField("joints")):
         raise EgmDecodeError("EgmRobot: no feedBack.joints")
     q = _joints_from_wire(msg.feedBack.joints.joints, "EgmRobot feedBack")
+    header = msg.header
     return RobotFeedback(
-        seqno=msg.header.seqno,
-        tm_ms=msg.header.tm if msg.header.HasField("tm") else None,
-        q_rad=q,
-        motors_on=msg.motorState.state == MOTORS_ON,
-        mci_running=msg.mciState.state == MCI_RUNNING,
-        rapid_running=(
-            msg.rapidExecState.state == RAPID_RUNNING if msg.HasField("rapidExecState") else None
-        ),
+        header.seqno,
+        header.tm if header.HasField("tm") else None,
+        q,
+        msg.motorState.state == MOTORS_ON,
+        msg.mciState.state == MCI_RUNNING,
+        msg.rapidExecState.state == RAPID_RUNNING if msg.HasField("rapidExecState") else None,
     )
 
 

@@ -61,26 +61,18 @@ from typing import NamedTuple
 
 import numpy as np
 
+from thinkfast.control.core_faults import FAULT_REASONS as FAULT_REASONS  # the daemon's import
+from thinkfast.control.core_faults import FaultPolicy, Reply
 from thinkfast.control.egm_clock import ClockTick, ControllerClock
 from thinkfast.control.executor import FAULT, IDLE, Executor
 from thinkfast.control.feedback_rate import FeedbackRate, span_before
 from thinkfast.control.intake import Accepted, Intake
 from thinkfast.control.safety import Ahead, SafetyConfig, SafetySupervisor
 
-FAULT_REASONS = ("deviation", "nonfinite")
 DEFER_MAX = 3  # packets left unanswered after a silence in motion, waiting for a velocity
 
 
-class Reply(NamedTuple):
-    """One reply: ``q`` [rad], ``qd`` [rad/s] (6,), the ``mode`` to mirror, and the tick."""
-
-    q: np.ndarray
-    qd: np.ndarray
-    mode: str
-    tick: ClockTick
-
-
-class ControlCore:
+class ControlCore(FaultPolicy):
     """Executor + supervisor on the controller's clock, with fault recovery (module doc).
 
     Args:
@@ -122,6 +114,7 @@ class ControlCore:
         self.fault_count = 0
         self.latched = False
         self.rate = FeedbackRate(cfg.dt)  # velocity and rest measured from the feedback
+        self._unmeasured: tuple | None = None  # (tick, q, span) to measure (settle)
         self._prepared: Prepared | None = None  # the next cycle's reply, computed ahead
         self.errors = 0  # executor.setpoint failures (each brakes)
         self.last_error: Exception | None = None
@@ -130,7 +123,15 @@ class ControlCore:
     @property
     def measured(self) -> tuple[float, np.ndarray] | None:
         """(controller time [s], joints [rad] (6,)) of the last feedback, None before any."""
+        self.settle()
         return self.rate.fb
+
+    @property
+    def prepared(self) -> Ahead | None:
+        """The reply prepared for the next cycle (:meth:`prepare`), filtered ahead; None when
+        nothing is (or its setpoint failed)."""
+        p = self._prepared
+        return None if p is None or p.t != self.t_next else p.ahead
 
     @property
     def t_next(self) -> float:
@@ -159,6 +160,7 @@ class ControlCore:
         t = self.t_next
         if self.last is None or (self._prepared is not None and self._prepared.t == t):
             return
+        self.invalidate()  # one for an earlier cycle (packets left unanswered since)
         try:
             q_req, qd_req = self.ex.setpoint(t)
         except Exception:
@@ -167,8 +169,14 @@ class ControlCore:
         self._prepared = Prepared(t, self.sup.filter_ahead(q_req, qd_req))
 
     def invalidate(self) -> None:
-        """The plan changed: a prepared setpoint is void."""
-        self._prepared = None
+        """The plan is about to change (call it first): a prepared setpoint is void, and an
+        executor that can (``retract()``: the reply process's follower) forgets having been
+        asked for it, so that preparing ahead changes no reply."""
+        if self._prepared is not None:
+            self._prepared = None
+            retract = getattr(self.ex, "retract", None)
+            if retract is not None:
+                retract()
 
     def on_detection(self, payload: bytes, now: float | None, t_plan: float) -> Accepted | None:
         """One detection ``payload`` received at ``now`` [s] (None: no clock checks, lockstep):
@@ -179,7 +187,7 @@ class ControlCore:
         det = self.intake.take(payload, now)
         if det is None:
             return None
-        self._prepared = None  # the plan changes: prepare again
+        self.invalidate()  # the plan changes: prepare again
         try:
             refused = self.ex.on_detection(t_plan, det.stamp, det.position, det.camera)
             if refused is not None:
@@ -215,6 +223,8 @@ class ControlCore:
 
         In shadow mode the reply's ``q``/``qd`` are the virtual arm's; the caller sends
         :attr:`hold_q` at rest instead."""
+        if self._unmeasured is not None:
+            self.settle()
         if not (ready or self.shadow):
             return self._standby(tm_ms, q_meas, now, seqno)
         if self.shadow:  # hold where the arm stands when the stream (re)starts
@@ -237,7 +247,10 @@ class ControlCore:
         if tick.repeat and self.last is not None:
             self.repeats += 1
             return self.last._replace(tick=tick)
-        qd_meas = self.rate.measure(tick, q_meas, span_before(tm_ms, seqno, before, self.cfg.dt))
+        span = span_before(tm_ms, seqno, before, self.cfg.dt)
+        if not (tick.resync or self.last is None or self._waiting >= 0):
+            return self._on_cycle(tick, q_meas, span, late)
+        qd_meas = self.rate.measure(tick, q_meas, span)
         if tick.resync and self.last is not None and not self.latched and not self.at_rest():
             self._waiting = max(self._waiting, 0)  # a silence in motion: measure the velocity;
             self.rate.track.clear()  # another silence while waiting does not restart the count
@@ -249,11 +262,20 @@ class ControlCore:
                 return None
             self._waiting = -1
             return self._restart(tick, q_meas, qd_end if qd_end is not None else qd_meas)
-        if tick.resync or self.last is None:
-            return self._restart(tick, q_meas, qd_meas)
-        prepared, self._prepared = self._prepared, None
+        return self._restart(tick, q_meas, qd_meas)
+
+    def _on_cycle(self, tick: ClockTick, q_meas, span, late: bool) -> Reply:
+        """The reply to a packet a cycle or more on, in a running stream: the prepared one when
+        it applies. The feedback's velocity is measured after it (:meth:`settle`): nothing
+        here needs it but a brake's recovery."""
+        self._unmeasured = (tick, q_meas, span)
+        prepared = self._prepared
         steps = max(1, round(tick.elapsed / self.cfg.dt))
         h = tick.elapsed / steps
+        ahead = prepared.ahead if prepared is not None and prepared.t == tick.t else None
+        if ahead is None or steps > 1 or (late and not self._repeated_late):
+            self.invalidate()  # not used: the setpoint is asked afresh
+        self._prepared = None
         if late and not self._repeated_late:  # the controller takes this reply where it kept
             self._repeated_late = True  # the one before the last (once: a lasting lag is steady)
             self._catch_up(tick.t, steps)
@@ -264,7 +286,6 @@ class ControlCore:
             self._catch_up(tick.t - h, steps - 1)
         was_braking = self.sup.braking
         q_fb = None if self.shadow else q_meas
-        ahead = prepared.ahead if prepared is not None and prepared.t == tick.t else None
         if ahead is not None and steps == 1:
             cmd = self.sup.step_ahead(ahead, q_meas=q_fb, dt=h)
         else:
@@ -283,52 +304,24 @@ class ControlCore:
         if cmd.kinds and not cmd.braking:  # the plan goes on from what was commanded
             self.ex.resync(cmd.q, cmd.qd, self.sup.qdd, tick.t)
         if cmd.braking:
-            self._while_braking(tick.t, q_meas, qd_meas)
+            self.settle()
+            self._while_braking(tick.t, q_meas)
         self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
         return self.last
 
-    def _standby(self, tm_ms, q_meas, now: float, seqno=None) -> Reply:
-        """The controller does not follow references: command the measured position at rest
-        and keep the planner's state on the arm (module doc)."""
-        tick = self.clock.tick(tm_ms, now, True, seqno)
-        q = np.array(q_meas, dtype=float)
-        first = self.last is None
-        self.sup.reset(q)
-        if first:
-            self.ex.start_from(np.array(self.sup.q), tick.t)
-        if not self.standby:
-            self.standby = True
-            self.on_event(tick.t, "controller_standby", {"q": np.round(q, 4).tolist()})
-        self.standby_replies += 1
-        self._prepared = None
-        self.rate.fb = (tick.t, q)
-        self.last = Reply(self.sup.q, np.zeros(6), "standby", tick)
-        return self.last
+    def settle(self) -> None:
+        """Measure the last feedback's velocity if its reply left that for after it (the rest
+        the recovery waits for, :class:`FeedbackRate`): call it between packets; every call
+        that needs it makes it first."""
+        if self._unmeasured is not None:
+            args, self._unmeasured = self._unmeasured, None
+            self.rate.measure(*args)
 
     def brake(self, reason: str) -> None:
         """Latch a smooth stop (``signal``, or ``nonfinite`` for a planner failure)."""
         self.sup.request_brake(reason)
 
     # ------------------------------------------------------------------ internals
-    def _catch_up(self, t_from: float, held: int) -> None:
-        """The controller kept the last reference for ``held`` cycles: the commanded state is
-        still the supervisor's, one cycle before this reply (``t_from`` [s]). The executor
-        plans on from it with the same intent (module doc); at rest or while braking nothing
-        depends on time."""
-        self.held += held
-        if self.sup.braking or self.at_rest():
-            return
-        self.catch_ups += 1
-        try:
-            a_max = self.sup.limits.a_max  # the extrapolated end may pass the limit by a little
-            self.ex.resync(
-                self.sup.q, self.sup.qd, np.clip(self.sup.qdd_end, -a_max, a_max), t_from
-            )
-        except Exception as exc:  # a planner bug must cost a smooth stop, never a reply
-            self.errors += 1
-            self.last_error = exc
-            self.brake("nonfinite")
-
     def _plan(self, t: float):
         """The executor's setpoint at ``t``, or (None, None) when it fails (the supervisor
         brakes on it)."""
@@ -338,51 +331,6 @@ class ControlCore:
             self.errors += 1
             self.last_error = exc
             return None, None
-
-    def _restart(self, tick: ClockTick, q_meas, qd_meas) -> Reply:
-        """First packet or after a silence: command the measured state, plan on from it."""
-        first = self.last is None
-        if first:
-            self.sup.reset(q_meas)
-            self.ex.start_from(np.array(self.sup.q), tick.t)
-        elif self.latched:
-            self.sup.reset(q_meas)
-            self.sup.request_brake("deviation")  # latched: hold where the arm stands
-            self.ex.hold_fault(np.array(self.sup.q), tick.t)
-        elif self.ex.away:  # held away from home: start again from where the arm stands now
-            self.sup.reset(q_meas)
-            self.ex.start_from(np.array(self.sup.q), tick.t)
-        elif not self.sup.resync(q_meas, qd_meas):
-            pass  # unusable measurement: the supervisor brakes from the old state
-        else:
-            self.resyncs += 1
-            self.ex.resync(self.sup.q, self.sup.qd, np.zeros(6), tick.t)
-            self.on_event(tick.t, "resync", {"silence": "restart from the measured feedback"})
-        self._prepared = None
-        self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
-        return self.last
-
-    def _while_braking(self, t: float, q_meas, qd_meas) -> None:
-        reason = self.sup.brake_reason
-        if reason not in FAULT_REASONS or not self.sup.stopped or self.latched:
-            return
-        if t - self.rate.rest_since < self.cfg.recover_after:
-            return  # the commanded stop is done; wait until the arm stands too
-        self.fault_count += 1
-        while self.faults and t - self.faults[0] > self.cfg.fault_window:
-            self.faults.popleft()
-        self.faults.append(t)
-        if len(self.faults) >= self.cfg.max_faults:
-            self.latched = True
-            self.sup.reset(q_meas)
-            self.sup.request_brake(reason)  # stays braked (at rest): requests are ignored
-            self.ex.hold_fault(np.array(self.sup.q), t)
-            self.on_event(t, "fault_latched", {"reason": reason, "faults": len(self.faults)})
-            return
-        self.sup.reset(q_meas)  # the arm stands: restart from where it is, then go home
-        self.ex.recover(np.array(self.sup.q), t)
-        self._prepared = None
-        self.on_event(t, "recover", {"reason": reason, "faults": len(self.faults)})
 
 
 class Prepared(NamedTuple):

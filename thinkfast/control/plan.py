@@ -155,6 +155,15 @@ def executor_plan(ex, plan_id: int, epoch: int) -> np.ndarray:
     return plan_vector(plan_id, epoch, ex.mode.value, segs, normal, goal)
 
 
+def plan_key(ex, epoch: int) -> tuple:
+    """What :func:`executor_plan` of ``ex`` depends on, in the follower's ``epoch``: the planner
+    process publishes a plan when this changes."""
+    tl = ex.timeline
+    normal, goal = ex.wrist_inputs()
+    return (id(tl.segment), tl.pending, ex.mode, normal.tobytes(),
+            None if goal is None else goal.tobytes(), epoch)  # fmt: skip
+
+
 class PlanFollower:
     """The executor's stand-in in the reply process: evaluates the plans it is given (module
     doc). ``calls``: ``(name, t, q, qd, qdd)`` of each replan made here, for the planner."""
@@ -175,11 +184,17 @@ class PlanFollower:
         self.plan_id, self.epoch = -1, 0
         self.calls: list[tuple[str, float, np.ndarray, np.ndarray, np.ndarray]] = []
         self.t_set = -math.inf  # the last time a setpoint was asked for
+        self._undo: tuple | None = None  # the state before the last setpoint (retract)
+
+    def takes(self, plan: Plan) -> bool:
+        """``plan`` is new and was made after every replan made here (:meth:`adopt` takes it)."""
+        return plan.epoch == self.epoch and plan.id != self.plan_id
 
     def adopt(self, plan: Plan) -> bool:
         """Follow ``plan`` when it is new and was made after every replan made here."""
-        if plan.epoch != self.epoch or plan.id == self.plan_id:
+        if not self.takes(plan):
             return False
+        self._undo = None
         self.plan_id, self.mode = plan.id, plan.mode
         # a plan that starts after the next cycle: the one in effect goes on until it starts
         # (it starts from that one's state then)
@@ -190,6 +205,7 @@ class PlanFollower:
 
     def setpoint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions [rad] (6,) and velocities [rad/s] (6,) of the plan at ``t`` [s]."""
+        self._undo = (self.t_set, self.timeline.segment, self.wrist.memo())
         segs = self.segments
         seg = segs[0]
         for later in segs[1:]:  # the last one started by t
@@ -201,7 +217,18 @@ class PlanFollower:
         self.t_set = t
         return np.r_[s[:3], w[:3]], np.r_[s[3:6], w[3:6]]
 
+    def retract(self) -> None:
+        """Undo the last :meth:`setpoint` (asked ahead for a reply that will not use it: a new
+        plan, a replan or a skipped cycle came first): the follower is as if it had not been
+        asked, so that the setpoint asked again is the one it would have given then. Only
+        right after that call (a replan or a new plan in between forgets it)."""
+        undo, self._undo = self._undo, None
+        if undo is not None:
+            self.t_set, self.timeline.segment, memo = undo
+            self.wrist.recall(memo)
+
     def _replanned(self, name: str, t: float, q, qd, qdd) -> None:
+        self._undo = None
         self.segments = (self.timeline.segment,)
         self.epoch += 1
         z = np.zeros(6)

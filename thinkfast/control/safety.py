@@ -24,6 +24,7 @@ from thinkfast.control.safety_limits import (
     SafetyLimits,
     TickConstants,
     any_true,
+    beyond_envelope,
     filter_tick,
     finite_vector,
     limit_step,
@@ -129,12 +130,17 @@ class Ahead(NamedTuple):
         state: the supervisor's state it was filtered from (:attr:`SafetySupervisor.state`).
         result: ``(q, qd, kinds)`` of :func:`filter_step`, or None (a request that is not
             finite: :meth:`SafetySupervisor.step_ahead` brakes as :meth:`SafetySupervisor.step`).
+        bounds: the feedback's envelope from that state, ``(hi, lo, overshoot)`` (n floats each:
+            :func:`~thinkfast.control.safety_limits.beyond_envelope`), None without a result.
+        qdd: the acceleration [rad/s^2] (n,) of the result over a nominal tick, None without.
     """
 
     q_req: object
     qd_req: object
     state: int
     result: tuple | None
+    bounds: tuple | None = None
+    qdd: np.ndarray | None = None
 
 
 class SafetySupervisor:
@@ -214,7 +220,7 @@ class SafetySupervisor:
     @property
     def stopped(self) -> bool:
         """The commanded velocity is zero on every joint."""
-        return not self.qd.any()
+        return not any(self.qd.tolist())  # plain floats: ndarray.any() costs more for six
 
     def request_brake(self, reason: str) -> None:
         """Latch a smooth stop; ``reason`` is one of :data:`BRAKE_REASONS` (first one is kept)."""
@@ -237,10 +243,15 @@ class SafetySupervisor:
         q = finite_vector(q_meas, self.q.size)
         if q is None:
             return None
-        recent = self._recent
-        outside = np.maximum(np.maximum(q - recent.max(axis=0), recent.min(axis=0) - q), 0.0)
-        overshoot = self.config.servo_time_constant * np.abs(self._recent_v).max(axis=0)
+        hi, lo, overshoot = self._envelope()
+        outside = np.maximum(np.maximum(q - hi, lo - q), 0.0)
         return np.maximum(outside - overshoot, 0.0)
+
+    def _envelope(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(highest, lowest) command of the window and the overshoot allowed [rad] (n,) each."""
+        recent = self._recent
+        overshoot = self.config.servo_time_constant * np.abs(self._recent_v).max(axis=0)
+        return recent.max(axis=0), recent.min(axis=0), overshoot
 
     def filter_ahead(self, q_req, qd_req) -> Ahead:
         """Filter the next tick's request ahead of time, to take work out of the tick.
@@ -256,7 +267,10 @@ class SafetySupervisor:
             return Ahead(q_req, qd_req, self.state, None)
         with np.errstate(over="ignore", invalid="ignore"):  # as in filter_step
             res = filter_tick(self.q, self.qd, q_r, v_r, self.limits, self.config.dt, self._k)
-        return Ahead(q_req, qd_req, self.state, res)
+        res.q.setflags(write=False)  # fresh arrays, handed out read-only once committed
+        res.qd.setflags(write=False)
+        bounds = tuple(b.tolist() for b in self._envelope())
+        return Ahead(q_req, qd_req, self.state, res, bounds, (res.qd - self.qd) / self.config.dt)
 
     def step_ahead(self, ahead: Ahead, q_meas=None, dt: float | None = None) -> SafeCommand:
         """:meth:`step` on the request of ``ahead``, using its filter result when it still
@@ -264,11 +278,12 @@ class SafetySupervisor:
         usable = ahead.result is not None and ahead.state == self.state
         if not usable or (dt is not None and dt != self.config.dt):
             return self.step(ahead.q_req, ahead.qd_req, q_meas, dt)
-        self._check_feedback(q_meas)
+        if q_meas is not None and beyond_envelope(q_meas, ahead.bounds, self.config.max_deviation):
+            self.request_brake("deviation")  # what _check_feedback decides, in plain floats
         if self.braking:
             return self.step(ahead.q_req, ahead.qd_req)
         q, v, kinds = ahead.result
-        return self._commit(q, v, kinds, self.config.dt)
+        return self._commit(q, v, kinds, self.config.dt, ahead.qdd)
 
     def step(self, q_req, qd_req, q_meas=None, dt: float | None = None) -> SafeCommand:
         """Advance one tick. Never raises; whatever the inputs the output is admissible.
@@ -316,17 +331,19 @@ class SafetySupervisor:
                 self.request_brake("deviation")
 
     def _commit(
-        self, q: np.ndarray, v: np.ndarray, kinds: tuple[str, ...], h: float
+        self, q: np.ndarray, v: np.ndarray, kinds: tuple[str, ...], h: float, qdd=None
     ) -> SafeCommand:
-        """Make ``(q, v)`` the commanded state of this tick and count the interventions."""
+        """Make ``(q, v)`` the commanded state of this tick and count the interventions
+        (``qdd``: ``(v - qd) / h`` computed ahead)."""
         for kind in kinds:
             self.counts[kind] += 1
         self.ticks += 1
         if kinds or self.braking:
             self.intervened += 1
-        self._qdd_prev, self.qdd = self.qdd, (v - self.qd) / h
-        q.setflags(write=False)  # fresh arrays each tick: safe to hand out read-only
-        v.setflags(write=False)
+        self._qdd_prev, self.qdd = self.qdd, (v - self.qd) / h if qdd is None else qdd
+        if qdd is None:  # (filtered ahead: frozen already)
+            q.setflags(write=False)  # fresh arrays each tick: safe to hand out read-only
+            v.setflags(write=False)
         self.q, self.qd = q, v
         self.state += 1
         self._head = (self._head + 1) % self._window

@@ -113,6 +113,15 @@ class WristTracker:
         self._traj, self._t0 = None, t
         self._rest = None
 
+    def memo(self) -> tuple:
+        """The tracker's state, to :meth:`recall` (a step replaces its arrays, never writes
+        into them: references suffice)."""
+        return self.state, self.goal, self.t, self._traj, self._t0, self._rest
+
+    def recall(self, memo: tuple) -> None:
+        """Back to the state of :meth:`memo`: as if the steps since had not been made."""
+        self.state, self.goal, self.t, self._traj, self._t0, self._rest = memo
+
     def normal_for(self, ball_velocity: np.ndarray | None) -> np.ndarray:
         """Shield normal (3,) facing a ball moving with ``ball_velocity`` (None: +x, read-only)."""
         x = _PLUS_X

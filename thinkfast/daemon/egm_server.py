@@ -54,6 +54,7 @@ ReplyFn = Callable[..., "tuple[np.ndarray, np.ndarray] | None"]
 MAX_DATAGRAM = 65535
 SO_TIMESTAMPNS = 35  # Linux <asm-generic/socket.h> (also SCM_TIMESTAMPNS); Python lacks the name
 _TIMESPEC = struct.Struct("@qq")  # struct timespec on 64-bit Linux: seconds, nanoseconds
+_PEEK = int(socket.MSG_PEEK | socket.MSG_DONTWAIT)  # once: combining the flags costs an enum op
 
 
 @dataclasses.dataclass
@@ -106,7 +107,9 @@ class EgmServer:
         reply_fn: ``reply_fn(feedback, before) -> (q_rad, qd_rad_s)``, two sequences of 6 finite
             values: the setpoint to send in answer to ``feedback``; ``before`` is the peer's
             valid packet just before it when that one was superseded in the same drain (else
-            None). Returning None leaves the request unanswered (counted in ``deferred``).
+            None). A third element, when there is one, is their ``sensor_body`` encoded ahead
+            (:mod:`thinkfast.contract.egm`). Returning None leaves the request unanswered
+            (counted in ``deferred``).
             Called once per answered request, on the thread that calls :meth:`poll`.
         controller: ``"IP"`` or ``"IP:PORT"`` of the one controller to serve; None serves the
             first sender of a valid ``EgmRobot`` (see the module doc).
@@ -146,7 +149,7 @@ class EgmServer:
         self.counters = EgmCounters()
         self.seqno = 0
         self.behind = False  # the request being answered arrived before the last reply left
-        self._sent_at = -math.inf  # perf_counter when the last reply left
+        self._sent_at = -math.inf  # the wall clock when the last reply left [s]
         self._pending_at_send = False  # the peer's next request was waiting as the reply left
         self.peer: tuple[str, int] | None = None
         self.foreign_sources: dict[str, int] = {}
@@ -162,6 +165,8 @@ class EgmServer:
             self._sock.close()
             raise EgmAddressError(f"cannot bind EGM socket to {host}:{port} ({exc})") from None
         self._sock.setblocking(False)
+        self._pending = select.poll()  # a datagram waiting? (cheaper than a read that fails)
+        self._pending.register(self._sock.fileno(), select.POLLIN)
         self.timing = ReplyTimes() if timing else None
         self._stamped = False
         if timing and sys.platform == "linux":
@@ -192,8 +197,10 @@ class EgmServer:
         """
         c = self.counters
         timing = self.timing
-        peer_packets: list[tuple[bytes, tuple, float, float]] = []  # oldest first
-        for _ in range(max_packets):
+        peer_packets: list[tuple] = []  # (data, addr, t_read, stamp, wait, source), oldest first
+        for k in range(max_packets):
+            if k and not self._pending.poll(0):
+                break
             try:
                 if self._stamped:
                     data, anc, _, addr = self._sock.recvmsg(MAX_DATAGRAM, 64)
@@ -210,8 +217,8 @@ class EgmServer:
                 self._count_foreign(src)
                 continue
             t_read = time.perf_counter() if timing is not None else 0.0
-            wait = arrival_age(anc) if self._stamped and timing is not None else math.nan
-            peer_packets.append((data, addr, t_read, wait))
+            stamp = arrival_stamp(anc) if self._stamped and timing is not None else math.nan
+            peer_packets.append((data, addr, t_read, stamp, time.time() - stamp, src))
         return self._answer_newest(peer_packets)
 
     def _may_serve(self, src: tuple[str, int]) -> bool:
@@ -237,7 +244,15 @@ class EgmServer:
         the sender of the oldest valid packet becomes the peer. Count the rest: the peer's
         older packets superseded, other senders' foreign."""
         c = self.counters
-        sources = [_source(p[1]) for p in packets]
+        if len(packets) == 1 and packets[0][5] == self.peer:  # the usual: one, from the peer
+            data, addr, t_read, stamp, wait, _ = packets[0]
+            try:
+                fb = decode_robot(data)
+            except EgmDecodeError:
+                c.malformed += 1
+                return 0
+            return self._reply(fb, None, addr, t_read, stamp, wait)
+        sources = [p[5] for p in packets]
         peer = self.peer if self.peer in sources else None
         bad: set[int] = set()
         if peer is None:  # a handover is due (_may_serve let these in): the first valid sender
@@ -272,36 +287,39 @@ class EgmServer:
                     c.malformed += 1
                     continue
                 answered = k
-                data, addr, t_read, wait = packets[k]
+                data, addr, t_read, stamp, wait, _ = packets[k]
         if answered < 0:
             return 0
-        return self._reply(fb, before or None, data, addr, t_read, wait)
+        return self._reply(fb, before or None, addr, t_read, stamp, wait)
 
     def _reply(
-        self, fb: RobotFeedback, before, data: bytes, addr, t_read: float, wait: float
+        self, fb: RobotFeedback, before, addr, t_read: float, stamp: float, wait: float
     ) -> int:
         c = self.counters
         self.last_rx_time = self._clock()
         # this packet arrived before the last reply left: that reply reached the controller after
         # the cycle that sent this packet began (the controller kept its reference before). Seen
         # either way: waiting in the socket as that reply left, or stamped by the kernel before
-        # (the stamp alone misses: a new socket's first packets may be stamped when read)
-        self.behind = self._pending_at_send or t_read - wait < self._sent_at  # NaN: False
+        # (the stamp alone misses: a new socket's first packets may be stamped when read). Both
+        # times on the kernel's clock (the wall clock): no other clock read in between, which a
+        # preemption could stretch
+        self.behind = self._pending_at_send or stamp < self._sent_at  # NaN: False
         c.behind += self.behind
         try:
             out = self.reply_fn(fb, before)
             if out is None:
                 c.deferred += 1
                 return 0
-            q, qd = out
+            body = out[2] if len(out) > 2 else None
             tm = int((self.last_rx_time - self._t0) * 1000.0)
-            payload = encode_sensor((self.seqno + 1) & UINT32, tm, q, qd, mtype=MSGTYPE_CORRECTION)
+            payload = encode_sensor((self.seqno + 1) & UINT32, tm, out[0], out[1],
+                                    mtype=MSGTYPE_CORRECTION, body=body)  # fmt: skip
         except Exception:  # a failing setpoint source must never stop the I/O loop
             c.reply_errors += 1
             return 0
         work = time.perf_counter() - t_read if self.timing is not None else 0.0
         self._pending_at_send = self._peer_waiting(fb.seqno)
-        sent_at = time.perf_counter() if self.timing is not None else -math.inf
+        sent_at = time.time() if self.timing is not None else -math.inf
         try:
             self._sock.sendto(payload, addr)
         except OSError:
@@ -318,8 +336,10 @@ class EgmServer:
         """The first datagram in the socket (read with ``MSG_PEEK``: nothing consumed) is the
         peer's next request: a valid ``EgmRobot`` from the peer with a sequence number after
         ``answered``, the one being replied to (garbage, duplicates and strangers say nothing)."""
+        if not self._pending.poll(0):
+            return False
         try:
-            data, src = self._sock.recvfrom(MAX_DATAGRAM, socket.MSG_PEEK | socket.MSG_DONTWAIT)
+            data, src = self._sock.recvfrom(MAX_DATAGRAM, _PEEK)
         except BlockingIOError:
             return False
         except OSError:  # e.g. a port-unreachable report: taken by this call, so counted here
@@ -360,8 +380,14 @@ class EgmServer:
 
 def arrival_age(ancdata) -> float:
     """Seconds since the kernel stamped the datagram (``SCM_TIMESTAMPNS``), NaN if absent."""
+    return time.time() - arrival_stamp(ancdata)
+
+
+def arrival_stamp(ancdata) -> float:
+    """The kernel's arrival stamp of the datagram (``SCM_TIMESTAMPNS``: the wall clock [s]),
+    NaN if absent."""
     for level, kind, raw in ancdata:
         if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
             sec, nsec = _TIMESPEC.unpack_from(raw)
-            return time.time() - (sec + 1e-9 * nsec)
+            return sec + 1e-9 * nsec
     return math.nan

@@ -6,9 +6,13 @@ does, per ``EgmRobot``: receive, check the peer and the feedback, place the pack
 controller's clock, evaluate the current plan at that time, supervise, encode, send
 (:class:`~thinkfast.control.core.ControlCore` around a
 :class:`~thinkfast.control.plan.PlanFollower`: the same catch-up, restart, standby and fault
-policy as the daemon's own loop). Between packets it takes a new plan from shared memory (a
-seqlock: never waits), writes each reply's row to the ring the planner reads
-(:mod:`thinkfast.daemon.reply_rows`) and keeps the deadlines:
+policy as the daemon's own loop). Between packets it writes each reply's row to the ring the
+planner reads (:mod:`thinkfast.daemon.reply_rows`), takes a new plan from shared memory (a
+seqlock: never waits) and prepares the next reply at once (the setpoint and the supervisor's
+filter for the next cycle, its ``EgmSensor`` body encoded; again after a new plan: the follower
+forgets the one prepared, :meth:`PlanFollower.retract`), so that a packet finds its reply
+ready: decode, the feedback checks, the clock, commit, the header, send. It keeps the
+deadlines:
 
 * a heartbeat older than ``[safety] planner_timeout``: the plan is replaced by the supervisor's
   jerk-limited stop (brake ``planner_stale``); once stopped and the planner speaks again, the
@@ -33,6 +37,7 @@ import time
 
 import numpy as np
 
+from thinkfast.contract.egm import EgmEncodeError, sensor_body
 from thinkfast.control.core import ControlCore
 from thinkfast.control.plan import SIZE, PlanFollower, decode_plan
 from thinkfast.control.safety import SafetySupervisor, robot_limits
@@ -42,6 +47,8 @@ from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.reply_rows import WIDTH, call_row, event_row, reply_row
 from thinkfast.daemon.rt_thread import pin_thread, set_fifo
 from thinkfast.daemon.shared_plan import RowRing, Seqlock
+
+PARENT_CHECK = 0.001  # s: how often the loop looks whether its planner process is still there
 
 
 class ReplyLoop:
@@ -69,6 +76,8 @@ class ReplyLoop:
         self.stop = False
         self._fb = None
         self._now = 0.0
+        self._body: tuple | None = None  # (q, qd, sensor_body) of the reply prepared ahead
+        self._parent_checked = -math.inf  # monotonic time the parent was last looked at [s]
 
     def _on_event(self, t: float, kind: str, detail: dict) -> None:
         self.events.append(event_row(t, kind, detail.get("reason")))
@@ -80,7 +89,33 @@ class ReplyLoop:
         late = self.egm.behind
         r = self.core.on_feedback(fb.tm_ms, fb.q_rad, now, prev, fb.ready, fb.seqno, late)
         self._fb, self._now = fb, now
-        return None if r is None else (r.q, r.qd)
+        if r is None:
+            return None
+        body = self._body
+        if body is not None and r.q is body[0] and r.qd is body[1]:
+            return body  # the prepared reply (the same read-only arrays): encoded already
+        return r.q, r.qd
+
+    def between(self, replied: bool, now_mono: float) -> None:
+        """The work between two packets: the rows of the last one (:meth:`after`), a new plan
+        and the deadlines (:meth:`watch_plan`, at ``now_mono`` [s]), then the next reply
+        prepared ahead (:meth:`ControlCore.prepare`: again after a new plan) and its
+        ``EgmSensor`` body encoded, so that a packet finds its reply ready."""
+        core = self.core
+        core.settle()  # the last feedback's velocity: left for after its reply
+        if replied or self.events or self.follower.calls:
+            self.after(replied)
+        self.watch_plan(now_mono)
+        core.prepare()
+        ahead = core.prepared
+        if ahead is None or ahead.result is None:
+            self._body = None
+        elif self._body is None or self._body[0] is not ahead.result[0]:
+            q, qd = ahead.result[0], ahead.result[1]
+            try:
+                self._body = (q, qd, sensor_body(q, qd))
+            except EgmEncodeError:  # the reply will say so (counted by the server)
+                self._body = None
 
     def after(self, replied: bool) -> None:
         """Rows for the planner: the calls and events of the last packet, then its reply."""
@@ -104,20 +139,11 @@ class ReplyLoop:
                 self.version = got[0]
                 plan = decode_plan(got[1])
                 following = self.follower.segments
-                if plan is not None and self.follower.adopt(plan):
-                    core.invalidate()
+                if plan is not None and self.follower.takes(plan):
+                    core.invalidate()  # first: the follower forgets the reply prepared ahead
+                    self.follower.adopt(plan)
                     self._join_late(plan, following)
-        if self.lost:
-            return
-        if os.getppid() != self.parent:
-            self.lost = True
-            core.brake("planner_lost")
-            core.invalidate()
-            self.events.append(event_row(core.clock.t, "planner_lost", "planner_lost"))
-            msg = f"planner process {self.parent} lost: braking to a stop and holding"
-            print(f"thinkfast reply process: {msg}; stop this process to end", file=sys.stderr)
-            if self.zenoh is not None:  # the status goes on, from here
-                orphan_status.start(*self.zenoh, self)
+        if self.lost or self._parent_lost(now_mono):
             return
         beat = self.plan.heartbeat
         stale = math.isfinite(beat) and now_mono - beat > self.timeout
@@ -126,11 +152,30 @@ class ReplyLoop:
             core.invalidate()
             self.events.append(event_row(core.clock.t, "planner_stale", "planner_stale"))
         elif not stale and sup.brake_reason == "planner_stale" and sup.stopped:
+            core.invalidate()
             sup.release()  # the planner speaks again: plan on from where the arm stopped
             z = np.zeros(6)
             self.follower.resync(np.array(sup.q), z, z, core.clock.t)
-            core.invalidate()
             self.events.append(event_row(core.clock.t, "planner_resumed"))
+
+    def _parent_lost(self, now_mono: float) -> bool:
+        """The planner process is gone (looked at every :data:`PARENT_CHECK` at most): brake
+        ``planner_lost``, say so and publish a status of our own (module doc)."""
+        if now_mono < self._parent_checked + PARENT_CHECK:
+            return False
+        self._parent_checked = now_mono
+        if os.getppid() == self.parent:
+            return False
+        core = self.core
+        self.lost = True
+        core.brake("planner_lost")
+        core.invalidate()
+        self.events.append(event_row(core.clock.t, "planner_lost", "planner_lost"))
+        msg = f"planner process {self.parent} lost: braking to a stop and holding"
+        print(f"thinkfast reply process: {msg}; stop this process to end", file=sys.stderr)
+        if self.zenoh is not None:  # the status goes on, from here
+            orphan_status.start(*self.zenoh, self)
+        return True
 
     def _join_late(self, plan, following) -> None:
         """A plan that starts at or before the last reply (the planner was late: a slow
@@ -173,13 +218,10 @@ class ReplyLoop:
                 if time.time() - last_rx > 0.1 or (sup.braking and sup.stopped):
                     break
             since = time.time() - last_rx
-            if cycle.in_window(since):
-                core.prepare()
             replied = bool(poller.poll(cycle.wait_ms(since))) and egm.poll() > 0
             if replied:
                 last_rx = time.time()
-            self.after(replied)
-            self.watch_plan(time.monotonic())
+            self.between(replied, time.monotonic())
             if cycle.time_left(time.time() - last_rx) > 0.001:
                 counts, limits = gc.get_count(), gc.get_threshold()
                 if counts[0] >= limits[0]:

@@ -34,7 +34,7 @@ import numpy as np
 from thinkfast.control.core import Reply
 from thinkfast.control.egm_clock import ClockTick
 from thinkfast.control.executor import EXECUTING
-from thinkfast.control.plan import CALLS, MODES, SIZE, executor_plan
+from thinkfast.control.plan import CALLS, MODES, SIZE, executor_plan, plan_key
 from thinkfast.control.safety import BRAKE_REASONS
 from thinkfast.daemon import reply_process
 from thinkfast.daemon.egm_address import EgmAddressError
@@ -215,10 +215,7 @@ class SplitDaemon(Daemon):
     def _publish(self) -> None:
         """The executor's plan, when it changed since the last one published."""
         ex = self.executor
-        tl = ex.timeline
-        normal, goal = ex.wrist_inputs()
-        key = (id(tl.segment), tl.pending, ex.mode, normal.tobytes(),
-               None if goal is None else goal.tobytes(), self.epoch)  # fmt: skip
+        key = plan_key(ex, self.epoch)
         if key == self._plan_key:
             return
         self._plan_key = key
