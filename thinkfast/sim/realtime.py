@@ -10,6 +10,7 @@ compare it with the throw's true flight. A feint is judged by
 from __future__ import annotations
 
 import collections
+import json
 import signal
 import subprocess
 import sys
@@ -24,6 +25,7 @@ from thinkfast.contract import keys
 from thinkfast.contract.camera_mode import CameraSetup
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
+from thinkfast.control.executor import IDLE
 from thinkfast.decide.tree_view import BALL_RADIUS
 from thinkfast.errors import ThinkfastError
 from thinkfast.robot.kinematics import Kinematics
@@ -52,10 +54,19 @@ class Watchdog:
         self.runner, self.egm, self.silence = runner, egm, silence
         now = time.monotonic()
         self._replies, self._reply_at, self.status_at = 0, now, now
+        self._last_status = b""  # the newest status payload, read in the thrower's thread
         self._sub = session.declare_subscriber(keys.status(prefix), self._on_status)
 
-    def _on_status(self, _sample) -> None:
-        self.status_at = time.monotonic()  # only a time: nothing else in zenoh's thread
+    def _on_status(self, sample) -> None:
+        self.status_at = time.monotonic()  # a time and a reference: nothing else in zenoh's
+        self._last_status = sample.payload.to_bytes()  # thread
+
+    def idle(self) -> bool:
+        """The daemon's newest status says ``idle`` (at home, ready for a throw)."""
+        try:
+            return json.loads(self._last_status).get("state") == IDLE
+        except ValueError:
+            return False
 
     def check(self, done: int, total: int) -> None:
         """Raise :class:`DaemonGone` (naming what went silent) when the daemon is gone."""
@@ -74,14 +85,15 @@ class Watchdog:
                 f"after {done} of {total} throws"
             )
 
-    def sleep_until(self, t_wall: float, done: int, total: int) -> None:
-        """Sleep until wall time ``t_wall`` [s], checking the daemon every 0.1 s."""
+    def sleep_until(self, t_wall: float, done: int, total: int, until_idle: bool = False) -> None:
+        """Sleep until wall time ``t_wall`` [s], checking the daemon every 0.1 s; with
+        ``until_idle``, no longer than until its status says ``idle``."""
         while True:
             self.check(done, total)
             left = t_wall - time.time()
-            if left <= 0.0:
+            if left <= 0.0 or (until_idle and self.idle()):
                 return
-            time.sleep(min(left, 0.1))
+            time.sleep(min(left, 0.02 if until_idle else 0.1))
 
 
 class WallClockSim(SimController):
@@ -228,7 +240,9 @@ def run_throws(
             r = judge_throw(th, *sim.joint_history(t0 - 1.0), kin, t0)._replace(kind=th.kind)
             results.append(r)
             report(throw_line(i, len(throws), th, r))
-            dog.sleep_until(t0 + cross.t + GAP, i + 1, len(throws))
+            # between throws the contract's gap; after the last, only until the arm is home
+            last = i + 1 == len(throws)
+            dog.sleep_until(t0 + cross.t + GAP, i + 1, len(throws), until_idle=last)
     finally:
         if controller is None:
             runner.stop()
