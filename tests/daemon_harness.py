@@ -73,9 +73,6 @@ class DaemonRun:
         self._wait_ready()
         self.sim = SimController(ServoConfig(), q0=q0)
         self.runner = ControllerRunner(self.sim, ("127.0.0.1", self.egm_port)).start()
-        self.pub = self.session.declare_publisher(  # block, never drop: counts must be exact
-            keys.detections(prefix), congestion_control=zenoh.CongestionControl.BLOCK
-        )
 
     def _wait_ready(self, timeout: float = 90.0) -> None:
         deadline = time.time() + timeout
@@ -90,11 +87,19 @@ class DaemonRun:
             keys.setpoints(self.prefix),
             lambda s: self.setpoints.append(json.loads(s.payload.to_bytes())),
         )
+        self.pub = self.session.declare_publisher(  # block, never drop: counts must be exact
+            keys.detections(self.prefix), congestion_control=zenoh.CongestionControl.BLOCK
+        )
         while time.time() < deadline and not self.status:
-            time.sleep(0.05)
+            time.sleep(0.01)
         if not self.status:
             raise RuntimeError("no status from the daemon")
-        time.sleep(0.3)  # let the publisher's routes settle
+        # the first detection must reach the daemon: wait until its subscriber is known here
+        # (a condition, where a fixed 0.3 s sleep used to be)
+        while time.time() < deadline and not self.pub.matching_status.matching:
+            time.sleep(0.01)
+        if not self.pub.matching_status.matching:
+            raise RuntimeError("the daemon's detection subscriber was never matched")
 
     def publish(self, payload: bytes) -> None:
         self.pub.put(payload)

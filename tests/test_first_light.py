@@ -14,7 +14,8 @@ import time
 import numpy as np
 import pytest
 
-from tests.daemon_harness import DaemonRun, ballistic_throw, publish_throw
+from tests.daemon_harness import DaemonRun, ballistic_throw, publish_throw, until
+from thinkfast.sim.realtime import daemon_log
 
 DT = 0.004
 
@@ -138,8 +139,8 @@ def test_motors_off_holds_the_measured_position_and_motion_resumes_when_on(
 def test_away_from_home_holds_with_hold_away(tree_file, tmp_path, robot):
     q0 = robot.home + np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
     run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=q0, extra=("--hold-away",))
-    try:
-        time.sleep(0.8)
+    try:  # the daemon has seen the arm away from home before the throw
+        assert until(lambda: run.status[-1].get("away_from_home"), 10.0, poll=0.02)
         _throw(run)  # ignored: the arm is not where the planner starts from
         time.sleep(0.8)
         status = run.status[-1]
@@ -162,7 +163,8 @@ def test_go_home_moves_home_once_the_way_is_clear(tree_file, tmp_path, robot):
         while time.time() < deadline and run.status[-1].get("way_home") != "clear":
             time.sleep(0.05)
         assert run.wait_state("idle", timeout=8.0)
-        time.sleep(2.0)
+        # the servo follows the last commands home: polled, no fixed wait
+        until(lambda: np.allclose(run.sim.q, robot.home, atol=2e-3), 10.0, poll=0.02)
         status = run.status[-1]
         q_end = run.sim.history().q[-1]
     finally:
@@ -222,8 +224,9 @@ def test_log_format_json_gives_one_object_per_line(tree_file, tmp_path, robot):
     run = DaemonRun(
         tree_file, tmp_path / "rec.h5", "naive", q0=robot.home, extra=("--log-format", "json")
     )
-    try:
-        time.sleep(0.5)
+    try:  # until the events the test looks for are logged (no fixed wait)
+        words = ('"event": "egm_connected"', '"event": "controller_state"')
+        assert until(lambda: all(w in daemon_log(run.proc) for w in words), 10.0, poll=0.02)
     finally:
         code, err = run.stop()
     assert code == 0, err

@@ -258,7 +258,8 @@ def test_a_throw_of_point_stamped_detections_is_blocked_like_a_json_one(
         commands, _s2 = _collect(run.session, JOINT_COMMANDS_KEY)
         diagnostics, _s3 = _collect(run.session, DIAGNOSTICS_KEY)
         sender = _RosSender(run.session)
-        time.sleep(0.5)  # routes of the new publisher
+        routes = lambda: sender.pub.pub.matching_status.matching and states and commands  # noqa: E731
+        assert _wait(lambda: routes() and diagnostics, timeout=20.0)  # all routes, no fixed wait
         t_release = time.time() + 0.8
         _, _, at = ballistic_throw(aim, flight, t_release, release)
         publish_throw(sender, at, t_release, flight)

@@ -76,7 +76,9 @@ def test_the_daemon_takes_detection3darray_like_json(small_tree_015, robot, tmp_
     try:  # the daemon is stopped whatever fails (a leaked one talks to every later test)
         node = ros_zenoh.RosNode(run.session, 0, "test_detector")
         pub = node.publisher(detections_3d_topic("thinkfast"), DETECTION_3D_ARRAY)
-        time.sleep(0.5)
+        deadline = time.time() + 20.0  # the daemon's subscriber is known: no fixed wait
+        while time.time() < deadline and not pub.pub.matching_status.matching:
+            time.sleep(0.01)
         for _ in range(20):  # a ball held still in base, then an empty array
             pub.put(array_cdr(time.time(), "base", [((5.0, 0.1, 1.2), 0.8)]))
             time.sleep(0.02)

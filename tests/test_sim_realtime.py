@@ -3,6 +3,7 @@ noticed, and the run exits non-zero naming what went silent (real processes, rea
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -11,8 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from tests.daemon_harness import free_port
-from thinkfast.contract.zenoh_session import free_tcp_port
+from tests.daemon_harness import free_port, until
+from thinkfast.contract import keys
+from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.sim.realtime import start_daemon, wait_port
 
 pytestmark = pytest.mark.realtime
@@ -21,18 +23,28 @@ pytestmark = pytest.mark.realtime
 def test_sim_run_exits_non_zero_when_its_daemon_dies(small_tree_015):
     egm, zport = free_port(), free_tcp_port()
     daemon = start_daemon(small_tree_015, "tree", egm, zport, "thinkfast", None, None)
+    states: list[str] = []
+    watch = None
     try:
         wait_port(daemon, zport)
+        watch = open_peer(connect=[f"tcp/127.0.0.1:{zport}"])
+        watch.declare_subscriber(
+            keys.status("thinkfast"),
+            lambda s: states.append(json.loads(s.payload.to_bytes())["state"]),
+        )
         sim = subprocess.Popen(
             [str(Path(sys.executable).parent / "thinkfast-sim"), "run", "--tree",
              str(small_tree_015), "--throws", "6", "--egm", f"127.0.0.1:{egm}",
              "--zenoh", f"tcp/127.0.0.1:{zport}"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
-        time.sleep(6.0)  # the first throw is under way
+        # the first throw is under way (the daemon's status says so): then the daemon dies
+        assert until(lambda: states and states[-1] in ("tracking", "executing"), 60.0, 0.01)
         daemon.send_signal(signal.SIGKILL)
         out, err = sim.communicate(timeout=60)
     finally:
+        if watch is not None:
+            watch.close()
         daemon.kill()
         daemon.wait(10)
     assert sim.returncode == 1, (out, err)

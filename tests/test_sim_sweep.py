@@ -246,10 +246,13 @@ def loopback_cluster(tmp_path):
         log.close()
 
 
-@pytest.mark.realtime
 def test_a_separate_cluster_runs_bench_and_a_sweep_that_survives_a_killed_worker(
     loopback_cluster, reference, tmp_path
 ):
+    """Not ``realtime``: nothing here runs on a schedule. The kill follows an event (the first
+    point's file), the results are compared exactly, the waits only give up (60 s, 120 s) and
+    a loaded host only makes the sweep slower, which leaves more of it after the kill. It runs
+    in the parallel step with the module's other tests, sharing their serial ``reference``."""
     addr, workers = loopback_cluster
     dirs_before = _worker_dirs()
     _, summary0, tree0 = reference[0]

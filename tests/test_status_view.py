@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from tests.daemon_harness import DaemonRun, free_port
+from tests.daemon_harness import DaemonRun, free_port, until
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.daemon.status_cli import Listener
 from thinkfast.daemon.status_view import StatusBoard, panel_rows, render, snapshot
@@ -33,7 +33,7 @@ def daemons(small_tree_015, robot, tmp_path_factory):
     b = start_daemon(small_tree_015, "naive", free_port(), zb, "lab_b", None, None)
     try:
         wait_port(b, zb)
-        time.sleep(1.0)
+        assert until(lambda: run.status[-1].get("egm_connected"), 10.0, poll=0.02)  # A served
         yield f"tcp/127.0.0.1:{run.zport}", f"tcp/127.0.0.1:{zb}"
     finally:
         b.terminate()

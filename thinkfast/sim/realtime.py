@@ -206,7 +206,9 @@ def run_throws(
             r = judge_throw(th, *sim.joint_history(t0 - 1.0), kin, t0)._replace(kind=th.kind)
             results.append(r)
             report(throw_line(i, len(throws), th, r))
-            dog.sleep_until(t0 + cross.t + GAP, i + 1, len(throws))
+            # between throws the contract's gap; after the last, only until the arm is home
+            last = i + 1 == len(throws)
+            dog.sleep_until(t0 + cross.t + GAP, i + 1, len(throws), until_idle=last)
     finally:
         if controller is None:
             runner.stop()

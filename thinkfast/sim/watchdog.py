@@ -10,9 +10,11 @@ session's messages reach the daemon), so a slow host only waits longer. During t
 
 from __future__ import annotations
 
+import json
 import time
 
 from thinkfast.contract import keys
+from thinkfast.control.executor import IDLE
 from thinkfast.errors import ThinkfastError
 
 SILENCE = 3.0  # s without an EGM reply or a status: the daemon is gone (status comes at 20 Hz)
@@ -42,11 +44,20 @@ class Watchdog:
         now = time.monotonic()
         self._replies, self._reply_at, self.status_at = 0, now, now
         self.heard = False  # a status arrived
+        self._last_status = b""  # the newest status payload, read in the thrower's thread
         self._sub = session.declare_subscriber(keys.status(prefix), self._on_status)
 
-    def _on_status(self, _sample) -> None:
-        self.status_at = time.monotonic()  # only a time: nothing else in zenoh's thread
+    def _on_status(self, sample) -> None:
+        self.status_at = time.monotonic()  # a time and a reference: nothing else in zenoh's
+        self._last_status = sample.payload.to_bytes()  # thread
         self.heard = True
+
+    def idle(self) -> bool:
+        """The daemon's newest status says ``idle`` (at home, ready for a throw)."""
+        try:
+            return json.loads(self._last_status).get("state") == IDLE
+        except ValueError:
+            return False
 
     def wait_ready(self, matching, timeout: float, total: int = 0) -> None:
         """Wait until the daemon answered ``READY_REPLIES`` EGM packets, a status of it arrived
@@ -96,11 +107,12 @@ class Watchdog:
                 f"after {done} of {total} throws"
             )
 
-    def sleep_until(self, t_wall: float, done: int, total: int) -> None:
-        """Sleep until wall time ``t_wall`` [s], checking the daemon every 0.1 s."""
+    def sleep_until(self, t_wall: float, done: int, total: int, until_idle: bool = False) -> None:
+        """Sleep until wall time ``t_wall`` [s], checking the daemon every 0.1 s; with
+        ``until_idle``, no longer than until its status says ``idle``."""
         while True:
             self.check(done, total)
             left = t_wall - time.time()
-            if left <= 0.0:
+            if left <= 0.0 or (until_idle and self.idle()):
                 return
-            time.sleep(min(left, 0.1))
+            time.sleep(min(left, 0.02 if until_idle else 0.1))
