@@ -82,6 +82,7 @@ def _udp_sensor(answer):
     return sensor.getsockname(), stop
 
 
+@pytest.mark.realtime
 def test_silent_or_garbage_sensor_counts_missed_and_malformed_and_the_arm_holds():
     k = [0]
 
@@ -197,6 +198,7 @@ def test_an_overrunning_controller_keeps_its_cycle_only_when_asked(keep_cycle):
         assert st.skipped == 0 and sim.seqno * DT < elapsed - 0.015 * (st.sent // 25)
 
 
+@pytest.mark.realtime
 def test_answers_count_late_or_not_in_answered():
     """``answered`` counts every well-formed answer applied, in its cycle (``replies``) or read
     at a later cycle (``late``): the sensor is alive however late it is (the simulated IRC5's
