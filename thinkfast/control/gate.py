@@ -13,9 +13,9 @@ disagree with the reference camera's is kept out. Two gates (the planner names i
   throw adds one to a count and each one that does not takes one off (never below zero: one
   outlier frame costs one step, not the whole count); the throw is confirmed when the count
   reaches ``confirm_updates``. With several cameras a detection older than the belief (fused
-  out of sequence) counts for neither the settling nor the count. A launch found by the launch
-  detector (``[launch]``) restarts the filter from its fit, and confirms at once when that
-  belief predicts a throw.
+  out of sequence) counts towards the settling only when it is an inlier on every axis. A
+  launch found by the launch detector (``[launch]``) restarts the filter from its fit, and
+  confirms at once when that belief predicts a throw.
 - ``first`` (the paper's baseline): the first belief that predicts a throw at zero sigmas (mean
   approach speed) confirms it, with neither the launch detector, the settling nor the count.
 
@@ -68,7 +68,7 @@ class ThrowGate:
     Attributes:
         belief: the ball filter's state.
         confirm: the confirmation count.
-        settled: in-sequence updates absorbed since the filter last (re)started.
+        settled: updates absorbed since the filter last (re)started (module doc).
         t_last_det: newest detection stamp fused [s].
         check: the cameras' consistency check (None with the default camera alone).
     """
@@ -98,7 +98,6 @@ class ThrowGate:
         self.belief = kf.empty(cfg.filter)
         self.confirm = 0
         self.settled = 0
-        self.past = False  # the last detection fused was older than the belief (another camera)
         self.t_last_det = -np.inf
 
     def fuse(self, stamp: float, p_base: np.ndarray, camera: str | None, armed: bool) -> Fused:
@@ -122,14 +121,15 @@ class ThrowGate:
             return Fused(False)
         self.t_last_det = max(self.t_last_det, stamp)
         # updates absorbed since the filter last (re)started from two measurements: before 2,
-        # one outlier among those two can fake any velocity. Only in-sequence updates count:
-        # another camera's older detection (fused out of sequence) neither moves the belief on
-        # in time nor counts towards the filter's recovery from a bad start, so it cannot show
-        # that the start was good (with two cameras it came between two frames of the other and
-        # settled a start from two outliers in 10 ms: docs/RESULTS.md, "Feints, held balls")
+        # one outlier among those two can fake any velocity. Another camera's older detection
+        # (fused out of sequence) does not count towards the filter's recovery from a bad
+        # start, so it settles the start only when it agrees with it (an inlier on every axis):
+        # counted regardless, two of them settled a start from two base-camera outliers and a
+        # held ball was confirmed (docs/RESULTS.md, "Feints, held balls")
         restarted = info.status in ("first", "init") or bool(np.any(info.reset))
-        self.past = info.status == kf.STATUS_PAST
-        self.settled = 0 if restarted else self.settled + (not self.past)
+        past = info.status == kf.STATUS_PAST
+        agrees = not past or bool(np.all(info.weight >= 1.0))
+        self.settled = 0 if restarted else self.settled + agrees
         cam = (sensor, fcfg) if self.check is not None else ()
         if not armed:  # a throw is under way: is its ball still flying towards the plane?
             watch = self.cfg.retract.enabled and not self.first
@@ -159,8 +159,6 @@ class ThrowGate:
         if not tracking:
             return True
         th = self.cfg.throw
-        if self.past and not launched:  # out of sequence: not a newer belief (see fuse)
-            return self.confirm >= th.confirm_updates
         if self.settled >= th.settle_updates and self.approaching(c):
             self.confirm = th.confirm_updates if launched else self.confirm + 1
         else:  # one outlier frame costs one step, not the whole count
