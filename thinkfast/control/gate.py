@@ -12,8 +12,10 @@ disagree with the reference camera's is kept out. Two gates (the planner names i
   absorbed ``settle_updates`` updates since its last (re)start, each belief that predicts a
   throw adds one to a count and each one that does not takes one off (never below zero: one
   outlier frame costs one step, not the whole count); the throw is confirmed when the count
-  reaches ``confirm_updates``. A launch found by the launch detector (``[launch]``) restarts the
-  filter from its fit, and confirms at once when that belief predicts a throw.
+  reaches ``confirm_updates``. With several cameras a detection older than the belief (fused
+  out of sequence) counts towards the settling only when it is an inlier on every axis. A
+  launch found by the launch detector (``[launch]``) restarts the filter from its fit, and
+  confirms at once when that belief predicts a throw.
 - ``first`` (the paper's baseline): the first belief that predicts a throw at zero sigmas (mean
   approach speed) confirms it, with neither the launch detector, the settling nor the count.
 
@@ -66,7 +68,7 @@ class ThrowGate:
     Attributes:
         belief: the ball filter's state.
         confirm: the confirmation count.
-        settled: updates absorbed since the filter last (re)started.
+        settled: updates absorbed since the filter last (re)started (module doc).
         t_last_det: newest detection stamp fused [s].
         check: the cameras' consistency check (None with the default camera alone).
     """
@@ -119,9 +121,15 @@ class ThrowGate:
             return Fused(False)
         self.t_last_det = max(self.t_last_det, stamp)
         # updates absorbed since the filter last (re)started from two measurements: before 2,
-        # one outlier among those two can fake any velocity
+        # one outlier among those two can fake any velocity. Another camera's older detection
+        # (fused out of sequence) does not count towards the filter's recovery from a bad
+        # start, so it settles the start only when it agrees with it (an inlier on every axis):
+        # counted regardless, two of them settled a start from two base-camera outliers and a
+        # held ball was confirmed (docs/RESULTS.md, "Feints, held balls")
         restarted = info.status in ("first", "init") or bool(np.any(info.reset))
-        self.settled = 0 if restarted else self.settled + 1
+        past = info.status == kf.STATUS_PAST
+        agrees = not past or bool(np.all(info.weight >= 1.0))
+        self.settled = 0 if restarted else self.settled + agrees
         cam = (sensor, fcfg) if self.check is not None else ()
         if not armed:  # a throw is under way: is its ball still flying towards the plane?
             watch = self.cfg.retract.enabled and not self.first
