@@ -134,10 +134,7 @@ class ControllerRunner:
             sock.setblocking(False)
             while True:  # replies that missed their cycle
                 try:
-                    if self._stamped:
-                        data, anc, _, _ = sock.recvmsg(65535, 64)
-                    else:
-                        data = sock.recv(65535)
+                    data, anc = self._recv()
                 except OSError:
                     break
                 st.late += 1
@@ -202,10 +199,7 @@ class ControllerRunner:
                     spinning = False  # spun long enough: block for the rest
                 if not spinning:
                     sock.settimeout(deadline - now)
-                if self._stamped:
-                    data, anc, _, _ = sock.recvmsg(65535, 64)
-                else:
-                    data, anc = sock.recv(65535), ()
+                data, anc = self._recv()
             except (BlockingIOError, InterruptedError):
                 continue
             except TimeoutError:
@@ -224,6 +218,14 @@ class ControllerRunner:
                     st.wire_s.append(min(max(wire, 0.0), rtt))
                 return
             st.malformed += 1
+
+    def _recv(self) -> tuple[bytes, list]:
+        """One datagram and its ancillary data (the kernel's arrival stamp when ``_stamped``,
+        else none)."""
+        if self._stamped:
+            data, anc, _, _ = self._sock.recvmsg(65535, 64)
+            return data, anc
+        return self._sock.recv(65535), []
 
     def _warn(self, message: str) -> None:
         now = time.monotonic()
