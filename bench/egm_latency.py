@@ -125,6 +125,16 @@ def serve(bind: str, realtime: bool, busy: bool, cpu: int) -> None:
         print(json.dumps({**vars(server.counters), "realtime": rt, "busy_poll": busy}), flush=True)
 
 
+def _off_cpu(cpu: int):
+    """A ``preexec_fn`` that keeps a child (the camera's stand-in) and its threads off the
+    sensor's CPU ``cpu``, as a cell's detector service is kept off it (docs/DEPLOY.md); None
+    when nothing is pinned."""
+    others = os.sched_getaffinity(0) - {cpu}
+    if cpu < 0 or not others:
+        return None
+    return lambda: os.sched_setaffinity(0, others)
+
+
 def _pin_client(cpu: int) -> None:
     """Keep this (measuring) process off the sensor's CPU ``cpu`` (when >= 0)."""
     others = os.sched_getaffinity(0) - {cpu}
@@ -249,7 +259,8 @@ def run_daemon(args) -> dict:
                   str(n_throws), "--seed", str(args.seed), "--wait-go", *config]  # fmt: skip
     log = tempfile.TemporaryFile("w+")
     daemon = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log)
-    stream = subprocess.Popen(stream_cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    stream = subprocess.Popen(stream_cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True, preexec_fn=_off_cpu(args.cpu))  # fmt: skip
     result = {"target": f"127.0.0.1:{egm_port}", "mode": "daemon", "planner": args.planner,
               "tree": str(tree), "throw_period_s": args.throw_period,
               "daemon_options": cmd[cmd.index("--log-level") + 2:]}  # fmt: skip

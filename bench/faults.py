@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import shutil
 import sys
 import tempfile
@@ -69,6 +70,12 @@ def main(argv=None) -> int:
         action="store_true",
         help=f"the daemon with its deployment options ({' '.join(DEPLOY)})",
     )
+    ap.add_argument(
+        "--daemon-args",
+        default="",
+        metavar="ARGS",
+        help='more thinkfast-run options, one string (e.g. "--reply-process")',
+    )
     a = ap.parse_args(argv)
     if a.list:
         for name in ORDER:
@@ -85,7 +92,8 @@ def main(argv=None) -> int:
         return 2
     started = time.time()
     out = sys.stderr if a.json else sys.stdout
-    ctx = make_context(Path(a.tree), a.seed, DEPLOY if a.deploy else (),
+    extra = (*(DEPLOY if a.deploy else ()), *shlex.split(a.daemon_args))
+    ctx = make_context(Path(a.tree), a.seed, extra,
                        log=lambda m: print(m, file=out, flush=True))  # fmt: skip
     record_dir = Path(tempfile.mkdtemp(prefix="faults-records-")) if a.record else None
     ctx.record_dir = record_dir
