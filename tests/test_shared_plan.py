@@ -76,3 +76,27 @@ def test_the_ring_keeps_order_and_counts_rows_overwritten_before_they_were_read(
         reader.close()
     finally:
         ring.close()
+
+
+_SMALL_DISK = """
+import resource, sys
+resource.setrlimit(resource.RLIMIT_FSIZE, (65536, 65536))
+from thinkfast.daemon.shared_plan import RowRing
+from thinkfast.errors import ThinkfastError
+try:
+    RowRing(32)
+except ThinkfastError as e:
+    print(e)
+    sys.exit(3)
+"""
+
+
+def test_shared_memory_that_cannot_be_made_is_a_clear_error_not_an_internal_one():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _SMALL_DISK], capture_output=True, text=True,
+                         timeout=60)  # fmt: skip
+    assert out.returncode == 3, out.stderr
+    assert "--reply-process" in out.stdout and "/dev/shm" in out.stdout
+    assert "File too large" in out.stdout

@@ -26,6 +26,8 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
+from thinkfast.errors import ThinkfastError
+
 _HEAD = 4  # float64 slots before the data: counter, heartbeat, spare, spare
 
 
@@ -158,7 +160,13 @@ class _Segment:
 
     def __init__(self, nbytes: int, name: str | None):
         if name is None:
-            self._shm = shared_memory.SharedMemory(create=True, size=nbytes)
+            try:
+                self._shm = shared_memory.SharedMemory(create=True, size=nbytes)
+            except OSError as e:  # e.g. /dev/shm full, or a file size limit (RLIMIT_FSIZE)
+                raise ThinkfastError(
+                    f"--reply-process: cannot create {nbytes} bytes of shared memory in /dev/shm "
+                    f"for the plan hand-over: {e.strerror or e}"
+                ) from None
             self.name, self.buf = self._shm.name, self._shm.buf
             return
         self._shm = None
