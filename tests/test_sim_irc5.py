@@ -122,3 +122,26 @@ def test_a_session_answered_late_is_kept_not_lost(robot, monkeypatch):
     finally:
         irc5.close()
     assert status == "session", status
+
+
+def test_with_motors_off_the_simulated_controller_refuses_the_start_over_http():
+    """docs/CELL.md section 0: ``thinkfast-sim controller --motors-off``, then ``thinkfast-cell
+    start`` refuses (one line, exit 1) and the RAPID program stays stopped (real processes)."""
+    rws = free_tcp_port()
+    url = f"http://127.0.0.1:{rws}"
+    irc5 = subprocess.Popen(
+        [str(BIN / "thinkfast-sim"), "controller", "--motors-off", "--egm",
+         f"127.0.0.1:{free_port()}", "--rws", f"127.0.0.1:{rws}"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert until(lambda: _run("thinkfast-cell", "state", "--url", url).returncode == 0, 60)
+        started = _run("thinkfast-cell", "start", "--url", url)
+        state = json.loads(_run("thinkfast-cell", "state", "--url", url, "--json").stdout)
+    finally:
+        irc5.send_signal(signal.SIGINT)
+        irc5.communicate(timeout=20)
+    assert started.returncode == 1, started.stdout
+    err = started.stderr.strip().splitlines()
+    assert len(err) == 1 and "cannot start" in err[0] and "motors are off" in err[0], err
+    assert state["rapid_execution"] == "stopped" and state["kit"]["tf_status"] != "session"
