@@ -135,7 +135,7 @@ def test_with_motors_off_the_simulated_controller_refuses_the_start_over_http():
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
-        assert until(lambda: _run("thinkfast-cell", "state", "--url", url).returncode == 0, 60)
+        assert until(lambda: _run("thinkfast-cell", "state", "--url", url).returncode == 0, 180)
         started = _run("thinkfast-cell", "start", "--url", url)
         state = json.loads(_run("thinkfast-cell", "state", "--url", url, "--json").stdout)
     finally:
