@@ -264,3 +264,30 @@ def test_dynamics_patch_is_a_run_config(dyn_record, slow_record, tmp_path, robot
         )  # fmt: skip
         assert proc.returncode == 0, proc.stderr
         assert proc.stdout.strip() == f"{patch}: OK"
+
+
+@pytest.mark.realtime
+def test_a_simulated_record_waits_for_a_slow_writer_instead_of_cutting_it(robot, tmp_path,
+                                                                         monkeypatch):  # fmt: skip
+    """On a loaded host (load 12) the writer once needed more than the daemon's 1.5 s close
+    limit, and ``simulate-dynamics`` failed ("writer did not finish in time: killed"). The
+    writer process is held (SIGSTOP) for 2.5 s as ``close`` starts: the record still closes
+    complete (before: RecorderError after 1.5 s)."""
+    import os
+    import signal
+    import threading
+
+    from thinkfast.calib import dynamics_sim
+
+    class SlowWriter(Recorder):
+        def close(self, *args, **kwargs):
+            if self._pipe is not None:
+                pid = self._pipe.proc.pid
+                os.kill(pid, signal.SIGSTOP)
+                threading.Timer(2.5, os.kill, (pid, signal.SIGCONT)).start()
+            return super().close(*args, **kwargs)
+
+    monkeypatch.setattr(dynamics_sim, "Recorder", SlowWriter)
+    path = tmp_path / "slow_writer.h5"
+    rows = simulate_dynamics_record(path, robot, SERVO, seed=4)
+    assert len(read_record(str(path)).tables["egm"]) == rows

@@ -246,3 +246,11 @@ def test_the_first_simulated_block_as_the_doc_says(tree, tmp_path):
     assert len(throws) == 3, cell.controller_lines
     assert any("BLOCKED" in ln for ln in throws), throws  # the first simulated block
     assert "throw_start" in log and "egm_connected" in log
+    # the status view drawn after the throws were judged: the throws the daemon counted (the
+    # last may still be on its way home), the supervisor in the last one ended, the EGM
+    # counters (not the rates or the session: a starved host may have lost it by then)
+    view = next(r.stdout for r in cell.done if r.args[1:2] == ["status"])
+    flat = " ".join(re.sub(r"[│|╭╮╰╯─]", " ", view).split())
+    assert re.search(r"throws [123], node", flat), view
+    assert re.search(r"intervened \d+ of \d+ ticks; last throw \d+ of \d+", flat), view
+    assert re.search(r"EGM received [1-9]\d*, replied [1-9]\d*", flat), view

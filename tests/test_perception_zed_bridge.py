@@ -107,6 +107,46 @@ def test_bridge_publishes_the_sdk_frames_in_si_units_in_the_configured_mode(sdk,
     assert counts["grabbed"] == counts["published"] >= seqs[-1] and counts["grab_errors"] == 0
 
 
+def test_the_zed_2i_mode_hd720_at_60_fps_from_the_config_runs_as_set_without_a_warning(
+    sdk, tmp_path, capsys
+):
+    """A rate the ZED 2i runs at HD720 (60): the camera opens at it, no warning, and the frames
+    are HD720's (XYZ at half resolution by default), decoded by the detector's decoder."""
+    conf = tmp_path / "detect.toml"
+    conf.write_text('[camera]\nmode = "HD720"\nfps = 60.0\n[zed]\ndepth_mode = "ULTRA"\n')
+    port = free_tcp_port()
+    session = open_peer(listen=[f"tcp/127.0.0.1:{port}"])
+    got: list[bytes] = []
+
+    def on_frame(sample):  # only collects; SIGINT stops the bridge (as in the test above)
+        got.append(sample.payload.to_bytes())
+        if len(got) == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    sub = session.declare_subscriber(keys.camera_frame("zt"), on_frame)
+    watchdog = threading.Timer(60.0, os.kill, (os.getpid(), signal.SIGINT))
+    watchdog.start()
+    try:
+        code = run_main(["--config", str(conf), "--key-prefix", "zt",
+                         "--zenoh-config", str(LOOPBACK),
+                         "--zenoh-connect", f"tcp/127.0.0.1:{port}"])  # fmt: skip
+    finally:
+        watchdog.cancel()
+        sub.undeclare()
+        session.close()
+    assert code == 0 and len(got) >= 2
+    init = sdk.opened[0]
+    assert init.camera_resolution == sdk.RESOLUTION.HD720 and init.camera_fps == 60
+    assert init.depth_mode == sdk.DEPTH_MODE.ULTRA and sdk.cameras[0].fps == 60
+    err = capsys.readouterr().err
+    assert "HD720 at 60 fps, depth ULTRA -> zt/camera/frame" in err and "warning" not in err, err
+    frame = parse_frame(got[-1])
+    assert isinstance(frame, Frame), frame
+    assert (frame.width, frame.height) == (1280, 720) and frame.fx == 532.0
+    assert frame.image.shape == (720, 1280, 3) and frame.xyz.shape == (360, 640, 3)
+    assert frame.stamp == pytest.approx(sdk.stamp_ns(frame.seq, 60) * 1e-9, abs=1e-6)
+
+
 def test_a_depth_mode_the_sdk_lacks_names_the_key(sdk):
     old = types.SimpleNamespace(**vars(sdk))
     old.DEPTH_MODE = types.SimpleNamespace(PERFORMANCE=1, QUALITY=2, ULTRA=3)

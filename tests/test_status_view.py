@@ -126,3 +126,24 @@ def test_stale_exiting_and_missing_keys_are_shown():
     assert rows["state"] == "fault (braking: deviation) (exiting)"
     assert rows["status age"] == "1.50 s STALE" and rows["recorder"] == "-"
     assert rows["EGM rate"].startswith("replied 250/s")
+
+
+def test_throws_supervisor_last_throw_and_cameras_are_shown():
+    """The rows a lab reads after a throw: the throw count, the supervisor's interventions
+    overall and in the last throw, and each extra camera's fusion counts (schema keys)."""
+    status = {
+        "stamp": 5.0, "state": "idle", "throws": 4, "node": 0, "planner": "tree",
+        "interventions": {"ticks": 900, "intervened": 2,
+                          "last_throw": {"ticks": 300, "intervened": 1}},
+        "cameras": {"side": {"fused": 40, "inconsistent_camera": 0, "untrusted": 0,
+                             "inconsistent": 1, "passed": 39}},
+    }  # fmt: skip
+    rows = dict(panel_rows(status, {}, 0.1))
+    assert rows["throws"].startswith("4, node 0,")
+    assert rows["supervisor"] == "intervened 2 of 900 ticks; last throw 1 of 300"
+    assert rows["cameras"] == (
+        "side: fused 40, inconsistent_camera 0, untrusted 0, inconsistent 1, passed 39"
+    )
+    first = {"ticks": 9, "intervened": 0, "last_throw": None}  # before a throw has ended
+    before = dict(panel_rows({**status, "interventions": first}, {}, 0.1))
+    assert before["supervisor"] == "intervened 0 of 9 ticks; last throw -"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 
 import h5py
@@ -62,6 +63,23 @@ def test_if_changed_skips_an_up_to_date_tree(trees):
 def test_diff_of_a_tree_with_itself_exits_0(trees):
     proc = run_cli("thinkfast-compile", "diff", str(trees["a"]), str(trees["a"]))
     assert proc.returncode == 0, proc.stdout
+
+
+def test_info_and_diff_print_one_fingerprint_the_files_and_the_daemons(trees):
+    """The start log's ``tree_fingerprint`` (the daemon's :func:`tree_fingerprint`) is the one
+    ``info`` and ``diff`` print, and the file's stored attribute."""
+    from thinkfast.tree.file import load_tree, tree_fingerprint
+
+    info = run_cli("thinkfast-compile", "info", str(trees["a"]))
+    diff = run_cli("thinkfast-compile", "diff", str(trees["a"]), str(trees["deeper"]))
+    shown = [re.findall(r"fingerprint ([0-9a-f]{16})\b", p.stdout) for p in (info, diff)]
+    with h5py.File(trees["a"], "r") as f:
+        stored = f.attrs["fingerprint"]
+    stored = stored.decode() if isinstance(stored, bytes) else str(stored)
+    daemon = tree_fingerprint(load_tree(trees["a"]))
+    assert stored == daemon
+    assert shown[0] == [daemon[:16]], info.stdout
+    assert shown[1][0] == daemon[:16] and shown[1][1] != daemon[:16], diff.stdout
 
 
 @pytest.mark.parametrize("other, key", [("deeper", "tree.max_depth"), ("slower", "tree.eps")])

@@ -34,6 +34,7 @@ AMPLITUDE = np.array([0.6, 0.5, 0.5, 1.0, 0.8, 1.0])  # rad, excursion about hom
 # oscillation of a joint driven well beyond its acceleration limit), and the gentle ones must
 # be the majority of motion segments for the lag.
 PATTERN = ("gentle", "gentle", "gentle", "gentle", "hard", "hard")
+CLOSE_WAIT = 60.0  # s: an offline record may wait for its writer (a loaded host), not be cut
 
 
 def servo_lag(servo: ServoConfig) -> float:
@@ -133,7 +134,7 @@ def simulate_dynamics_record(
                 rec.service()
                 time.sleep(0.002)
     finally:
-        rec.close()
+        rec.close(timeout=CLOSE_WAIT)
     st = rec.status()
     if st["state"] != "closed" or st["dropped"]:
         raise RecorderError(f"{path}: simulated record incomplete ({st})")

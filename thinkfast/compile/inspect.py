@@ -97,7 +97,8 @@ def _flatten(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 def tree_info(tree: ActionTree) -> str:
-    """Summary of a tree: counts per depth, goal coverage, arrival times, parameters, provenance."""
+    """Summary of a tree: fingerprint (as :func:`tree_diff` and the daemon's start log give it),
+    counts per depth, goal coverage, arrival times, parameters, provenance."""
     counts = depth_counts(tree)
     ea = earliest_arrival(tree)
     covered = np.isfinite(ea)
@@ -105,6 +106,7 @@ def tree_info(tree: ActionTree) -> str:
     lines = [
         f"action tree: {tree.n_nodes} nodes, {tree.n_terminals} terminal edges,"
         f" max depth {tree.max_depth}, {len(tree.subgoal_goal)} steering sub-goals",
+        f"fingerprint {tree_fingerprint(tree)[:16]} (the daemon's start log: tree_fingerprint)",
         f"goals: {int(covered.sum())} covered by a terminal edge / {g} reachable / {m} grid points",
         "",
         "  depth      nodes        cut    reached  terminals",

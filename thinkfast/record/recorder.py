@@ -133,14 +133,15 @@ class Recorder(RowMethods):
             "written": self.written,
         }
 
-    def close(self) -> None:
+    def close(self, timeout: float = CLOSE_TIMEOUT) -> None:
         """Ship what is left, let the writer close the file and wait for it, at most
-        CLOSE_TIMEOUT (then kill it: the file keeps its last commit). Idempotent; never raises."""
+        ``timeout`` [s] (then kill it: the file keeps its last commit). Idempotent; never raises.
+        The daemon keeps the default (a prompt stop); offline writers may wait longer."""
         pipe, self._pipe = self._pipe, None
         if pipe is None:
             return
         try:
-            deadline = time.monotonic() + CLOSE_TIMEOUT
+            deadline = time.monotonic() + timeout
             while self.state == "recording" and (pipe.tail or any(b.n for b in self._batches)):
                 self._ship(pipe)
                 if time.monotonic() >= deadline:

@@ -29,6 +29,9 @@ log = logging.getLogger("thinkfast.sim.irc5")
 # ASSUMED durations of the simulated program for a rehearsal (the kit's module: homing takes
 # the MoveAbsJ's time, EGM_RAMP_OUT_TIME 0.5 s, EGM_COMM_TIMEOUT a few seconds)
 REHEARSAL = ProgramTiming(home_time=1.0, ramp_out=0.5, comm_timeout=2.0)
+# a session is lost after comm_timeout without an answer while the controller sent at least this
+# share of that time's cycles: a controller starved by its host (it sent nothing) blames no one
+SILENT_SHARE = 0.5
 HISTORY = 2500  # joint samples kept, stamped with the wall clock: 10 s at 250 Hz (the judge)
 
 
@@ -57,7 +60,7 @@ class SimIrc5:
         self.rws.execstate = "stopped"
         self.sim = WallClockSim(servo, q0=q0, max_history=HISTORY)
         self.runner: ControllerRunner | None = None
-        self._last_reply = (0, 0.0)  # (replies, monotonic time it last changed)
+        self._last_reply = (0, 0.0, 0)  # (replies, monotonic time it last changed, sent then)
         self._said: tuple | None = None
 
     @property
@@ -88,14 +91,18 @@ class SimIrc5:
         now = time.monotonic()
         if session and self.runner is None:
             self.runner = ControllerRunner(self.sim, self.target, keep_cycle=True).start()
-            self._last_reply = (0, now)
+            self._last_reply = (0, now, 0)
         elif not session and self.runner is not None:
             self._stop_egm()
         if self.runner is not None:  # an answer is an answer, late or not (a loaded host)
-            replies = self.runner.stats.answered
+            replies, sent = self.runner.stats.answered, self.runner.stats.sent
+            timeout = rws.timing.comm_timeout
             if replies != self._last_reply[0]:
-                self._last_reply = (replies, now)
-            elif now - self._last_reply[1] > rws.timing.comm_timeout:
+                self._last_reply = (replies, now, sent)
+            elif (
+                now - self._last_reply[1] > timeout
+                and sent - self._last_reply[2] >= SILENT_SHARE * timeout / self.sim.config.dt
+            ):  # the sensor was silent while this controller sent (not: this host starved it)
                 log.warning("no EGM answer for %.1f s: session lost", now - self._last_reply[1])
                 rws.lose_session()
         said = (motors, rws.opmode, running, status)
