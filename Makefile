@@ -11,23 +11,35 @@ TREE   ?= trees/irb1600_default.h5
 $(TREE): $(STAMP) $(CONFIG)
 	$(VENV)/bin/thinkfast-compile tree $(CONFIG) -o $(TREE) --if-changed
 
+EXTRAS := dev,cell,sweep,ros,view,foxglove
+
+# uv (from PyPI, into the venv) installs the same packages as pip, downloading in parallel:
+# 3 min against 16 min on a loaded host (docs/BENCHMARKS.md, "The test suite"). Plain pip when
+# uv cannot be had or fails.
 $(STAMP): pyproject.toml
 	$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "thinkfast needs Python >= 3.11"'
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev,cell,sweep,ros,view,foxglove]'
+	$(PY) -m pip install -q uv && $(VENV)/bin/uv pip install -q --native-tls --compile-bytecode \
+	    --python $(PY) -e '.[$(EXTRAS)]' \
+	  || { $(PY) -m pip install -q --upgrade pip && $(PY) -m pip install -q -e '.[$(EXTRAS)]'; }
 	touch $(STAMP)
 
 install: $(STAMP)
 
 # Two steps: tests on simulated or no time in parallel (one worker per core, a module's tests
-# on one worker), then the ones whose outcome depends on the wall clock (marker `realtime`)
-# one at a time, so that no other test loads the machine under them.
+# on one worker, the longest modules first: tests/conftest.py LONG_MODULES), then the ones whose
+# outcome depends on the wall clock (marker `realtime`) one at a time, so that no other test
+# loads the machine under them.
 JOBS ?= auto
+# The real-time step collects only the files that name the marker (a superset of those with a
+# realtime test): collecting all of them cost twice the CPU for the same tests.
+RT_FILES = $(shell grep -lw realtime tests/test_*.py)
 
 test: $(STAMP)
-	$(PY) -m pytest -q -m "not realtime and not quarantine" -n $(JOBS) --dist loadscope --durations=10
-	$(PY) -m pytest -q -m "realtime and not quarantine" -p no:xdist --durations=10
+	$(PY) -m pytest -q -m "not realtime and not quarantine" -n $(JOBS) --dist loadscope \
+	    --no-loadscope-reorder --durations=10
+	$(PY) -m pytest -q -m "realtime and not quarantine" -p no:xdist --durations=10 \
+	    $(RT_FILES)
 
 test-quarantine: $(STAMP)
 	$(PY) -m pytest -q -m quarantine -p no:xdist

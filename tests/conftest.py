@@ -19,6 +19,28 @@ DEFAULT_CONFIG = ROOT / "trees" / "irb1600_default.toml"
 ROBOT_TOML = ROOT / "robots" / "irb1600" / "robot.toml"
 
 
+# The parallel step's longest modules (setup and calls, docs/BENCHMARKS.md "The test suite"),
+# collected first: with `--no-loadscope-reorder` (Makefile) xdist hands them out first and the
+# many short modules fill both workers to the end, instead of a long one running alone last.
+LONG_MODULES = (
+    "test_sim_sweep.py",
+    "test_sim_lockstep.py",
+    "test_branches.py",
+    "test_cameras.py",
+    "test_perception_acceptance.py",
+    "test_calib.py",
+    "test_launch.py",
+    "test_safety.py",
+    "test_grow.py",
+)
+
+
+def pytest_collection_modifyitems(items):
+    """The items of :data:`LONG_MODULES` first, in that order; the rest keep theirs."""
+    rank = {name: i for i, name in enumerate(LONG_MODULES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
 @pytest.fixture(scope="session")
 def robot():
     from thinkfast.robot.model import load_robot

@@ -26,9 +26,9 @@ def model_block(times, centre, mean, cov, geom, approach, t_start, n, rng) -> fl
     t_meet = tau.copy()
     if approach is not None:
         vx = abs(approach[0])
-        for _ in range(8):  # x_ball(t) = plane_x + |vx| (tau - t) meets c_x(t)
-            c = shield_at(times, centre, t_meet - t_start)
-            t_meet = tau - np.maximum(c[:, 0] - plane_x, 0.0) / vx
+        for _ in range(8):  # x_ball(t) = plane_x + |vx| (tau - t) meets c_x(t): x alone
+            c_x = np.interp(t_meet - t_start, times, centre[:, 0])
+            t_meet = tau - np.maximum(c_x - plane_x, 0.0) / vx
     c = shield_at(times, centre, t_meet - t_start)
     yz = s[:, :2]
     if approach is not None:

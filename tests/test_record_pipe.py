@@ -21,3 +21,17 @@ def test_a_ready_writer_is_taken_and_closes(tmp_path):
     pipe = WriterPipe(tmp_path / "rec.h5", {}, 1 << 16, timeout=60.0)
     assert pipe.last.get("ready")
     pipe.kill()
+
+
+def test_a_writer_started_early_is_the_one_the_pipe_takes(tmp_path):
+    """``start_writer_early`` (the daemon's first step with --record): the pipe for that path
+    takes the process already started instead of starting another."""
+    from thinkfast.record import pipe as pipe_module
+
+    path = tmp_path / "rec.h5"
+    pipe_module.start_writer_early(path)
+    early = pipe_module._early[str(path.resolve())][0]
+    pipe = WriterPipe(path, {}, 1 << 16, timeout=60.0)
+    assert pipe.proc is early and pipe.last.get("ready") and path.exists()
+    assert str(path.resolve()) not in pipe_module._early
+    pipe.kill()

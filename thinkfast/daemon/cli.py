@@ -123,6 +123,10 @@ def run(
     ),
 ) -> None:
     """Run until SIGINT/SIGTERM, then brake smoothly and exit 0."""
+    if record is not None and tree is not None and not print_config and check_config is None:
+        from thinkfast.record.pipe import start_writer_early
+
+        start_writer_early(record)  # the writer's imports beside the ones below
     from thinkfast.contract.zenoh_session import session_config
     from thinkfast.control.config import load_run_config
     from thinkfast.daemon.egm_address import parse_controller, parse_hostport

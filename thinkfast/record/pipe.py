@@ -15,10 +15,33 @@ import time
 from pathlib import Path
 
 from thinkfast.errors import RecorderError
-from thinkfast.record.wire import open_frame
 
 WRITER = "thinkfast.record.writer"
 log = logging.getLogger("thinkfast.run")
+_early: dict[str, tuple[subprocess.Popen, object]] = {}  # started ahead, by absolute path
+
+
+def _spawn(path: Path) -> tuple[subprocess.Popen, object]:
+    """A writer process for ``path`` and its stderr file; it imports, then waits for the
+    opening frame on stdin before it creates anything."""
+    err = tempfile.TemporaryFile()  # the writer's stderr: read only if it dies early
+    proc = subprocess.Popen(
+        [sys.executable, "-m", WRITER, str(path)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=err,
+        bufsize=0,
+    )
+    return proc, err
+
+
+def start_writer_early(path: Path) -> None:
+    """Start the writer process for ``path`` now; the :class:`WriterPipe` for the same path
+    takes it. Its imports (NumPy, h5py) then run beside the caller's own start-up instead of
+    after it. Until the opening frame comes it touches no file; a writer never taken ends when
+    this process does (end of its input). This module imports no NumPy or h5py itself, so the
+    daemon calls it first thing."""
+    _early[os.path.abspath(path)] = _spawn(path)
 
 
 class WriterGone(Exception):
@@ -39,15 +62,10 @@ class WriterPipe:
     """
 
     def __init__(self, path: Path, attrs: dict, pipe_bytes: int, timeout: float):
+        from thinkfast.record.wire import open_frame  # NumPy: not for start_writer_early
+
         self.path = path
-        self.err = tempfile.TemporaryFile()  # the writer's stderr: read only if it dies early
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", WRITER, str(path)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=self.err,
-            bufsize=0,
-        )
+        self.proc, self.err = _early.pop(os.path.abspath(path), None) or _spawn(path)
         self.fd = self.proc.stdin.fileno()
         self.capacity = _set_pipe_size(self.fd, pipe_bytes)
         _set_pipe_size(self.proc.stdout.fileno(), pipe_bytes)
