@@ -124,7 +124,7 @@ def rim_table(sigma: float, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         np.minimum(np.maximum(prof, 0.0, out=prof), 1.0, out=prof)  # np.clip, no wrapper
         return prof[:-1], prof[1:] - prof[:-1]
     prof = disk_profiles(sigma, radii)
-    return prof[:, :-1].ravel(), np.diff(prof, axis=1).ravel()
+    return prof[:, :-1].ravel(), (prof[:, 1:] - prof[:, :-1]).ravel()  # np.diff, unwrapped
 
 
 def disk_probability(d: np.ndarray, rho: float, sigma: float) -> np.ndarray:

@@ -7,6 +7,7 @@ All pure numpy over arrays of pairs (any shape that broadcasts); no loops over p
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -14,6 +15,7 @@ import numpy as np
 
 from thinkfast.decide import iso_disk
 from thinkfast.decide.shield_paths import BlockGeometry, ShieldPaths
+from thinkfast.estimate.linalg import clip
 
 _SIGMA_T_FLOOR = 1e-6  # s
 REACH_A = 4.5  # the isotropic disk probability is 1 or 0 within 4e-6 beyond 4.5 sigma of the rim
@@ -97,8 +99,7 @@ def relative(paths: ShieldPaths, path, start, b: CrossingConditional, z, geom, a
     n_t = paths.n_samples
     pos = z * b.sd_t + (b.m_t - paths.t0) - start  # [s] on the paths' clocks
     pos *= 1.0 / paths.dt
-    np.maximum(pos, 0.0, out=pos)
-    np.minimum(pos, n_t - 1.0, out=pos)
+    clip(pos, 0.0, n_t - 1.0, out=pos)
     i = pos.astype(np.intp)
     pos -= i
     pos *= paths.dt  # seconds into the segment
@@ -127,8 +128,7 @@ def relative(paths: ShieldPaths, path, start, b: CrossingConditional, z, geom, a
     if dx.min() >= -h:
         return r_y, r_z, None, None
     behind = -dx - h
-    np.maximum(behind, 0.0, out=behind)
-    np.minimum(behind, r_b, out=behind)
+    clip(behind, 0.0, r_b, out=behind)
     rho = r_b * r_b - behind * behind
     np.sqrt(rho, out=rho)
     rho += r_shield
@@ -180,6 +180,14 @@ def disk_mean(
     return val
 
 
+@functools.lru_cache(maxsize=8)
+def _radii(r_shield: float, r_ball: float, levels: int) -> np.ndarray:
+    """The radius levels [m] (levels,) from R to R + r_b (one array per geometry, read-only)."""
+    radii = r_shield + r_ball * np.linspace(0.0, 1.0, levels)
+    radii.setflags(write=False)
+    return radii
+
+
 def _lookup(
     r_y, r_z, d2, rho, b: CrossingConditional, eta, w_eta, geom: BlockGeometry, levels: int
 ) -> np.ndarray:
@@ -193,7 +201,7 @@ def _lookup(
         radii = np.array([r_shield + r_ball])
         offset = zero - radii[0] * scale
     else:
-        radii = r_shield + r_ball * np.linspace(0.0, 1.0, levels)
+        radii = _radii(r_shield, r_ball, levels)
         offset = (zero - rho * scale)[..., None]
     if len(eta) == 1 and eta[0] == 0.0:
         d = np.sqrt(d2)[..., None]
@@ -207,8 +215,7 @@ def _lookup(
         np.sqrt(d, out=d)
     d *= scale
     d += offset
-    np.maximum(d, 0.0, out=d)  # np.clip(d, 0, n_col - 1 - 1e-9), without its wrapper
-    np.minimum(d, n_col - 1.0 - 1e-9, out=d)
+    clip(d, 0.0, n_col - 1.0 - 1e-9, out=d)
     ci = np.floor(d)
     d -= ci
     ci = ci.astype(np.intp)

@@ -181,8 +181,8 @@ def block_probability(
             cfg.jump_step / cfg.refine if jump else None,
         )
         half = 0.5 * b.sd_t * cells(zt, wt) if jump else np.zeros(len(zt))
-        parts.append((np.repeat(np.flatnonzero(group), len(zt)), np.tile(zt, n), np.tile(wt, n),
-                      np.tile(half, n)))  # fmt: skip
+        tiled = [np.concatenate((x,) * n) for x in (zt, wt, half)]  # np.tile, unwrapped
+        parts.append((np.repeat(np.flatnonzero(group), len(zt)), *tiled))
     which, z, w, half = (np.concatenate(a) for a in zip(*parts, strict=True))
     path = alive[which]
     z, share = cut_cells(paths, path, start[which], b, z, half)
