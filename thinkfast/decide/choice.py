@@ -143,10 +143,10 @@ class Chooser:
         """Goals to try, nearest first under the widened lateral covariance, shape (<=K,)."""
         d, m = self._distances(mean_yz, cov_yz)
         k = min(self.cfg.candidates, len(m))
-        near = np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
-        near = near[np.argsort(m[near], kind="stable")]
+        near = m.argpartition(k - 1)[:k] if k < len(m) else np.arange(len(m))
+        near = near[m[near].argsort(kind="stable")]
         d *= d
-        nearest = int(np.argmin(d[:, 0] + d[:, 1]))  # naive's goal is always a candidate
+        nearest = int((d[:, 0] + d[:, 1]).argmin())  # naive's goal is always a candidate
         if nearest not in near:
             near = np.concatenate(([nearest], near[:-1]))
         return near
@@ -224,7 +224,7 @@ class Chooser:
     def candidate_goals_k(self, mean_yz, cov_yz, k: int) -> np.ndarray:
         """The ``k`` goals nearest the crossing mean under the widened lateral covariance."""
         m = self._distances(mean_yz, cov_yz)[1]
-        return np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
+        return m.argpartition(k - 1)[:k] if k < len(m) else np.arange(len(m))
 
     def _window(self, tau: float, var_tau: float, t_start: float) -> np.ndarray:
         """Sample times [s, path clock, 0 at t_plan] covering tau +- ``horizon_sigmas`` std: the
@@ -241,7 +241,7 @@ class Chooser:
         m, n_t = joints.shape[:2]
         planes = np.empty((6, m * n_t))  # the packed layout, filled by rows
         self.sampler.centre_rows(joints.reshape(m * n_t, 3), out=planes[:3])
-        if not np.isfinite(planes[:3]).all():
+        if not np.logical_and.reduce(np.isfinite(planes[:3]), axis=None):
             raise ValueError("times and centres must be finite")
         packed = pack(times, planes, self.geom)
         return block_probability(packed, mean, cov, self.geom, approach, t_start, self.quadrature)

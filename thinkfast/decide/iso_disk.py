@@ -91,10 +91,10 @@ def disk_profiles(sigma: float, radii: np.ndarray) -> np.ndarray:
     b = np.asarray(radii, dtype=float) * (1.0 / sigma)
     small = b <= _B_MAX
     out = np.empty((len(b), len(XI)))
-    if small.any():
+    if np.logical_or.reduce(small):
         idx, w = _lagrange(len(rows_b), b[small] * (1.0 / _B_STEP))
         out[small] = np.matmul(w[:, None, :], rows_b[idx])[:, 0]
-    if not small.all():
+    if not np.logical_and.reduce(small):
         idx, w = _lagrange(len(rows_s), (1.0 / b[~small]) * (1.0 / _S_STEP))
         out[~small] = np.matmul(w[:, None, :], rows_s[idx])[:, 0]
     np.clip(out, 0.0, 1.0, out=out)

@@ -66,12 +66,12 @@ def cut_cells(paths: ShieldPaths, path, start, b: CrossingConditional, z, half):
     """
     tau = b.m_t + b.sd_t * z
     d = paths.cuts[path] + (start - tau)[:, None]  # (P, K) crossing - node [s]
-    k = np.argmin(np.abs(d), axis=1)
+    k = np.abs(d).argmin(axis=1)
     rows = np.arange(len(z))
     d = d[rows, k]
     entering = paths.cut_in[path, k]
     inside = np.abs(d) < half
-    if not inside.any():
+    if not np.logical_or.reduce(inside):
         return z, np.ones(len(z))
     node_in = (d < 0.0) == entering  # the node is on the contact side of the crossing
     near = np.zeros(len(z))
@@ -125,7 +125,7 @@ def relative(paths: ShieldPaths, path, start, b: CrossingConditional, z, geom, a
         vz *= s
         r_z -= vz
     _, r_shield, h, r_b = geom
-    if dx.min() >= -h:
+    if np.minimum.reduce(dx, axis=None) >= -h:
         return r_y, r_z, None, None
     behind = -dx - h
     clip(behind, 0.0, r_b, out=behind)
@@ -149,7 +149,7 @@ def disk_mean(
     rho = None if rho is None else rho.ravel()
     d2 = r_y * r_y
     d2 += r_z * r_z
-    reach = REACH_A * b.sig_a + min(float(np.abs(eta).max()), REACH_Z * b.sig_e)
+    reach = REACH_A * b.sig_a + min(float(np.maximum.reduce(np.abs(eta))), REACH_Z * b.sig_e)
     if rho is None:  # one radius: bounds as floats
         radius = geom.shield_radius + geom.ball_radius
         inner = max(radius - reach, 0.0)

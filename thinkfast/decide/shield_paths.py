@@ -125,18 +125,18 @@ def pack(times: np.ndarray, planes: np.ndarray, geom: BlockGeometry) -> ShieldPa
     vel[:, :, -1] = 0.0
     lateral = vel[1] * vel[1]
     lateral += vel[2] * vel[2]
-    lo, hi = pos.min(axis=2), pos.max(axis=2)  # (3, M)
+    lo, hi = np.minimum.reduce(pos, axis=2), np.maximum.reduce(pos, axis=2)  # (3, M)
     x_range = np.array((lo[0], hi[0])).T  # (M, 2), rows of the (2, M) array
     return ShieldPaths(
         float(times[0]),
         dt,
         planes,
         n_t,
-        np.sqrt(lateral.max(axis=1)),
+        np.sqrt(np.maximum.reduce(lateral, axis=1)),
         np.concatenate([lo[1:], hi[1:]]),
         np.maximum(hi[0] - geom.plane_x, 0.0),
         x_range,
-        np.abs(vel[0]).max(axis=1),
+        np.maximum.reduce(np.abs(vel[0]), axis=1),
         *_cuts(times, pos, geom.touch_x),
     )
 
