@@ -161,3 +161,28 @@ def test_joint_paths_in_one_pass_equal_at_time_sampling_bit_for_bit(setup):
         )
         assert len(times) * len(trajs) >= BATCH_SAMPLES  # the one-pass path is the one tested
         assert np.array_equal(got, want)
+
+
+def test_joint_paths_below_the_batch_size_equal_one_at_time_per_sample(setup):
+    """Few samples are read by at_time once per distinct clipped time (the held ends once):
+    the same joints as one at_time per sample, before the start, inside and past the end."""
+    from types import SimpleNamespace
+
+    from thinkfast.decide.choice import BATCH_SAMPLES, _joint_paths, _sample
+
+    chooser, goal_q, _, home = setup
+    state = np.r_[home, np.zeros(6)]
+    trajs = [chooser.steer.to_rest(state, goal_q[g]) for g in (0, 6, 12)]
+    times = np.arange(-3, 90) * 0.02
+    assert times[-1] > max(t.duration for t in trajs) and times[0] < 0.0
+    moving = SimpleNamespace(traj=trajs[0], end=None)
+    held = SimpleNamespace(traj=None, end=np.r_[goal_q[3], np.zeros(6)])
+    for current in (moving, held):
+        shifted = times - 0.05
+        got = _joint_paths(current, shifted, trajs[1:], times)
+        want = np.stack(
+            [_sample(current.traj, shifted, current.end)]
+            + [_sample(t, times, None) for t in trajs[1:]]
+        )
+        assert len(times) * len(trajs) < BATCH_SAMPLES  # the at_time path is the one tested
+        assert np.array_equal(got, want)

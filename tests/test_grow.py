@@ -119,3 +119,20 @@ def test_an_obstacle_in_the_cell_discards_colliding_primitives(tmp_path, robot, 
         q123 = np.array([traj.at_time(x)[0] for x in ts])
         q = np.column_stack([q123, wrist.solve(q123, tree.node_q[node, 3:])])
         assert not any(checker.in_collision(x) for x in q)
+
+
+def test_shield_paths_sampled_by_the_workers_equal_sampling_them_again(small_trees, robot):
+    """The workers sample each edge's shield path with the trajectory they checked; the tree's
+    paths equal, bit for bit, the ones ``edge_shield_paths`` samples again from the stored
+    states (as ``verify`` does), terminal edges held at their goal up to the longest."""
+    from thinkfast.compile.shield import edge_shield_paths, sample_spacing
+
+    t, _, cfg = small_trees
+    tc = cfg.config.tree
+    edge, term = edge_shield_paths(
+        robot, t.node_parent, t.node_state, t.edge_target, t.term_node, t.term_goal,
+        t.term_duration, t.goal_q, t.subgoal_goal, tc.eps, sample_spacing(tc.eps, tc.shield_dt),
+    )  # fmt: skip
+    assert edge.shape == t.edge_shield.shape and term.shape == t.term_shield.shape
+    assert np.array_equal(edge, t.edge_shield)
+    assert np.array_equal(term, t.term_shield)

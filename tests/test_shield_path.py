@@ -48,6 +48,19 @@ def test_centres_keep_any_leading_shape(robot):
     assert np.allclose(c[2, 5], ShieldSampler(robot).centres(q[2, 5]))
 
 
+def test_centre_rows_equal_centres_bit_for_bit(robot):
+    """The row layout the chooser packs (x, y, z rows) computes the same values as
+    :meth:`ShieldSampler.centres`, element for element, into a given array."""
+    q = robot.home[:3] + np.random.default_rng(4).uniform(-1.0, 1.0, (500, 3))
+    sampler = ShieldSampler(robot)
+    out = np.full((6, 500), np.nan)
+    got = sampler.centre_rows(q, out=out[:3])
+    assert np.shares_memory(got, out)
+    assert np.array_equal(out[:3], sampler.centres(q).T)
+    assert np.isnan(out[3:]).all()
+    assert np.array_equal(sampler.centre_rows(q[:1]), sampler.centres(q[:1]).T)
+
+
 def test_joint_paths_follow_ruckig_and_hold_both_ends(robot):
     steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
     start = np.r_[robot.home[:3], np.zeros(6)]

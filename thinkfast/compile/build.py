@@ -13,7 +13,7 @@ from thinkfast import __version__
 from thinkfast.compile.config import LoadedConfig
 from thinkfast.compile.goals import require_reachable, solve_goal_grid
 from thinkfast.compile.grow import GrowInputs, Progress, grow, subgoals
-from thinkfast.compile.shield import edge_shield_paths, sample_spacing
+from thinkfast.compile.shield import pad_terminals, sample_spacing
 from thinkfast.config import to_dict
 from thinkfast.robot.batch_fk import BatchFK
 from thinkfast.robot.model import Robot, load_robot
@@ -80,14 +80,8 @@ def compile_tree(
     term_start = np.r_[0, np.cumsum(term_count)[:-1]].astype(np.int64)
     node_q = np.column_stack([g["state"][:, :3], g["wrist"]])
     shield_dt = sample_spacing(cfg.tree.eps, cfg.tree.shield_dt)
-    if progress:
-        progress("shield paths", 0, 1)
-    edge_shield, term_shield = edge_shield_paths(
-        robot, g["parent"], g["state"], g["target"], term_node, term_goal, term_duration,
-        goal_q, sub, cfg.tree.eps, shield_dt,
-    )  # fmt: skip
-    if progress:
-        progress("shield paths", 1, 1)
+    longest = float(np.max(term_duration)) if len(term_duration) else 0.0
+    term_shield = pad_terminals(g["terminal_shield"], longest, shield_dt)  # sampled by grow
     meta = {
         "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         **versions(),
@@ -129,7 +123,7 @@ def compile_tree(
         subgoal_goal=sub,
         grid_yz=np.array(grid.yz),
         grid_reachable=np.array(grid.reachable),
-        edge_shield=edge_shield,
+        edge_shield=g["edge_shield"],
         term_shield=term_shield,
         meta=meta,
     ).freeze()

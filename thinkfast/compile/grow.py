@@ -33,12 +33,21 @@ import numpy as np
 from thinkfast.compile.config import TreeConfig
 from thinkfast.compile.goals import GoalGrid
 from thinkfast.compile.pathcheck import PathChecker
+from thinkfast.compile.shield import (
+    centres_at,
+    sample_spacing,
+    steps_per_edge,
+    terminal_centres,
+)
 from thinkfast.errors import NoSolutionError
+from thinkfast.robot.batch_traj import TrajectoryTable
 from thinkfast.robot.model import Robot
+from thinkfast.robot.shield_path import ShieldSampler
 from thinkfast.robot.steering import Steering, state_at
 from thinkfast.tree.action_tree import EDGE_CUT, EDGE_REACHED
 
 CHUNK = 8  # parents (or leaves) per work item
+TAIL = 16  # the last items of a level go one per work item: the workers finish together
 Progress = Callable[[str, int, int], None]
 
 
@@ -60,6 +69,10 @@ def _init_worker(inputs: GrowInputs) -> None:
     _W["inputs"] = inputs
     _W["steer"] = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
     _W["check"] = PathChecker(robot, cfg.collision_resolution, cfg.position_margin, cfg.sample_dt)
+    _W["sampler"] = ShieldSampler(robot)
+    dt = sample_spacing(cfg.eps, cfg.shield_dt)
+    _W["shield_dt"] = dt
+    _W["edge_times"] = np.minimum(np.arange(steps_per_edge(cfg.eps, dt) + 1) * dt, cfg.eps)
 
 
 def _expand(chunk: list[tuple[int, np.ndarray, np.ndarray]]) -> tuple[list, Counter]:
@@ -77,32 +90,53 @@ def _expand(chunk: list[tuple[int, np.ndarray, np.ndarray]]) -> tuple[list, Coun
             reached = traj.duration <= eps
             t_move = traj.duration if reached else eps  # then at rest until eps
             moves.append((node, wrist, k, traj, reached, t_move))
-    checked = iter(_check([m for m in moves if m[5] > 0.0]))
-    out = []
+    todo = [m for m in moves if m[5] > 0.0]
+    table = TrajectoryTable([m[3] for m in todo]) if todo else None
+    checked = iter(_check(todo, table))
+    out, rows, still = [], [], []  # kept edges; their rows in ``table``, or in ``still``
     for node, wrist, k, traj, reached, t_move in moves:
         if t_move > 0.0:
-            res = next(checked)
+            res, row = next(checked)
             if not res.ok:
                 why[res.reason] += 1
                 continue
             wrist_end = res.wrist_end
+            rows.append((False, row))
         else:
             wrist_end = wrist.copy()
+            rows.append((True, len(still)))
+            still.append(traj)
         kind = EDGE_REACHED if reached else EDGE_CUT
         out.append((node, kind, eps, k, state_at(traj, t_move), wrist_end))
-    return out, why
+    return _with_shield(out, rows, table, still), why
 
 
-def _check(moves: list) -> list:
-    """PathResults of ``moves`` = [(node, wrist, k, traj, reached, span), ...] in one batch."""
+def _with_shield(out: list, rows: list, table, still: list) -> list:
+    """Each kept edge of ``out`` with its shield centres along the edge (S, 3) appended, as
+    :func:`thinkfast.compile.shield.edge_shield_paths` samples them."""
+    sampler, times = _W["sampler"], _W["edge_times"]
+    moving = [r for s, r in rows if not s]
+    held = TrajectoryTable(still) if still else None
+    paths = {
+        False: iter(centres_at(sampler, table, moving, times)),
+        True: iter(centres_at(sampler, held, np.arange(len(still)), times)),
+    }
+    return [(*edge, next(paths[s])) for edge, (s, _) in zip(out, rows, strict=True)]
+
+
+def _check(moves: list, table) -> list:
+    """(PathResult, row in ``table``) of ``moves`` = [(node, wrist, k, traj, reached, span),
+    ...] in one batch (``table`` their trajectories')."""
     if not moves:
         return []
     wrists = np.array([m[1] for m in moves])
-    return _W["check"].check_many([m[3] for m in moves], [m[5] for m in moves], wrists)
+    res = _W["check"].check_many([m[3] for m in moves], [m[5] for m in moves], wrists, table)
+    return list(zip(res, range(len(moves)), strict=True))
 
 
 def _connect(chunk: list[tuple[int, np.ndarray, np.ndarray, list[int]]]) -> tuple[list, Counter]:
-    """Terminal edges of each (leaf, state, wrist, goals) in ``chunk``: (leaf, goal, duration)."""
+    """Terminal edges of each (leaf, state, wrist, goals) in ``chunk``: (leaf, goal, duration,
+    shield centres (n, 3) every shield_dt from 0 to one sample past the end)."""
     inputs, steer = _W["inputs"], _W["steer"]
     why, moves = Counter(), []
     for leaf, state, wrist, goals in chunk:
@@ -113,13 +147,16 @@ def _connect(chunk: list[tuple[int, np.ndarray, np.ndarray, list[int]]]) -> tupl
                 why["steering_failed"] += 1
                 continue
             moves.append((leaf, wrist, g, traj, False, traj.duration))
-    out = []
-    for (leaf, _, g, traj, _, _), res in zip(moves, _check(moves), strict=True):
+    table = TrajectoryTable([m[3] for m in moves]) if moves else None
+    out, rows = [], []
+    for (leaf, _, g, traj, _, _), (res, row) in zip(moves, _check(moves, table), strict=True):
         if not res.ok:
             why[res.reason] += 1
             continue
         out.append((leaf, g, traj.duration))
-    return out, why
+        rows.append(row)
+    paths = terminal_centres(_W["sampler"], table, rows, _W["shield_dt"]) if rows else []
+    return [(*t, c) for t, c in zip(out, paths, strict=True)], why
 
 
 def subgoals(grid: GoalGrid, goals_cfg, spacing: float, centre_yz: np.ndarray) -> np.ndarray:
@@ -147,7 +184,9 @@ def subgoals(grid: GoalGrid, goals_cfg, spacing: float, centre_yz: np.ndarray) -
 
 
 def _run(fn, items: list, pool, progress: Progress | None, phase: str, per_item: int):
-    chunks = [items[i : i + CHUNK] for i in range(0, len(items), CHUNK)]
+    head = max(len(items) - TAIL, 0)
+    chunks = [items[i : min(i + CHUNK, head)] for i in range(0, head, CHUNK)]
+    chunks += [[it] for it in items[head:]]
     results, why, done = [], Counter(), 0
     total = len(items) * per_item if per_item else sum(len(it[3]) for it in items)
     mapper: Iterable = pool.imap(fn, chunks) if pool is not None else map(fn, chunks)
@@ -167,7 +206,9 @@ def grow(
     jobs: int = 1,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
-    """Grow the tree; returns node, edge and terminal arrays plus discard counts.
+    """Grow the tree; returns node, edge and terminal arrays (with the shield centres along
+    every edge, as :func:`thinkfast.compile.shield.edge_shield_paths` samples them) plus
+    discard counts.
 
     Args:
         inputs: robot, tree parameters, goals and sub-goals.
@@ -181,6 +222,9 @@ def grow(
     parent, depth, kind = [-1], [0], [EDGE_REACHED]
     duration, target, ttc = [0.0], [-1], [0.0]
     state, wrist = [root_state], [robot.home[3:].copy()]
+    k_edge = steps_per_edge(cfg.eps, sample_spacing(cfg.eps, cfg.shield_dt))
+    root_q = np.broadcast_to(root_state[:3], (1, k_edge + 1, 3))
+    shield = [ShieldSampler(robot).centres(root_q)[0]]  # the root's stub stays at home
     tree_why, term_why = Counter(), Counter()
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
     pool = ctx.Pool(jobs, _init_worker, (inputs,)) if jobs > 1 else None
@@ -195,7 +239,7 @@ def grow(
             )
             tree_why.update(why)
             level = []
-            for node, k_kind, t_end, k, s, w in children:
+            for node, k_kind, t_end, k, s, w, c in children:
                 level.append(len(parent))
                 parent.append(node)
                 depth.append(d)
@@ -205,6 +249,7 @@ def grow(
                 ttc.append(ttc[node] + t_end)
                 state.append(s)
                 wrist.append(w)
+                shield.append(c)
         goals_of = _connect_plan(inputs, depth, state, wrist, leaf_plane_yz, goal_yz)
         items = [(i, state[i], wrist[i], gl) for i, gl in goals_of]
         terms, term_why = _run(_connect, items, pool, progress, "terminals", 0)
@@ -221,7 +266,9 @@ def grow(
         ttc=np.array(ttc, np.float64),
         state=np.array(state, np.float64).reshape(-1, 9),
         wrist=np.array(wrist, np.float64).reshape(-1, 3),
-        terminals=terms,
+        edge_shield=np.array(shield, np.float64),
+        terminals=[t[:3] for t in terms],
+        terminal_shield=[t[3] for t in terms],
         tree_discards=dict(tree_why),
         terminal_discards=dict(term_why),
     )

@@ -108,14 +108,17 @@ class PathChecker:
         """Validate ``traj`` over [0, t_end] [s], the wrist starting from ``wrist_prev`` (3,)."""
         return self.check_many([traj], [t_end], np.asarray(wrist_prev, dtype=float)[None])[0]
 
-    def check_many(self, trajs, t_end, wrist_prev: np.ndarray) -> list[PathResult]:
+    def check_many(
+        self, trajs, t_end, wrist_prev: np.ndarray, table: TrajectoryTable | None = None
+    ) -> list[PathResult]:
         """:meth:`check` of many primitives at once (the same results, one batch of numpy work).
 
         Args:
             trajs: Ruckig trajectories (M). t_end: checked span of each [s] (M,).
             wrist_prev: wrist angles [rad] (M, 3) at the start of each.
+            table: ``TrajectoryTable(trajs)`` when the caller has it already.
         """
-        table = TrajectoryTable(trajs)
+        table = TrajectoryTable(trajs) if table is None else table
         spans = [float(x) for x in t_end]
         wrist_prev = np.asarray(wrist_prev, dtype=float).reshape(-1, 3)
         out: list[PathResult | None] = [None] * len(spans)

@@ -43,6 +43,51 @@ def steps_per_edge(eps: float, dt: float) -> int:
     return int(k)
 
 
+def centres_at(sampler: ShieldSampler, table: TrajectoryTable, rows, times) -> np.ndarray:
+    """Shield centres [m] (R, T, 3) of ``table``'s trajectories ``rows`` (R,) at ``times`` (T,)
+    [s], each time clipped to ``[0, duration]`` of its trajectory (held at the end)."""
+    rows = np.asarray(rows, dtype=np.intp)
+    if len(rows) == 0:
+        return np.empty((0, len(times), 3))
+    owner = np.repeat(rows, len(times))
+    t = np.minimum(np.maximum(np.tile(times, len(rows)), 0.0), table.duration[owner])
+    return sampler.centres(table.positions(owner, t).reshape(len(rows), len(times), 3))
+
+
+def terminal_samples(duration: float, dt: float) -> int:
+    """Samples every ``dt`` from 0 that reach past ``duration`` [s]: the last one is held."""
+    return math.ceil(duration / dt - 1e-9) + 2
+
+
+def terminal_centres(
+    sampler: ShieldSampler, table: TrajectoryTable, rows, dt: float
+) -> list[np.ndarray]:
+    """Shield centres [m] of ``table``'s trajectories ``rows`` every ``dt`` from 0 to one sample
+    past each one's end, ``(terminal_samples(duration, dt), 3)`` each (the rows of
+    :func:`edge_shield_paths`' ``term`` before the held end: :func:`pad_terminals`)."""
+    rows = np.asarray(rows, dtype=np.intp)
+    counts = [terminal_samples(float(d), dt) for d in table.duration[rows].tolist()]
+    if not counts:
+        return []
+    owner = np.repeat(rows, counts)
+    t = np.concatenate([np.arange(n) for n in counts]) * dt  # as np.arange(s) * dt
+    t = np.minimum(np.maximum(t, 0.0), table.duration[owner])
+    c = sampler.centres(table.positions(owner, t))
+    return np.split(c, np.cumsum(counts)[:-1])
+
+
+def pad_terminals(paths: list[np.ndarray], longest: float, dt: float) -> np.ndarray:
+    """The ``term`` array (T, S, 3) of :func:`edge_shield_paths` from the rows of
+    :func:`terminal_centres` (their last sample held; ``longest`` the longest duration [s])."""
+    s = math.ceil(longest / dt - 1e-9) + 1 if paths else 1
+    term = np.empty((len(paths), s, 3))
+    for j, c in enumerate(paths):
+        n = min(len(c), s)
+        term[j, :n] = c[:n]
+        term[j, n:] = c[-1]
+    return term
+
+
 def _positions(trajs: list, times: np.ndarray) -> np.ndarray:
     """Joints 1-3 [rad] (M, T, 3) of ``trajs`` at ``times`` (T,) clipped to each duration."""
     if not trajs:

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from bisect import bisect_left, bisect_right
 from typing import NamedTuple
 
 import numpy as np
@@ -142,10 +143,10 @@ class Chooser:
         """Goals to try, nearest first under the widened lateral covariance, shape (<=K,)."""
         d, m = self._distances(mean_yz, cov_yz)
         k = min(self.cfg.candidates, len(m))
-        near = np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
-        near = near[np.argsort(m[near], kind="stable")]
+        near = m.argpartition(k - 1)[:k] if k < len(m) else np.arange(len(m))
+        near = near[m[near].argsort(kind="stable")]
         d *= d
-        nearest = int(np.argmin(d[:, 0] + d[:, 1]))  # naive's goal is always a candidate
+        nearest = int((d[:, 0] + d[:, 1]).argmin())  # naive's goal is always a candidate
         if nearest not in near:
             near = np.concatenate(([nearest], near[:-1]))
         return near
@@ -223,7 +224,7 @@ class Chooser:
     def candidate_goals_k(self, mean_yz, cov_yz, k: int) -> np.ndarray:
         """The ``k`` goals nearest the crossing mean under the widened lateral covariance."""
         m = self._distances(mean_yz, cov_yz)[1]
-        return np.argpartition(m, k - 1)[:k] if k < len(m) else np.arange(len(m))
+        return m.argpartition(k - 1)[:k] if k < len(m) else np.arange(len(m))
 
     def _window(self, tau: float, var_tau: float, t_start: float) -> np.ndarray:
         """Sample times [s, path clock, 0 at t_plan] covering tau +- ``horizon_sigmas`` std: the
@@ -239,8 +240,8 @@ class Chooser:
         whose clock reads 0 at ``t_start`` [s] after the belief, shape (M,)."""
         m, n_t = joints.shape[:2]
         planes = np.empty((6, m * n_t))  # the packed layout, filled by rows
-        planes[:3] = self.sampler.centres(joints.reshape(m * n_t, 3)).T
-        if not np.isfinite(planes[:3]).all():
+        self.sampler.centre_rows(joints.reshape(m * n_t, 3), out=planes[:3])
+        if not np.logical_and.reduce(np.isfinite(planes[:3]), axis=None):
             raise ValueError("times and centres must be finite")
         packed = pack(times, planes, self.geom)
         return block_probability(packed, mean, cov, self.geom, approach, t_start, self.quadrature)
@@ -258,11 +259,11 @@ def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndar
     n_t = len(times)
     moving = ([current.traj] if current.traj is not None else []) + list(trajs)
     if len(moving) * n_t < BATCH_SAMPLES:
-        rows = _rows(current.traj, current_times.tolist(), current.end)
+        flat = _flat(current.traj, current_times.tolist(), current.end)
         shared = times.tolist()
         for tr in trajs:
-            rows += _rows(tr, shared, None)
-        return np.array(rows, dtype=float).reshape(1 + len(trajs), n_t, 3)
+            flat += _flat(tr, shared, None)
+        return np.array(flat, dtype=float).reshape(1 + len(trajs), n_t, 3)
     out = np.empty((1 + len(trajs), n_t, 3))
     table = TrajectoryTable(moving)
     owner = np.repeat(np.arange(len(moving)), n_t)
@@ -276,20 +277,28 @@ def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndar
 
 
 def _sample(traj, times: np.ndarray, end) -> np.ndarray:
-    """Joints 1-3 of ``traj`` at ``times`` [s] (clipped to the trajectory), shape (T, 3); a
-    trajectory-less segment stays at ``end[:3]``."""
-    return np.array(_rows(traj, np.asarray(times).tolist(), end), dtype=float).reshape(-1, 3)
-
-
-def _rows(traj, times: list, end) -> list:
-    """:func:`_sample` as a list of T rows (lists of 3 floats) for ``times`` ascending (a list):
-    the clipped times repeat at the ends, and a repeated time is read once."""
+    """Joints 1-3 of ``traj`` at ``times`` [s] clipped to ``[0, duration]``, shape (T, 3), one
+    ``at_time`` per sample (the reference); a trajectory-less segment stays at ``end[:3]``."""
     if traj is None:
-        return [[float(x) for x in end[:3]]] * len(times)
-    at, dur, out, last_t, last = traj.at_time, traj.duration, [], None, None
-    for t in times:
-        t = min(max(t, 0.0), dur)  # np.clip(t, 0, dur)
-        if t != last_t:
-            last_t, last = t, at(t)[0]
-        out.append(last)
+        return np.tile(np.asarray(end[:3], dtype=float), (len(times), 1))
+    dur = traj.duration
+    rows = [traj.at_time(min(max(t, 0.0), dur))[0] for t in np.asarray(times).tolist()]
+    return np.array(rows, dtype=float).reshape(-1, 3)
+
+
+def _flat(traj, times: list, end) -> list:
+    """:func:`_sample` flat (3 T floats) for ``times`` ascending (a list), with one ``at_time``
+    per distinct clipped time: the times at or before 0 read at 0, those at or after the end
+    at the end."""
+    n = len(times)
+    if traj is None:
+        return [float(x) for x in end[:3]] * n
+    at, dur = traj.at_time, traj.duration
+    lo = bisect_right(times, 0.0)
+    hi = max(bisect_left(times, dur), lo)
+    out = list(at(0.0)[0]) * lo if lo else []
+    for t in times[lo:hi]:
+        out += at(t)[0]
+    if hi < n:
+        out += at(dur)[0] * (n - hi)
     return out

@@ -91,10 +91,10 @@ def disk_profiles(sigma: float, radii: np.ndarray) -> np.ndarray:
     b = np.asarray(radii, dtype=float) * (1.0 / sigma)
     small = b <= _B_MAX
     out = np.empty((len(b), len(XI)))
-    if small.any():
+    if np.logical_or.reduce(small):
         idx, w = _lagrange(len(rows_b), b[small] * (1.0 / _B_STEP))
         out[small] = np.matmul(w[:, None, :], rows_b[idx])[:, 0]
-    if not small.all():
+    if not np.logical_and.reduce(small):
         idx, w = _lagrange(len(rows_s), (1.0 / b[~small]) * (1.0 / _S_STEP))
         out[~small] = np.matmul(w[:, None, :], rows_s[idx])[:, 0]
     np.clip(out, 0.0, 1.0, out=out)
@@ -124,7 +124,7 @@ def rim_table(sigma: float, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         np.minimum(np.maximum(prof, 0.0, out=prof), 1.0, out=prof)  # np.clip, no wrapper
         return prof[:-1], prof[1:] - prof[:-1]
     prof = disk_profiles(sigma, radii)
-    return prof[:, :-1].ravel(), np.diff(prof, axis=1).ravel()
+    return prof[:, :-1].ravel(), (prof[:, 1:] - prof[:, :-1]).ravel()  # np.diff, unwrapped
 
 
 def disk_probability(d: np.ndarray, rho: float, sigma: float) -> np.ndarray:

@@ -7,6 +7,7 @@ All pure numpy over arrays of pairs (any shape that broadcasts); no loops over p
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -14,6 +15,7 @@ import numpy as np
 
 from thinkfast.decide import iso_disk
 from thinkfast.decide.shield_paths import BlockGeometry, ShieldPaths
+from thinkfast.estimate.linalg import clip
 
 _SIGMA_T_FLOOR = 1e-6  # s
 REACH_A = 4.5  # the isotropic disk probability is 1 or 0 within 4e-6 beyond 4.5 sigma of the rim
@@ -64,12 +66,12 @@ def cut_cells(paths: ShieldPaths, path, start, b: CrossingConditional, z, half):
     """
     tau = b.m_t + b.sd_t * z
     d = paths.cuts[path] + (start - tau)[:, None]  # (P, K) crossing - node [s]
-    k = np.argmin(np.abs(d), axis=1)
+    k = np.abs(d).argmin(axis=1)
     rows = np.arange(len(z))
     d = d[rows, k]
     entering = paths.cut_in[path, k]
     inside = np.abs(d) < half
-    if not inside.any():
+    if not np.logical_or.reduce(inside):
         return z, np.ones(len(z))
     node_in = (d < 0.0) == entering  # the node is on the contact side of the crossing
     near = np.zeros(len(z))
@@ -97,8 +99,7 @@ def relative(paths: ShieldPaths, path, start, b: CrossingConditional, z, geom, a
     n_t = paths.n_samples
     pos = z * b.sd_t + (b.m_t - paths.t0) - start  # [s] on the paths' clocks
     pos *= 1.0 / paths.dt
-    np.maximum(pos, 0.0, out=pos)
-    np.minimum(pos, n_t - 1.0, out=pos)
+    clip(pos, 0.0, n_t - 1.0, out=pos)
     i = pos.astype(np.intp)
     pos -= i
     pos *= paths.dt  # seconds into the segment
@@ -124,11 +125,10 @@ def relative(paths: ShieldPaths, path, start, b: CrossingConditional, z, geom, a
         vz *= s
         r_z -= vz
     _, r_shield, h, r_b = geom
-    if dx.min() >= -h:
+    if np.minimum.reduce(dx, axis=None) >= -h:
         return r_y, r_z, None, None
     behind = -dx - h
-    np.maximum(behind, 0.0, out=behind)
-    np.minimum(behind, r_b, out=behind)
+    clip(behind, 0.0, r_b, out=behind)
     rho = r_b * r_b - behind * behind
     np.sqrt(rho, out=rho)
     rho += r_shield
@@ -149,7 +149,7 @@ def disk_mean(
     rho = None if rho is None else rho.ravel()
     d2 = r_y * r_y
     d2 += r_z * r_z
-    reach = REACH_A * b.sig_a + min(float(np.abs(eta).max()), REACH_Z * b.sig_e)
+    reach = REACH_A * b.sig_a + min(float(np.maximum.reduce(np.abs(eta))), REACH_Z * b.sig_e)
     if rho is None:  # one radius: bounds as floats
         radius = geom.shield_radius + geom.ball_radius
         inner = max(radius - reach, 0.0)
@@ -180,6 +180,14 @@ def disk_mean(
     return val
 
 
+@functools.lru_cache(maxsize=8)
+def _radii(r_shield: float, r_ball: float, levels: int) -> np.ndarray:
+    """The radius levels [m] (levels,) from R to R + r_b (one array per geometry, read-only)."""
+    radii = r_shield + r_ball * np.linspace(0.0, 1.0, levels)
+    radii.setflags(write=False)
+    return radii
+
+
 def _lookup(
     r_y, r_z, d2, rho, b: CrossingConditional, eta, w_eta, geom: BlockGeometry, levels: int
 ) -> np.ndarray:
@@ -193,7 +201,7 @@ def _lookup(
         radii = np.array([r_shield + r_ball])
         offset = zero - radii[0] * scale
     else:
-        radii = r_shield + r_ball * np.linspace(0.0, 1.0, levels)
+        radii = _radii(r_shield, r_ball, levels)
         offset = (zero - rho * scale)[..., None]
     if len(eta) == 1 and eta[0] == 0.0:
         d = np.sqrt(d2)[..., None]
@@ -207,8 +215,7 @@ def _lookup(
         np.sqrt(d, out=d)
     d *= scale
     d += offset
-    np.maximum(d, 0.0, out=d)  # np.clip(d, 0, n_col - 1 - 1e-9), without its wrapper
-    np.minimum(d, n_col - 1.0 - 1e-9, out=d)
+    clip(d, 0.0, n_col - 1.0 - 1e-9, out=d)
     ci = np.floor(d)
     d -= ci
     ci = ci.astype(np.intp)

@@ -157,7 +157,7 @@ def block_probability(
     jumps = _jumps(paths, alive, start, b, geom, cfg)
     out = np.zeros(n_paths)
     eta = b.sig_e * ze
-    if not jumps.any():  # pairs as (A, Q)
+    if not np.logical_or.reduce(jumps):  # pairs as (A, Q); .any() without its wrapper
         zt, wt = normal_rule(
             _time_scale(paths, alive, b, geom) / cfg.refine,
             cfg.max_time_nodes,
@@ -181,8 +181,8 @@ def block_probability(
             cfg.jump_step / cfg.refine if jump else None,
         )
         half = 0.5 * b.sd_t * cells(zt, wt) if jump else np.zeros(len(zt))
-        parts.append((np.repeat(np.flatnonzero(group), len(zt)), np.tile(zt, n), np.tile(wt, n),
-                      np.tile(half, n)))  # fmt: skip
+        tiled = [np.concatenate((x,) * n) for x in (zt, wt, half)]  # np.tile, unwrapped
+        parts.append((np.repeat(np.flatnonzero(group), len(zt)), *tiled))
     which, z, w, half = (np.concatenate(a) for a in zip(*parts, strict=True))
     path = alive[which]
     z, share = cut_cells(paths, path, start[which], b, z, half)
@@ -233,7 +233,7 @@ def _jumps(
     dt = cuts + (start - b.m_t)[:, None]  # (A, K) from the mean crossing time [s]
     near = np.abs(dt) < cfg.k_sigma * b.sd_t
     many = cuts[:, 0] == -np.inf
-    if not near.any():
+    if not np.logical_or.reduce(near, axis=None):
         return many
     a, k = np.nonzero(near)
     off = paths.cut_yz[alive[a], k] - (b.m_yz + dt[a, k, None] * b.k)  # (N, 2)
@@ -246,12 +246,12 @@ def _jumps(
 def _time_scale(paths: ShieldPaths, group, b: CrossingConditional, geom: BlockGeometry) -> float:
     """Scale of the integrand along tau [sigma_tau] for the paths ``group``: their lateral motion
     against sigma_a, and their x motion inside the touch band against the band's depth."""
-    rate = b.sd_t * (float(paths.speed[group].max()) + math.hypot(*b.k))
+    rate = b.sd_t * (float(np.maximum.reduce(paths.speed[group])) + math.hypot(*b.k))
     scale = b.sig_a / rate if rate > 0 else math.inf
     xr = paths.x_range[group]
     band = (xr[:, 0] < geom.plane_x - geom.half_thickness) & (xr[:, 1] > geom.touch_x)
-    if band.any():
-        x_rate = b.sd_t * float(paths.x_speed[group][band].max())
+    if np.logical_or.reduce(band):
+        x_rate = b.sd_t * float(np.maximum.reduce(paths.x_speed[group][band]))
         if x_rate > 0:
             scale = min(scale, geom.ball_radius / x_rate)
     return scale

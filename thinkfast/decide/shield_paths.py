@@ -125,18 +125,18 @@ def pack(times: np.ndarray, planes: np.ndarray, geom: BlockGeometry) -> ShieldPa
     vel[:, :, -1] = 0.0
     lateral = vel[1] * vel[1]
     lateral += vel[2] * vel[2]
-    lo, hi = pos.min(axis=2), pos.max(axis=2)  # (3, M)
-    x_range = np.stack([lo[0], hi[0]], axis=1)
+    lo, hi = np.minimum.reduce(pos, axis=2), np.maximum.reduce(pos, axis=2)  # (3, M)
+    x_range = np.array((lo[0], hi[0])).T  # (M, 2), rows of the (2, M) array
     return ShieldPaths(
         float(times[0]),
         dt,
         planes,
         n_t,
-        np.sqrt(lateral.max(axis=1)),
+        np.sqrt(np.maximum.reduce(lateral, axis=1)),
         np.concatenate([lo[1:], hi[1:]]),
         np.maximum(hi[0] - geom.plane_x, 0.0),
         x_range,
-        np.abs(vel[0]).max(axis=1),
+        np.maximum.reduce(np.abs(vel[0]), axis=1),
         *_cuts(times, pos, geom.touch_x),
     )
 
@@ -162,5 +162,6 @@ def _cuts(times: np.ndarray, pos: np.ndarray, touch_x: float) -> tuple[np.ndarra
     yz0, yz1 = pos[1:, mk, ik], pos[1:, mk, ik + 1]  # (2, K)
     yz_out[mk, rk] = (yz0 + (yz1 - yz0) * uk).T
     in_out[mk, rk] = above[mk, ik + 1]
-    times_out[np.unique(m_idx[~keep]), 0] = -np.inf
+    if len(mk) < len(m_idx):  # paths with more crossings than kept
+        times_out[m_idx[~keep], 0] = -np.inf
     return times_out, yz_out, in_out

@@ -5,12 +5,21 @@ LAPACK call (``gesv`` against the identity): tens of microseconds for a 2 x 2 or
 most of it not the solve. :func:`inv` makes the same LAPACK call (numpy's own gufunc, the one
 ``np.linalg.inv`` calls), so its results are those of ``np.linalg.inv`` bit for bit; a result
 that is not finite (a singular matrix; numpy warns of the invalid value first) is left to
-``np.linalg.inv``, which raises as before. Pure computation.
+``np.linalg.inv``, which raises as before. :func:`clip` is ``np.clip``'s ufunc without its
+Python wrapper (the same selection of ``x``, ``lo`` or ``hi``, in one pass). Pure computation.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+try:  # np.clip's ufunc: min(max(x, lo), hi) in one pass, without np.clip's Python wrapper
+    from numpy._core.umath import clip
+except ImportError:  # pragma: no cover
+
+    def clip(x, lo, hi, out=None):
+        return np.minimum(np.maximum(x, lo, out=out), hi, out=out)
+
 
 try:  # the gufunc behind np.linalg.inv (absent in some numpy: np.linalg.inv itself)
     from numpy.linalg._umath_linalg import inv as _lapack_inv

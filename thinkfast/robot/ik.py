@@ -13,6 +13,11 @@ import numpy as np
 
 from thinkfast.robot.kinematics import Kinematics
 
+try:  # the gufunc behind np.linalg.solve for one right-hand side (absent: np.linalg.solve)
+    from numpy.linalg._umath_linalg import solve1 as _lapack_solve1
+except ImportError:  # pragma: no cover
+    _lapack_solve1 = None
+
 
 class IkResult(NamedTuple):
     """Outcome of :func:`solve_shield_ik`.
@@ -64,15 +69,18 @@ def solve_shield_ik(
     def residual(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         pose, Jp, Jn = kin.shield_jacobian(q)
         r = np.concatenate([pose.centre - centre, pose.normal - n_target])
-        return r, np.vstack([Jp, Jn])[:, :5]
+        return r, np.concatenate((Jp, Jn))[:, :5]  # np.vstack, unwrapped
 
     r, J = residual(q)
+    diag = (np.arange(5), np.arange(5))
     while iterations < max_iter:
         if np.linalg.norm(r[:3]) < tol and np.linalg.norm(r[3:]) < tol:
             break
         iterations += 1
         H = J.T @ J
-        dq = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-9), -J.T @ r)
+        damp = np.zeros_like(H)
+        damp[diag] = H[diag] + 1e-9  # np.diag(np.diag(H) + 1e-9)
+        dq = _solve(H + lam * damp, -J.T @ r)
         trial = q.copy()
         trial[:5] += dq
         r_new, J_new = residual(trial)
@@ -88,3 +96,14 @@ def solve_shield_ik(
         np.arctan2(np.linalg.norm(np.cross(pose.normal, n_target)), pose.normal @ n_target)
     )
     return IkResult(q, pos_err, ang_err, iterations, bool(pos_err < 1e-6 and ang_err < 1e-6))
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b)`` for float64 ``a`` (n, n) and ``b`` (n,): the same LAPACK
+    gufunc without the wrapper (bit for bit); a result that is not finite (a singular ``a``) is
+    left to ``np.linalg.solve``, which raises as before."""
+    if _lapack_solve1 is not None:
+        x = _lapack_solve1(a, b, signature="dd->d")
+        if np.isfinite(x).all():
+            return x
+    return np.linalg.solve(a, b)

@@ -119,12 +119,47 @@ class ShieldSampler:
         """
         q123 = np.asarray(q123, dtype=float)
         wc = self.wrist_centres(q123.reshape(-1, 3))
+        wc += self._offset(normal)
+        return wc.reshape(q123.shape)
+
+    def centre_rows(self, q123: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`centres` (normal +x) of joints 1-3 (N, 3) [rad] as rows x, y, z [m], shape
+        (3, N), into ``out`` when given: the same values bit for bit, computed row by row (the
+        same operations on contiguous rows, without the (N, 3) layout's strided columns)."""
+        q123 = np.asarray(q123, dtype=float)
+        out = np.empty((3, len(q123))) if out is None else out
+        rows = self._wrist_rows(q123)
+        off = self._offset((1.0, 0.0, 0.0))
+        for c in range(3):
+            np.add(rows[c], off[c], out=out[c])
+        return out
+
+    def _wrist_rows(self, q123: np.ndarray) -> list:
+        """:meth:`wrist_centres` as three rows (N,) (a row the chain never changes may stay a
+        scalar): every step's arithmetic as there, element by element."""
+        if any(R0 is not None or not isinstance(rot, tuple) for R0, _, rot, _ in self._chain):
+            return list(self.wrist_centres(q123).T)  # a general chain: the (N, 3) code
+        p = [float(x) for x in self._wrist_point]  # as its broadcast rows
+        for _, t0, (_k, i, j, sign), index in self._chain:
+            if index >= 0:
+                a = q123[:, index]
+                c, s = np.cos(a), np.sin(a)
+                if sign < 0.0:
+                    s = -s
+                pi, pj = p[i], p[j]
+                p[i] = c * pi - s * pj
+                p[j] = s * pi + c * pj
+            if t0 is not None:
+                p = [p[0] + t0[0], p[1] + t0[1], p[2] + t0[2]]
+        return p
+
+    def _offset(self, normal) -> np.ndarray:
+        """The shield centre's offset from the wrist centre [m] (3,) for a shield ``normal``."""
         key = tuple(map(float, normal))
-        if key not in self._offsets:  # the centre's offset from the wrist centre, per normal
+        if key not in self._offsets:
             n = np.asarray(key)
             self._offsets[key] = self.offset * (n / np.linalg.norm(n))
-        wc += self._offsets[key]
-        return wc.reshape(q123.shape)
+        return self._offsets[key]
 
 
 def _place(p: np.ndarray, R0: np.ndarray | None, t0: np.ndarray | None) -> np.ndarray:
