@@ -83,6 +83,15 @@ class CameraConfig:
         doc="ASSUMED capture-to-delivery delay range (the simulator draws it per frame; keep "
         "[fusion] max_lag above the spread between cameras)",
     )
+    fps: float = spec(
+        50.0,
+        unit="Hz",
+        lo=0.0,
+        lo_open=True,
+        hi=60.0,
+        doc="frame rate (HD720, at most 60; the ZED 2i runs 15, 30 or 60; 50 is the paper's "
+        "system): the simulator's rate for this camera",
+    )
 
     def extrinsic(self) -> CameraExtrinsic:
         """The camera's pose in base."""
