@@ -136,6 +136,16 @@ class FusionConfig:
         "one feint of about 800 that 6 confirms, which the retraction brings home within 2 s "
         "(docs/RESULTS.md: the launch window with two cameras)",
     )
+    early_max_drop: int = spec(
+        1,
+        lo=0,
+        hi=1,
+        doc="TUNED: [early] max_drop when several cameras are fused (the hedge trigger's fit "
+        "leaves one gross outlier out; docs/RESULTS.md, the hedge trigger with two cameras)",
+    )
+    early_prior_age: bool = spec(
+        True, doc="TUNED: [early] prior_age when several cameras are fused (same section)"
+    )
     check_alpha: float = spec(
         0.001, lo=1e-9, hi=0.5, doc="false-failure rate of one consistency test (3 dof)"
     )
