@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from thinkfast.control.config import RunConfig, load_run_config
+from thinkfast.control.config import RunConfig, early_config, load_run_config
 from thinkfast.estimate import early_belief as eb
 from thinkfast.estimate.launch import LaunchDetector
 from thinkfast.machine import machine_info
@@ -249,11 +249,11 @@ class _GateFeed:
 
 
 def _likely(det: LaunchDetector, cfg: RunConfig, plane) -> bool:
-    """The hedge stage's trigger on the detector's detections (``[early]``)."""
-    fit = eb.early_fit(
-        list(det.points), cfg.early, plane[0], plane[1], plane[2], cfg.filter.gravity
-    )
-    return eb.likely_launch(fit, cfg.early)
+    """The hedge stage's trigger on the detector's detections (``[early]``; with several
+    cameras as :func:`~thinkfast.control.config.early_config` makes it)."""
+    early = early_config(cfg)
+    fit = eb.early_fit(list(det.points), early, plane[0], plane[1], plane[2], cfg.filter.gravity)
+    return eb.likely_launch(fit, early)
 
 
 if __name__ == "__main__":

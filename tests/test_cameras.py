@@ -63,6 +63,7 @@ def test_cameras_are_read_from_an_array_of_tables(tmp_path):
         ("[[cameras]]\nid = 'a b'\n", "cameras[0].id"),
         ("[[cameras]]\nxyz = [1.0, 2.0, 3.0]\n", "cameras[0].id"),
         ("[[cameras]]\nid = 'top'\n[fusion]\nreference = 'side'\n", "fusion.reference"),
+        ("[[cameras]]\nid = 'side'\nfps = 100.0\n", "cameras[0].fps"),  # HD720: <= 60
     ],
 )
 def test_a_bad_camera_table_names_its_key(tmp_path, text, key):
@@ -243,6 +244,20 @@ def test_one_camera_alone_gives_the_same_detections_as_before():
     )
     assert json.loads(detection_payload(one[0])).get("camera") is None
     assert json.loads(detection_payload(next(d for d in two if d.camera)))["camera"] == "side"
+
+
+def test_each_further_camera_runs_at_its_own_frame_rate():
+    """``[[cameras]] fps`` sets the simulated camera's rate (the ZED 2i's HD720 60 fps); the
+    default 50 leaves its detections as they were."""
+    th = _throw(1)
+    fast = dataclasses.replace(TWO, cameras=(dataclasses.replace(SIDE_CAMERA, fps=60.0),))
+    for cfg, rate in ((TWO, 50.0), (fast, 60.0)):
+        cam = sim_cameras(cfg, CameraModelConfig())[1]
+        assert cam.model.rate == rate
+        t = np.array([d.capture_stamp for d in observe_cameras(th, (cam,), 3, 0.0)])
+        assert np.median(np.diff(t)) == pytest.approx(1.0 / rate)
+    side = sim_cameras(TWO, CameraModelConfig())[1]
+    assert side.model == dataclasses.replace(CameraModelConfig(), latency=SIDE_CAMERA.latency)
 
 
 def test_the_side_camera_sees_the_whole_corridor():

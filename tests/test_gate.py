@@ -125,24 +125,30 @@ def test_the_launch_fit_keeps_its_100ms_span_at_the_cameras_frame_rate(rtree, fp
     assert (window - 1) / fps == pytest.approx(0.1, abs=0.5 / fps) or window == 4
 
 
-def _confirmations(gate: ThrowGate, dets, t_rest: float) -> list[float]:
+def _fed(gate: ThrowGate, dets):
     """Feed simulated detections ``dets`` (delivery order) through the intake to ``gate`` as the
-    executor does (armed, each belief counted) and return the capture stamps, after ``t_rest``
-    [s], of the detections that confirmed a throw (the gate is dropped after each)."""
+    executor does (armed, each belief counted); yield (delivery index, accepted detection,
+    whether its belief confirmed a throw) for every belief."""
     from thinkfast.control.intake import Intake
     from thinkfast.sim.camera import detection_payload
 
     cfg = gate.cfg
     intake = Intake(cfg.camera, cfg.detections, cfg.cameras)
-    out = []
-    for d in dets:
+    for i, d in enumerate(dets):
         acc = intake.take(detection_payload(d), None)
         if acc is None:
             continue
         fused = gate.fuse(acc.stamp, acc.position, acc.camera, armed=True)
-        if not fused.ok or gate.belief.n_meas < 2:
-            continue
-        if gate.confirms(gate.crossing(), fused.launched, tracking=True):
+        if fused.ok and gate.belief.n_meas >= 2:
+            yield i, acc, gate.confirms(gate.crossing(), fused.launched, tracking=True)
+
+
+def _confirmations(gate: ThrowGate, dets, t_rest: float) -> list[float]:
+    """The capture stamps, after ``t_rest`` [s], of the detections ``dets`` that confirmed a
+    throw (:func:`_fed`; the gate is dropped after each)."""
+    out = []
+    for _, acc, confirmed in _fed(gate, dets):
+        if confirmed:
             out.append(acc.stamp - t_rest)
             gate.drop()
     return out
@@ -172,3 +178,47 @@ def test_another_cameras_older_detection_settles_a_restart_only_when_it_agrees(r
     gate = ThrowGate(rtree, two, CONFIRM)
     assert _confirmations(gate, dets, 10.0) == []
     assert gate.belief.n_resets > 0 and gate.check.state("side").fused > 50
+
+
+def _trigger_and_confirmation(gate: ThrowGate, dets, t_release: float, tree):
+    """Feed ``dets`` as the executor does (:func:`_fed`); return (delivery index of the first
+    detection after ``t_release`` [s] at which the early belief of the launch detector's
+    detections made a launch likely, the hedge trigger; delivery index of the detection the
+    gate confirmed at), None for either that did not come."""
+    from thinkfast.estimate import early_belief as eb
+
+    cfg = gate.cfg
+    lo, hi = tree.goal_yz.min(axis=0), tree.goal_yz.max(axis=0)
+    trigger = None
+    for i, acc, confirmed in _fed(gate, dets):
+        if confirmed:
+            return trigger, i
+        points = list(gate.launch.points)
+        fit = eb.early_fit(points, cfg.early, tree.plane_x, lo, hi, cfg.filter.gravity)
+        if trigger is None and acc.stamp > t_release and eb.likely_launch(fit, cfg.early):
+            trigger = i
+    return trigger, None
+
+
+@pytest.mark.parametrize("index", [14, 68])
+def test_with_two_cameras_the_hedge_trigger_comes_before_the_launch_confirmation(rtree, index):
+    """Throws s1-14 and s1-68 of the headline set seen by both cameras: the hedge trigger came
+    at the very detection the gate confirmed the launch at, so the hedge had no head start
+    (docs/RESULTS.md, "Two cameras with the hedge"): the base camera's first flight detections
+    had not left the hold by two of their depth stds and cut the side camera's run. The gate
+    keeps each detection's camera with it for the early belief, and the trigger now comes at
+    an earlier detection (both fail on 5793a11; the camera rule alone, ``[early]`` as it is)."""
+    from thinkfast.estimate.fusion import SIDE_CAMERA
+    from thinkfast.sim.bench import throw_seed
+    from thinkfast.sim.camera import CameraModelConfig, observe_cameras
+    from thinkfast.sim.lockstep import sim_cameras
+    from thinkfast.sim.throws import ThrowConfig, sample_throws
+
+    two = dataclasses.replace(CFG, cameras=(SIDE_CAMERA,))
+    th = sample_throws(ThrowConfig(), index + 1, 1)[index]
+    assert th.id == f"s1-{index}" and th.kind != "feint"
+    dets = observe_cameras(th, sim_cameras(two, CameraModelConfig()), throw_seed(1, index), 10.0)
+    gate = ThrowGate(rtree, two, CONFIRM)
+    trigger, confirmed = _trigger_and_confirmation(gate, dets, 10.0, rtree)
+    assert confirmed is not None and trigger is not None and trigger < confirmed
+    assert {p[3] for p in gate.launch.points} == {None, "side"}

@@ -208,3 +208,17 @@ def test_at_first_light_speed_the_supervisor_never_acts(slow_world, throw_id, mi
     cycles = np.round(np.diff(wire.t) / DT)[:, None]
     assert np.all(np.abs(wire.qd) <= robot.v_max + 1e-9)
     assert np.all(np.abs(np.diff(wire.qd, axis=0)) <= robot.a_max * DT * cycles + 1e-9)
+
+
+def test_with_several_cameras_the_early_belief_takes_the_fusion_settings():
+    """``[fusion] early_max_drop`` and ``early_prior_age`` replace ``[early]``'s with several
+    cameras (the hedge stage's and the held-ball bench's early belief); one camera keeps
+    ``[early]`` as it is."""
+    from thinkfast.control.config import early_config
+    from thinkfast.estimate.fusion import SIDE_CAMERA
+
+    assert early_config(CFG) is CFG.early and CFG.early.max_drop == 0
+    two = dataclasses.replace(CFG, cameras=(SIDE_CAMERA,))
+    early = early_config(two)
+    assert (early.max_drop, early.prior_age) == (1, True)
+    assert dataclasses.replace(early, max_drop=0, prior_age=False) == CFG.early

@@ -212,6 +212,16 @@ def launch_window(cfg: RunConfig) -> int:
     return min(max(1 + round((w - 1) * cfg.camera.fps / DEFAULT_FPS), 4), 12)
 
 
+def early_config(cfg: RunConfig) -> EarlyConfig:
+    """The early belief's parameters: ``[early]``; with several cameras fused, its
+    ``max_drop`` and ``prior_age`` are ``[fusion] early_max_drop`` and ``early_prior_age``
+    (as ``[fusion] launch_window`` takes the place of ``[launch] window``)."""
+    if not cfg.cameras:
+        return cfg.early
+    f = cfg.fusion
+    return dataclasses.replace(cfg.early, max_drop=f.early_max_drop, prior_age=f.early_prior_age)
+
+
 def check_lags(cfg: RunConfig, source: str) -> RunConfig:
     """``cfg`` once the supervisor's ``safety.tracking_lag`` (how far the arm may trail its
     command) is at least ``execution.controller_lag`` (how far it does).

@@ -138,7 +138,7 @@ class ThrowGate:
         if not (self.cfg.launch.enabled and not self.first):
             return Fused(True)
         several = self.check is not None
-        fit = self.launch.add(stamp, p_base, *cam)
+        fit = self.launch.add(stamp, p_base, *cam, camera=camera)
         if fit is None:
             return Fused(True)
         newest = None if fit.t != stamp or not several else sensor

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from thinkfast.control.config import RunConfig
+from thinkfast.control.config import RunConfig, early_config
 from thinkfast.control.hedge import COMMIT, HEDGE, Hedger
 from thinkfast.control.planners.base import EpisodeLog, Planner
 from thinkfast.control.timeline import Timeline
@@ -122,5 +122,5 @@ def hedge_stage(
     if not planner.hedges or cfg.hedge.mode == "none" or not cfg.launch.enabled:
         return None
     h, lag = cfg.hedge, cfg.execution.controller_lag
-    hedger = Hedger(tree, robot, timeline.steer, h, cfg.early, cfg.filter.gravity, lag)
+    hedger = Hedger(tree, robot, timeline.steer, h, early_config(cfg), cfg.filter.gravity, lag)
     return HedgeStage(hedger, timeline, h.timeout)

@@ -21,11 +21,20 @@ covariance, and each detection narrows it. Its plane crossing (the delta method,
 
 Which detections are flight (:func:`flight_run`): the newest ones, each nearer the plane than the
 hold by ``depart_sigmas`` of its depth noise; the hold is the median of the detections before
-them (at least ``min_hold`` of them: a ball first seen in flight has no hold to leave). A
-*launch is likely* (:func:`likely_launch`) when the ``trigger_points`` newest detections have
-left the hold and the flight fit with the prior explains them (chi-square below its ``1 -
-alpha`` quantile): a ball moved by the hand at under a metre per second against a prior of 8 m/s
-or more does not. This is the hedge stage's trigger; the launch detector still confirms.
+them (at least ``min_hold`` of them: a ball first seen in flight has no hold to leave). With
+several cameras each camera leaves the hold on its own: the run begins at a detection that has
+left, and a camera's detections in it that have not left yet come before its first one that
+has. A camera that sees the approach along its viewing ray (the base camera: depth noise of
+12-28 cm at 6-8 m, so 25-55 cm to leave) shows the departure 2-3 frames after one that sees
+it across (the side camera: 5-6 cm); required to leave too, its detections cut every run the
+other camera had begun, and the trigger came with the launch confirmation (docs/RESULTS.md,
+"Two cameras with the hedge"). With one camera this is the run of newest detections that all
+left. A *launch is likely* (:func:`likely_launch`) when ``trigger_points`` detections of the
+run have left the hold and the flight fit with the prior explains the run's newest (chi-square
+below its ``1 - alpha`` quantile; with ``max_drop`` = 1 the fit may leave out the one gross
+outlier whose absence lowers the chi-square by more than the 3-dof quantile, as the launch
+detector's does): a ball moved by the hand at under a metre per second against a prior of 8
+m/s or more does not. This is the hedge stage's trigger; the launch detector still confirms.
 """
 
 from __future__ import annotations
@@ -68,12 +77,25 @@ class EarlyConfig:
         doc="a flight detection is nearer the plane than the hold by this many depth stds",
     )
     trigger_points: int = spec(
-        2, lo=1, hi=6, doc="newest detections that must have left the hold (launch likely)"
-    )
+        2, lo=1, hi=6, doc="detections of the flight run that must have left the hold (launch "
+        "likely; with one camera the newest ones)",
+    )  # fmt: skip
     max_points: int = spec(5, lo=1, hi=12, doc="newest flight detections the early fit uses")
     min_hold: int = spec(5, lo=1, doc="detections before the flight needed to locate the hold")
     alpha: float = spec(
         0.001, lo=1e-9, hi=0.5, doc="false-rejection rate of the fit's chi-square test"
+    )
+    max_drop: int = spec(
+        0,
+        lo=0,
+        hi=1,
+        doc="gross outliers the early fit may leave out (of 3 or more points; one is when "
+        "leaving it out lowers the chi-square by more than the 3-dof 1 - alpha quantile)",
+    )
+    prior_age: bool = spec(
+        False,
+        doc="the prior's flight time counts from the flight run's first detection (the ball "
+        "has flown that long already), not from the newest",
     )
 
 
@@ -87,6 +109,8 @@ class EarlyFit(NamedTuple):
         chi2: residual chi-square of the detections and the prior.
         n: flight detections used.
         hold: the hold position [m], shape (3,).
+        left: detections of the flight run that have left the hold (not counting one the fit
+            left out as an outlier).
     """
 
     t: float
@@ -95,6 +119,7 @@ class EarlyFit(NamedTuple):
     chi2: float
     n: int
     hold: np.ndarray
+    left: int = 0
 
 
 def velocity_prior(
@@ -164,26 +189,46 @@ def fit_with_prior(
 
 
 def flight_run(points: list, cfg: EarlyConfig) -> tuple[int, np.ndarray | None]:
-    """How many of the newest ``points`` (stamp, position (3,), noise covariance (3, 3)), oldest
-    first, have left the hold towards the plane, and the hold position (None: fewer than
-    ``min_hold`` detections before them, the hold is not known)."""
-    n, k = len(points), _run(points, cfg)
+    """How many of the newest ``points`` (stamp, position (3,), noise covariance (3, 3)[, camera
+    id]), oldest first, are the flight run (module doc: with one camera, the newest that have
+    left the hold towards the plane), and the hold position (None: fewer than ``min_hold``
+    detections before them, the hold is not known)."""
+    n, k = len(points), _run(points, cfg)[0]
     if k > 0 or n >= cfg.min_hold:
         return k, np.median(np.array([p[1] for p in points[: n - k]]), axis=0)
     return 0, None
 
 
-def _run(points: list, cfg: EarlyConfig) -> int:
-    """The length of :func:`flight_run`'s run (0: none)."""
+def _run(points: list, cfg: EarlyConfig) -> tuple[int, list[bool]]:
+    """The length of :func:`flight_run`'s run (0: none) and, per detection of it, whether it
+    has left the hold."""
     n = len(points)
     xs = [float(p[1][0]) for p in points]
     gap = [cfg.depart_sigmas * math.sqrt(p[2][0, 0]) for p in points]  # to leave the hold
+    cams = [p[3] if len(p) > 3 else None for p in points]
     for k in range(n - cfg.min_hold, 0, -1):  # the longest run first: a flight is a few points
         # only the hold's x decides: the median of the x before the run (as np.median)
         hold_x = _median(sorted(xs[: n - k]))
-        if all(hold_x - x > g for x, g in zip(xs[n - k :], gap[n - k :], strict=True)):
-            return k
-    return 0
+        flags = _left(xs[n - k :], gap[n - k :], cams[n - k :], hold_x)
+        if flags is not None:
+            return k, flags
+    return 0, []
+
+
+def _left(xs: list, gaps: list, cams: list, hold_x: float) -> list[bool] | None:
+    """Per detection (x [m], gap to leave the hold [m], camera), whether it left the hold at
+    ``hold_x`` [m]; None when they are no flight run: the first has not left, or a camera's
+    detection that has not left comes after one of that camera's that has."""
+    flags: list[bool] = []
+    gone = set()  # cameras that have shown the ball leave
+    for x, g, cam in zip(xs, gaps, cams, strict=True):
+        left = hold_x - x > g
+        if left:
+            gone.add(cam)
+        elif not flags or cam in gone:
+            return None
+        flags.append(left)
+    return flags
 
 
 def _median(v: list[float]) -> float:
@@ -195,26 +240,48 @@ def _median(v: list[float]) -> float:
 def early_fit(
     points: list, cfg: EarlyConfig, plane_x: float, yz_lo, yz_hi, gravity: float
 ) -> EarlyFit | None:
-    """The early belief from the flight detections among ``points`` (see :func:`flight_run`;
-    the ``max_points`` newest), or None when none has left a known hold."""
-    k = _run(points, cfg)
+    """The early belief from the flight run among ``points`` (see :func:`flight_run`; its
+    ``max_points`` newest, one gross outlier left out with ``max_drop``), or None when no
+    detection has left a known hold."""
+    k, flags = _run(points, cfg)
     if k == 0:
         return None
     hold = np.median(np.array([p[1] for p in points[: len(points) - k]]), axis=0)
-    run = points[-min(k, cfg.max_points) :]
-    times = np.array([p[0] for p in run])
-    pts = np.array([p[1] for p in run])
-    covs = np.array([p[2] for p in run])
+    t_first = float(points[len(points) - k][0])  # the run's first detection [s]
+    m = min(k, cfg.max_points)
+    run = points[-m:]
     lo = np.asarray(yz_lo, dtype=float) - cfg.region_margin
     hi = np.asarray(yz_hi, dtype=float) + cfg.region_margin
-    vm, vc = velocity_prior(pts[-1], plane_x, lo, hi, cfg.flight_time, gravity, cfg.grid)
-    x, cov, c2 = fit_with_prior(times, pts, covs, gravity, vm, vc)
-    return EarlyFit(float(times[-1]), x, cov, c2, len(run), hold)
+    penalty = chi2_limit(cfg.alpha, 3)  # what leaving one point out must gain
+    best, score = None, math.inf
+    for out in [None, *(range(m) if cfg.max_drop and m >= 3 else ())]:
+        sub = run if out is None else run[:out] + run[out + 1 :]
+        times = np.array([p[0] for p in sub])
+        pts = np.array([p[1] for p in sub])
+        covs = np.array([p[2] for p in sub])
+        tau = _flight_time(cfg, float(times[-1]) - t_first)
+        vm, vc = velocity_prior(pts[-1], plane_x, lo, hi, tau, gravity, cfg.grid)
+        x, cov, c2 = fit_with_prior(times, pts, covs, gravity, vm, vc)
+        if c2 + (out is not None) * penalty < score:
+            score = c2 + (out is not None) * penalty
+            left = sum(flags) - (out is not None and flags[k - m + out])
+            best = EarlyFit(float(times[-1]), x, cov, c2, len(sub), hold, left)
+    return best
 
 
 def likely_launch(fit: EarlyFit | None, cfg: EarlyConfig) -> bool:
-    """The hedge trigger: ``trigger_points`` flight detections, explained by a free flight at the
-    prior's speeds (chi-square of the 3 n residuals and the 3 prior terms, 6 fitted)."""
-    if fit is None or fit.n < cfg.trigger_points:
+    """The hedge trigger: ``trigger_points`` detections of the flight run left the hold, and
+    the fit explains its detections by a free flight at the prior's speeds (chi-square of the
+    3 n residuals and the 3 prior terms, 6 fitted)."""
+    if fit is None or fit.left < cfg.trigger_points:
         return False
     return fit.chi2 <= chi2_limit(cfg.alpha, max(3 * fit.n - 3, 1))
+
+
+def _flight_time(cfg: EarlyConfig, age: float) -> tuple[float, float]:
+    """The prior's flight time [s] (lo, hi) from a detection ``age`` [s] after the run's first
+    (with ``prior_age``: the ball has flown at least that long; never below 50 ms)."""
+    if not cfg.prior_age:
+        return cfg.flight_time
+    lo, hi = cfg.flight_time
+    return max(lo - age, 0.05), max(hi - age, 0.1)

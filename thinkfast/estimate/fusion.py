@@ -83,6 +83,15 @@ class CameraConfig:
         doc="ASSUMED capture-to-delivery delay range (the simulator draws it per frame; keep "
         "[fusion] max_lag above the spread between cameras)",
     )
+    fps: float = spec(
+        50.0,
+        unit="Hz",
+        lo=0.0,
+        lo_open=True,
+        hi=60.0,
+        doc="frame rate (HD720, at most 60; the ZED 2i runs 15, 30 or 60; 50 is the paper's "
+        "system): the simulator's rate for this camera",
+    )
 
     def extrinsic(self) -> CameraExtrinsic:
         """The camera's pose in base."""
@@ -126,6 +135,16 @@ class FusionConfig:
         "fused; 6 blocked 2.2 points more than 8 on 1000 paired throws of seed 2; 8 stopped "
         "one feint of about 800 that 6 confirms, which the retraction brings home within 2 s "
         "(docs/RESULTS.md: the launch window with two cameras)",
+    )
+    early_max_drop: int = spec(
+        1,
+        lo=0,
+        hi=1,
+        doc="TUNED: [early] max_drop when several cameras are fused (the hedge trigger's fit "
+        "leaves one gross outlier out; docs/RESULTS.md, the hedge trigger with two cameras)",
+    )
+    early_prior_age: bool = spec(
+        True, doc="TUNED: [early] prior_age when several cameras are fused (same section)"
     )
     check_alpha: float = spec(
         0.001, lo=1e-9, hi=0.5, doc="false-failure rate of one consistency test (3 dof)"

@@ -211,8 +211,8 @@ class LaunchDetector:
         self.window = cfg.window if window is None else int(window)
         self.sensor = np.asarray(sensor, dtype=float)
         # the window, and before it the detections that show where the ball was held
-        # (stamp, position, noise covariance) of each detection
-        self.points: deque[tuple[float, np.ndarray, np.ndarray]] = deque(
+        # (stamp, position, noise covariance, camera id) of each detection
+        self.points: deque[tuple[float, np.ndarray, np.ndarray, str | None]] = deque(
             maxlen=self.window + HOLD_POINTS * max(1, cameras)
         )
         self.passed = 0
@@ -225,7 +225,12 @@ class LaunchDetector:
         self.passed = 0
 
     def add(
-        self, t: float, z: np.ndarray, sensor=None, fcfg: FilterConfig | None = None
+        self,
+        t: float,
+        z: np.ndarray,
+        sensor=None,
+        fcfg: FilterConfig | None = None,
+        camera: str | None = None,
     ) -> FlightFit | None:
         """A detection stamped ``t`` [s] at ``z`` [m] (base); the fit if this declares a launch.
 
@@ -233,8 +238,10 @@ class LaunchDetector:
         took it (None: the detector's own). With ``sensor`` given (several cameras), a detection
         older than the newest one is put in its place in time (another camera's newer one came
         first) and the window is fitted again; without, it is ignored (the filter rejected it).
+        ``camera`` (its id; None: the default camera) is kept with it for the early belief
+        (:func:`thinkfast.estimate.early_belief.flight_run`); the fit does not read it.
         """
-        if not self.insert(t, z, sensor, fcfg):
+        if not self.insert(t, z, sensor, fcfg, camera):
             return None
         fit = self.fit()
         if fit is None or not self.passes(fit):
@@ -247,18 +254,24 @@ class LaunchDetector:
         return fit
 
     def insert(
-        self, t: float, z: np.ndarray, sensor=None, fcfg: FilterConfig | None = None
+        self,
+        t: float,
+        z: np.ndarray,
+        sensor=None,
+        fcfg: FilterConfig | None = None,
+        camera: str | None = None,
     ) -> bool:
         """Keep the detection (arguments as :meth:`add`) in stamp order; False when it is
         ignored (late or duplicated)."""
         z = np.asarray(z, dtype=float)
+        point = (float(t), z, self._cov(z, sensor, fcfg), camera)
         if self.points and t <= self.points[-1][0]:
             if sensor is None or t < self.points[0][0] or any(p[0] == t for p in self.points):
                 return False  # late or duplicated: the filter has rejected it too
-            pts = sorted([*self.points, (float(t), z, self._cov(z, sensor, fcfg))], key=_stamp)
+            pts = sorted([*self.points, point], key=_stamp)
             self.points = deque(pts, maxlen=self.points.maxlen)
         else:
-            self.points.append((float(t), z, self._cov(z, sensor, fcfg)))
+            self.points.append(point)
         return True
 
     def fit(self) -> FlightFit | None:

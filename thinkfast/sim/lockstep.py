@@ -104,9 +104,9 @@ class World:
 def sim_cameras(cfg: RunConfig, model: CameraModelConfig) -> tuple[SimCamera, ...]:
     """The simulated cameras of a run config: the default camera (``model`` in ``[camera]``'s
     mode and frame rate, :func:`~thinkfast.sim.camera.mode_model`), then every ``[[cameras]]``
-    one (``model`` with its latency), each where the config says."""
+    one (``model`` with its latency and frame rate), each where the config says."""
     others = tuple(
-        SimCamera(c.id, dataclasses.replace(model, latency=c.latency), c.extrinsic())
+        SimCamera(c.id, dataclasses.replace(model, latency=c.latency, rate=c.fps), c.extrinsic())
         for c in cfg.cameras
     )
     return (SimCamera(None, mode_model(cfg.camera, model), cfg.camera), *others)
