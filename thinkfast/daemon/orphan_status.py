@@ -44,16 +44,24 @@ def status(loop, now: float) -> dict:
 
 
 def _run(zenoh_json: str, prefix: str, loop) -> None:
-    try:
-        import zenoh
+    pub = None
+    said = None
+    while pub is None:  # the dead planner's endpoint may not be free at once: try again
+        try:
+            import zenoh
 
-        from thinkfast.contract import keys
+            from thinkfast.contract import keys
 
-        session = zenoh.open(zenoh.Config.from_json5(zenoh_json))
-        pub = session.declare_publisher(keys.status(prefix))
-    except Exception as exc:  # the log line on stderr still says what happened
-        print(f"thinkfast reply process: no status on zenoh ({exc})", file=sys.stderr)
-        return
+            session = zenoh.open(zenoh.Config.from_json5(zenoh_json))
+            pub = session.declare_publisher(keys.status(prefix))
+        except Exception as exc:  # the log line on stderr still says what happened
+            if str(exc) != said:
+                print(f"thinkfast reply process: no status on zenoh yet ({exc}); trying again "
+                      "every second", file=sys.stderr)  # fmt: skip
+                said = str(exc)
+            time.sleep(1.0)
+    if said is not None:
+        print("thinkfast reply process: status on zenoh again", file=sys.stderr)
     while True:
         pub.put(json.dumps(status(loop, time.time())).encode())
         time.sleep(1.0)
