@@ -44,17 +44,19 @@ def status(loop, now: float) -> dict:
 
 
 def _run(zenoh_json: str, prefix: str, loop) -> None:
-    pub = None
-    said = None
+    try:
+        import zenoh
+
+        from thinkfast.contract import keys
+    except Exception as exc:  # the log line on stderr still says what happened
+        print(f"thinkfast reply process: no status on zenoh ({exc})", file=sys.stderr)
+        return
+    pub, said = None, None
     while pub is None:  # the dead planner's endpoint may not be free at once: try again
         try:
-            import zenoh
-
-            from thinkfast.contract import keys
-
             session = zenoh.open(zenoh.Config.from_json5(zenoh_json))
             pub = session.declare_publisher(keys.status(prefix))
-        except Exception as exc:  # the log line on stderr still says what happened
+        except Exception as exc:
             if str(exc) != said:
                 print(f"thinkfast reply process: no status on zenoh yet ({exc}); trying again "
                       "every second", file=sys.stderr)  # fmt: skip

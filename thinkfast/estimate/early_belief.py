@@ -262,8 +262,9 @@ def early_fit(
         tau = _flight_time(cfg, float(times[-1]) - t_first)
         vm, vc = velocity_prior(pts[-1], plane_x, lo, hi, tau, gravity, cfg.grid)
         x, cov, c2 = fit_with_prior(times, pts, covs, gravity, vm, vc)
-        if c2 + (out is not None) * penalty < score:
-            score = c2 + (out is not None) * penalty
+        cost = c2 if out is None else c2 + penalty
+        if cost < score:
+            score = cost
             left = sum(flags) - (out is not None and flags[k - m + out])
             best = EarlyFit(float(times[-1]), x, cov, c2, len(sub), hold, left)
     return best
