@@ -51,6 +51,7 @@ def main(conf: argparse.Namespace) -> None:
         "primitives": n,
         "nodes": t2.n_nodes,
         "terminals": t2.n_terminals,
+        "fingerprint": tree_fingerprint(t2),
         "seconds": round(s2, 3),
         "seconds_1_job": round(s1, 3),
         "primitives_per_s": round(n / s2, 1),
@@ -67,6 +68,7 @@ def main(conf: argparse.Namespace) -> None:
     for jobs, (tree, sec) in results.items():
         print(f"{jobs:>6} {sec:>9.2f} {n:>11} {n / sec:>9.0f} {tree.n_terminals:>10}")
     print(f"speed-up with 2 jobs: {out['speedup_2_jobs']:.2f}x (identical datasets)")
+    print(f"fingerprint {out['fingerprint']}")
 
 
 if __name__ == "__main__":
