@@ -210,7 +210,13 @@ def test_a_brake_whose_cause_is_outside_the_stream_outlasts_a_silence_and_standb
     assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT * (1 + 1e-9))
     assert np.all(np.abs(qd[1:]) <= np.abs(qd[:-1]) + 1e-12)  # a stop, never a speed-up
     assert not qd[-50:].any() and ctl.sup.brake_reason == reason
-    tm += 4 * 200
+    tm += 4 * 200 + 60  # silent again, the stop done: held where the arm settles, at rest
+    q2 = ctl.sup.q + 1e-4
+    for k in range(3):
+        r = ctl.on_feedback(tm + 4 * k, q2 + 1e-5 * k, T0 + (tm + 4 * k) / 1000)
+    np.testing.assert_allclose(r.q, q2 + 2e-5, atol=1e-12)
+    assert not r.qd.any() and ctl.resyncs == 2 and ctl.sup.brake_reason == reason
+    tm += 4 * 3
     ctl.on_feedback(tm, ctl.sup.q, T0 + tm / 1000, ready=False)  # standby, then ready again
     r = ctl.on_feedback(tm + 4, ctl.sup.q, T0 + (tm + 4) / 1000)
     assert ctl.sup.brake_reason == reason and not r.qd.any()

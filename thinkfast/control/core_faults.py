@@ -69,9 +69,13 @@ class FaultPolicy:
     def _restart(self, tick: ClockTick, q_meas, qd_meas) -> Reply:
         """First packet or after a silence: command the measured state, plan on from it. A
         brake whose cause lies outside the stream (:data:`KEPT_BRAKES`: a stop signal, a
-        planner stalled or lost) stays latched and stops the arm from the measured state."""
+        planner stalled or lost) stays latched and stops the arm from the measured state (or
+        holds it there at rest, once its stop was done)."""
         self.invalidate()
         first = self.last is None
+        sup = self.sup
+        if sup.braking and sup.stopped and sup.brake_reason in KEPT_BRAKES:
+            qd_meas = None  # the stop is done: hold the arm where it is, at rest
         if first:
             self.sup.reset(q_meas, keep=KEPT_BRAKES)
             self.ex.start_from(np.array(self.sup.q), tick.t)
