@@ -173,6 +173,56 @@ def test_after_a_silence_in_motion_the_restart_takes_the_velocity_the_next_packe
     assert ctl.resyncs == 1 and ctl.deferred == 2
 
 
+@pytest.mark.parametrize("reason", ["planner_lost", "planner_stale", "signal"])
+def test_a_brake_whose_cause_is_outside_the_stream_outlasts_a_silence_and_standby(
+    rtree, robot, reason
+):
+    """Braking for a lost or stalled planner (or a stop signal) when the controller falls
+    silent: the stream restarts at the measured state, as after any silence, and the arm
+    stops from there, jerk-limited: the brake stays latched (it used to be dropped, and the
+    plan resumed without a planner). A controller in standby keeps it too."""
+    ctl = _control(rtree, robot)
+    ctl.on_feedback(0, _away(robot), T0)
+    for k in range(1, 40):
+        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+    assert np.abs(ctl.sup.qd).max() > 0.3  # moving home
+    ctl.brake(reason)
+    for k in range(40, 45):
+        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+    v0 = ctl.sup.qd.copy()
+    assert ctl.sup.braking and np.abs(v0).max() > 0.2  # braking, still moving
+    q1, tm = ctl.sup.q + v0 * 0.06, 4 * 44 + 60  # 60 ms of silence: the arm went on
+
+    def q_at(k):
+        return q1 + v0 * k * DT
+
+    assert ctl.on_feedback(tm, q_at(0), T0 + tm / 1000) is None
+    assert ctl.on_feedback(tm + 4, q_at(1), T0 + (tm + 4) / 1000) is None
+    r = ctl.on_feedback(tm + 8, q_at(2), T0 + (tm + 8) / 1000)
+    np.testing.assert_allclose(r.q, q_at(2), atol=1e-12)  # the rule after a silence
+    np.testing.assert_allclose(r.qd, v0, atol=1e-9)
+    assert ctl.resyncs == 1 and ctl.sup.brake_reason == reason
+    t, qd = [tm + 8], [r.qd]
+    for k in range(3, 200):  # an arm that follows: the stop, from the measured state
+        r = ctl.on_feedback(tm + 4 * k, ctl.sup.q, T0 + (tm + 4 * k) / 1000)
+        t.append(tm + 4 * k), qd.append(r.qd)
+    qd = np.array(qd)
+    assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT * (1 + 1e-9))
+    assert np.all(np.abs(qd[1:]) <= np.abs(qd[:-1]) + 1e-12)  # a stop, never a speed-up
+    assert not qd[-50:].any() and ctl.sup.brake_reason == reason
+    tm += 4 * 200 + 60  # silent again, the stop done: held where the arm settles, at rest
+    q2 = ctl.sup.q + 1e-4
+    for k in range(3):
+        r = ctl.on_feedback(tm + 4 * k, q2 + 1e-5 * k, T0 + (tm + 4 * k) / 1000)
+    np.testing.assert_allclose(r.q, q2 + 2e-5, atol=1e-12)
+    assert not r.qd.any() and ctl.resyncs == 2 and ctl.sup.brake_reason == reason
+    tm += 4 * 3
+    ctl.on_feedback(tm, ctl.sup.q, T0 + tm / 1000, ready=False)  # standby, then ready again
+    r = ctl.on_feedback(tm + 4, ctl.sup.q, T0 + (tm + 4) / 1000)
+    assert ctl.sup.brake_reason == reason and not r.qd.any()
+    assert ctl.sup.counts[f"brake_{reason}"] == 1  # the same brake, kept: counted once
+
+
 def test_a_restart_waits_for_a_velocity_at_most_a_few_packets(rtree, robot):
     """Packets that keep arriving too far apart to measure a velocity: the stream restarts
     anyway (from the measured position at rest) after DEFER_MAX unanswered packets."""

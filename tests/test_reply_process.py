@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 from daemon_harness import DaemonRun, ballistic_throw, publish_throw
 
+from thinkfast.control.config import RunConfig
 from thinkfast.sim.realtime import daemon_log
 
 DT = 0.004
 REPLY = ("--reply-process",)
+RESYNC_CYCLES = round(RunConfig().safety.resync_after / DT)  # cycles unanswered: no restart yet
 
 
 @pytest.fixture(scope="module")
@@ -32,6 +34,34 @@ def _limits(q, qd, cycles, robot, margin: float = 0.005) -> None:
     assert np.all(np.abs(qd) <= robot.v_max + 1e-9)
     assert np.all(cycles >= 0)
     assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT * cycles[:, None] + 1e-9)
+
+
+def _restarts(t, q, hist) -> np.ndarray:
+    """Per pair of commands received at ``t`` (n - 1,): the second is a restart after a silence
+    (more than ``resync_after`` of cycles between them, and it commands a position the arm
+    reported in one of them: the rule after a silence)."""
+    out = np.zeros(len(t) - 1, dtype=bool)
+    for k in np.flatnonzero(np.round(np.diff(t) / DT) > RESYNC_CYCLES):
+        sent = (hist.t > t[k] + 1e-9) & (hist.t <= t[k + 1] + 1e-9)  # the packets between
+        out[k] = sent.any() and np.abs(hist.q[sent] - q[k + 1]).max(axis=1).min() < 1e-9
+    return out
+
+
+def _held(cmds, n: int) -> bool:
+    """More than ``n`` commands received, the last 20 of them at rest."""
+    return len(cmds.t) > n and not cmds.qd[-20:].any()
+
+
+def _says_held(status: dict) -> bool:
+    """A status of the reply process on its own, its arm held at rest."""
+    return status.get("fault") == "planner_lost" and not any(status["qd"])
+
+
+def _runs(linked: np.ndarray) -> list[tuple[int, int]]:
+    """(start, end) of the runs of commands ``[start, end)`` whose neighbours are ``linked``
+    (n - 1,), each of at least two commands."""
+    cuts = np.r_[0, np.flatnonzero(~linked) + 1, len(linked) + 1]
+    return [(a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True) if b - a > 1]
 
 
 def _throw(run: DaemonRun) -> None:
@@ -110,40 +140,61 @@ def test_a_planner_stall_of_2_s_brakes_smoothly_and_the_throw_resumes_after_it(
 
 
 @pytest.mark.realtime
-@pytest.mark.quarantine  # failed in 2 of 2 clean-clone runs on 2026-11-28, passes alone (9 of 9)
 def test_a_killed_planner_leaves_the_arm_braked_and_still_answered(tree_file, tmp_path, robot):
-    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=robot.home, extra=REPLY)
+    """SIGKILL of the planner process while the arm moves (home, from where the daemon found
+    it: a motion no load can cancel, as a throw's can be): the reply process goes on
+    answering, brakes to a stop and holds it, and says so on zenoh.
+
+    The replies are judged as the reply process made them, one supervisor step each, in the
+    order they came: the simulated controller runs on this loaded test host without a real-time
+    clock, so it reads some replies a cycle after they arrived and applies two in one cycle (a
+    controller's own stall, which the fault campaign's real-time controller does not have). A
+    stall of the reply process longer than ``resync_after`` restarts the stream at a position
+    the arm reported (the rule after a silence, tests/test_egm_control.py): no difference is
+    taken across it, and the brake outlasts it."""
+    away = robot.home + np.array([0.9, -0.3, 0.3, 0.5, 0.3, -0.4])  # it returns home at once
+    run = DaemonRun(tree_file, tmp_path / "rec.h5", "tree", q0=away, extra=REPLY)
     child = None
     try:
-        import threading
-
-        th = threading.Thread(target=_throw, args=(run,), daemon=True)
-        th.start()
-        assert run.wait_state("executing", timeout=6.0)
-        time.sleep(0.1)  # moving now
+        deadline = time.time() + 20.0
+        while time.time() < deadline and np.abs(run.sim.qd).max() < 0.3:
+            time.sleep(0.005)
+        assert np.abs(run.sim.qd).max() >= 0.3  # the arm moves (home)
         child = run.status[-1]["reply_process"]["pid"]
         n_before = len(run.sim.commands().t)
         run.proc.kill()  # SIGKILL the planner process
         run.proc.wait(5.0)
-        time.sleep(1.5)
+        deadline = time.time() + 15.0  # (a loaded host slows the simulated controller down)
         cmds = run.sim.commands()
+        while time.time() < deadline and not _held(cmds, n_before + 60):
+            time.sleep(0.2)
+            cmds = run.sim.commands()
         assert len(cmds.t) - n_before > 60  # the controller is still answered
         q, qd, t = cmds.q[n_before - 5 :], cmds.qd[n_before - 5 :], cmds.t[n_before - 5 :]
-        applied = np.r_[np.diff(t) > 0, True]  # a late reply and the next in one cycle: the last
-        q, qd, t = q[applied], qd[applied], t[applied]
-        moving = np.abs(qd[0]).max()
-        assert moving > 0.05
+        assert np.abs(qd[0]).max() > 0.05  # commanded in motion at the kill
         assert np.all(qd[-20:] == 0.0)  # braked to a stop, holding
-        _limits(q, qd, np.round(np.diff(t) / DT), robot)
+        restart = _restarts(t, q, run.sim.history())
+        step = np.abs(np.diff(qd, axis=0)) / (robot.a_max * DT)
+        worst = int(np.argmax(np.where(restart[:, None], 0.0, step).max(axis=1)))
+        at = slice(max(0, worst - 3), worst + 5)  # what a failure shows
+        context = (worst, np.round(np.diff(t[at]) / DT), np.round(qd[at], 4), restart[at])
+        for k0, k1 in _runs(~restart):  # one supervisor step per reply, but at a restart
+            try:
+                _limits(q[k0:k1], qd[k0:k1], np.ones(k1 - k0 - 1), robot)
+            except AssertionError as exc:
+                raise AssertionError(f"the worst step and around it: {context}") from exc
         # zenoh reconnects to the same endpoint after a backoff; the reply process's session
         # tries again every second until the dead planner's endpoint is its own
-        deadline = time.time() + 60.0
-        while time.time() < deadline and run.status[-1].get("fault") != "planner_lost":
+        deadline = time.time() + 60.0  # (once a second: the first may predate the stop)
+        while time.time() < deadline and not _says_held(run.status[-1]):
             time.sleep(0.1)
         last = run.status[-1]  # not silence: the reply process's own status
         assert last["state"] == "fault" and last["fault"] == "planner_lost", (
             last, daemon_log(run.proc)[-2000:])  # fmt: skip
-        assert last["brake_reason"] == "planner_lost" and not any(last["qd"])
+        # (a planner that stalled past planner_timeout just before the kill braked first:
+        # the first reason is kept)
+        assert last["brake_reason"] in ("planner_lost", "planner_stale"), last
+        assert last["braking"] and not any(last["qd"])
         os.kill(child, signal.SIGTERM)  # it ends when told
         assert _gone(child, 10.0)
         child = None

@@ -11,6 +11,7 @@ from typing import NamedTuple
 import numpy as np
 
 from thinkfast.control.egm_clock import ClockTick
+from thinkfast.control.safety import KEPT_BRAKES
 
 FAULT_REASONS = ("deviation", "nonfinite")
 
@@ -35,7 +36,7 @@ class FaultPolicy:
         self.invalidate()
         q = np.array(q_meas, dtype=float)
         first = self.last is None
-        self.sup.reset(q)
+        self.sup.reset(q, keep=KEPT_BRAKES)  # a planner lost stays lost, a stop asked stays
         if first:
             self.ex.start_from(np.array(self.sup.q), tick.t)
         if not self.standby:
@@ -66,20 +67,26 @@ class FaultPolicy:
             self.brake("nonfinite")
 
     def _restart(self, tick: ClockTick, q_meas, qd_meas) -> Reply:
-        """First packet or after a silence: command the measured state, plan on from it."""
+        """First packet or after a silence: command the measured state, plan on from it. A
+        brake whose cause lies outside the stream (:data:`KEPT_BRAKES`: a stop signal, a
+        planner stalled or lost) stays latched and stops the arm from the measured state (or
+        holds it there at rest, once its stop was done)."""
         self.invalidate()
         first = self.last is None
+        sup = self.sup
+        if sup.braking and sup.stopped and sup.brake_reason in KEPT_BRAKES:
+            qd_meas = None  # the stop is done: hold the arm where it is, at rest
         if first:
-            self.sup.reset(q_meas)
+            self.sup.reset(q_meas, keep=KEPT_BRAKES)
             self.ex.start_from(np.array(self.sup.q), tick.t)
         elif self.latched:
             self.sup.reset(q_meas)
             self.sup.request_brake("deviation")  # latched: hold where the arm stands
             self.ex.hold_fault(np.array(self.sup.q), tick.t)
         elif self.ex.away:  # held away from home: start again from where the arm stands now
-            self.sup.reset(q_meas)
+            self.sup.reset(q_meas, keep=KEPT_BRAKES)
             self.ex.start_from(np.array(self.sup.q), tick.t)
-        elif not self.sup.resync(q_meas, qd_meas):
+        elif not self.sup.resync(q_meas, qd_meas, KEPT_BRAKES):
             pass  # unusable measurement: the supervisor brakes from the old state
         else:
             self.resyncs += 1

@@ -34,6 +34,9 @@ from thinkfast.control.safety_limits import robot_limits as robot_limits  # the 
 # planner_stale, planner_lost: the reply process had no word from its planner process in time,
 # or lost it (thinkfast.daemon.reply_process)
 BRAKE_REASONS = ("signal", "deviation", "nonfinite", "planner_stale", "planner_lost")
+# brakes whose cause lies outside the EGM stream: a restart of the stream (a silence, standby)
+# does not remove them (thinkfast.control.core_faults)
+KEPT_BRAKES = ("signal", "planner_stale", "planner_lost")
 KINDS = CLAMP_KINDS + tuple(f"brake_{r}" for r in BRAKE_REASONS) + ("init_clamped", "resync")
 
 
@@ -169,8 +172,10 @@ class SafetySupervisor:
         self._window = max(1, math.ceil(config.tracking_lag / config.dt - 1e-9)) + 1
         self.reset(q0)
 
-    def reset(self, q0, qd0=None) -> None:
-        """Start at ``q0`` [rad] moving at ``qd0`` [rad/s] (default: rest), no brake latched.
+    def reset(self, q0, qd0=None, keep: tuple[str, ...] = ()) -> None:
+        """Start at ``q0`` [rad] moving at ``qd0`` [rad/s] (default: rest), no brake latched
+        but one latched for a reason in ``keep``: it stays latched (not counted again), its
+        stop planned afresh from the new state.
 
         Raises:
             SafetyError: a value is not finite or the shapes are wrong.
@@ -186,20 +191,25 @@ class SafetySupervisor:
         v = np.clip(v0, -self.limits.v_max, self.limits.v_max)
         q.setflags(write=False)
         v.setflags(write=False)
+        kept = getattr(self, "brake_reason", None)  # (None before the first reset)
         self.q, self.qd, self.qdd = q, v, np.zeros(n)
         self._qdd_prev = self.qdd
         self.brake_reason: str | None = None
         self._stop: JerkLimitedStop | None = None
+        if kept in keep:
+            self.brake_reason = kept
+            self._stop = JerkLimitedStop.plan(v, self.qdd, self.limits)
         self.state += 1
         self._recent = np.tile(q, (self._window, 1))  # ring of recent commands (envelope)
         self._recent_v = np.tile(v, (self._window, 1))
         self._head = 0
 
-    def resync(self, q_meas, qd_meas=None) -> bool:
-        """Restart from the measured state (after an EGM silence): returns False when the
-        measurement is unusable (the state is kept and a ``deviation`` brake latched)."""
+    def resync(self, q_meas, qd_meas=None, keep: tuple[str, ...] = ()) -> bool:
+        """Restart from the measured state (after an EGM silence; a brake latched for a reason
+        in ``keep`` stays, as in :meth:`reset`): returns False when the measurement is unusable
+        (the state is kept and a ``deviation`` brake latched)."""
         try:
-            self.reset(q_meas, qd_meas)
+            self.reset(q_meas, qd_meas, keep)
         except SafetyError:
             self.request_brake("deviation")
             return False

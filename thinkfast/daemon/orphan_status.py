@@ -18,6 +18,19 @@ import time
 import numpy as np
 
 
+def preload() -> None:
+    """Import zenoh now, at the reply process's start: imported by the status thread once the
+    planner is lost, the loading of its extension holds the interpreter lock, and with it the
+    reply loop, for a few cycles (docs/BENCHMARKS.md) just as the arm starts to brake. A
+    failure is left for the thread to report."""
+    try:
+        import zenoh  # noqa: F401
+
+        from thinkfast.contract import keys  # noqa: F401
+    except Exception:
+        pass
+
+
 def start(zenoh_json: str, prefix: str, loop) -> threading.Thread:
     """Publish ``loop``'s status (a :class:`~thinkfast.daemon.reply_process.ReplyLoop`) from a
     daemon thread, on a session of the zenoh configuration ``zenoh_json`` (JSON5)."""

@@ -235,6 +235,8 @@ def main(conn, bind, controller, handover, robot, cfg, plan_name, ring_name, par
     prefix) for a status of its own once the planner is lost (:mod:`orphan_status`)."""
     loop = ReplyLoop(robot, cfg, Seqlock(SIZE, plan_name), RowRing(WIDTH, name=ring_name), parent)
     loop.zenoh = zenoh
+    if zenoh is not None:
+        orphan_status.preload()  # never inside the loop (orphan_status.preload)
 
     def on_signal(signum, _frame):
         loop.stop = True
