@@ -82,61 +82,75 @@ def test_oracle_seen_leaves_when_the_first_flight_detection_arrives(tree_path):
     assert seen.blocked  # a slow throw near home: still in time
 
 
-def test_lockstep_runs_are_deterministic_and_paired(tree_path):
-    from thinkfast.sim.throws import ThrowConfig, sample_throws
-
-    throws = sample_throws(ThrowConfig(), 4, seed=4)
-    a = run_bench(_Factory(tree_path), throws, ["tree", "naive", "oracle"], seed=4, jobs=1)
-    b = run_bench(_Factory(tree_path), throws, ["tree", "naive", "oracle"], seed=4, jobs=2)
-    assert str(a) == str(b)  # same results for any number of processes (NaN-safe compare)
-    assert [o.throw_id for o in a[::3]] == [t.id for t in throws]
-    s = summarize(a, ["tree", "naive", "oracle"])
-    assert s["throws"] == 4
-    for entry in s["planners"].values():
-        assert entry["blocked"] == sum(x["blocked"] for x in entry["by_flight_time"])
-        assert 0.0 <= entry["rate_of_feasible"] <= 1.0
-    assert s["planners"]["oracle"]["rate_of_feasible"] == 1.0
-
-
 def test_wilson_interval_matches_the_textbook_values():
     lo, hi = wilson(74, 100)  # centre (p + z^2/2n) / (1 + z^2/n) = 0.7311, half-width 0.0848
     assert abs(lo - 0.6463) < 1e-4 and abs(hi - 0.8160) < 1e-4
     assert wilson(0, 10)[0] == 0.0 and wilson(10, 10)[1] == pytest.approx(1.0)
 
 
+PLANNERS = ["tree", "naive", "oracle"]
+BENCH = {"throws": 4, "seed": 2, "mix": "still=0.5,windup=0.5", "feints": 1}
+
+
 @pytest.fixture(scope="module")
-def bench_json(tree_path):
-    """The bench's JSON for 4 throws (still and wind-ups) and a feint, with 1 and 2 processes."""
-    out = []
-    for jobs in ("1", "2"):
-        proc = run_cli(
-            "thinkfast-sim", "bench", "--tree", str(tree_path), "--throws", "4", "--seed", "2",
-            "--mix", "still=0.5,windup=0.5", "--feints", "1", "--planners", "tree,naive,oracle",
-            "--json", "--jobs", jobs,
-        )  # fmt: skip
-        assert proc.returncode == 0, proc.stderr
-        out.append(json.loads(proc.stdout))
-    return out
+def bench_rows(tree_path):
+    """The throws of ``thinkfast-sim bench`` with :data:`BENCH` (4 still and wind-up throws and
+    a feint, drawn as the command draws them) flown in this process: (throws, rows)."""
+    from thinkfast.sim.cli_options import load_throws
+
+    b = BENCH
+    throws = load_throws(b["throws"], b["seed"], None, b["mix"], b["feints"])
+    return throws, run_bench(_Factory(tree_path), throws, PLANNERS, seed=b["seed"], jobs=1)
+
+
+def test_lockstep_runs_are_deterministic_and_paired(tree_path, bench_rows):
+    """The bench's throws flown again with 2 processes: the same rows, bit for bit."""
+    throws, a = bench_rows
+    b = run_bench(_Factory(tree_path), throws, PLANNERS, seed=BENCH["seed"], jobs=2)
+    assert str(a) == str(b)  # same results for any number of processes (NaN-safe compare)
+    assert [o.throw_id for o in a[::3]] == [t.id for t in throws]
+    s = summarize(a, PLANNERS)
+    assert (s["throws"], s["feints"]) == (4, 1)
+    for entry in s["planners"].values():
+        assert entry["blocked"] == sum(x["blocked"] for x in entry["by_flight_time"])
+        assert 0.0 <= entry["rate_of_feasible"] <= 1.0
+    assert s["planners"]["oracle"]["rate_of_feasible"] == 1.0
+
+
+@pytest.fixture(scope="module")
+def bench_json(tree_path, bench_rows):
+    """The bench command's JSON for :data:`BENCH` with 2 processes, and the summary of the same
+    throws flown in this process with one (as the command summarizes them)."""
+    args = [f"--{k}={v}" for k, v in BENCH.items()]
+    proc = run_cli(
+        "thinkfast-sim", "bench", "--tree", str(tree_path), *args, "--planners",
+        ",".join(PLANNERS), "--json", "--jobs", "2",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    one = summarize(bench_rows[1], PLANNERS)
+    one["seed"] = BENCH["seed"]
+    return one, json.loads(proc.stdout)
 
 
 def test_bench_command_prints_one_json_object_identical_for_any_number_of_jobs(bench_json):
+    """The command with 2 processes prints what one process computes for the same throws."""
     one, two = bench_json
-    assert one["throws"] == 4 and one["feints"] == 1
-    for p in ("tree", "naive", "oracle"):
-        e = one["planners"][p]
+    assert two["throws"] == 4 and two["feints"] == 1
+    for p in PLANNERS:
+        e = two["planners"][p]
         assert {"blocked", "rate", "rate_of_feasible", "starts_before_release"} <= set(e)
         assert e["starts_before_release"] == sum(
             x["starts_before_release"] for k, x in e["by_kind"].items() if k != "feint"
         )
         assert e["feint_starts"] == e["by_kind"]["feint"]["starts"]
-    assert one.pop("seconds") >= 0 and two.pop("seconds") >= 0  # the only timing field
+    assert two.pop("seconds") >= 0 and "seconds" not in one  # the only timing field
     assert json.dumps(one, sort_keys=True) == json.dumps(two, sort_keys=True)
 
 
 def test_bench_json_pairs_every_planner_with_tree_consistently(bench_json):
     """Counts add up to the paired throws; the paired rates are the planners' own rates (every
     released throw is paired); kinds and flight-time bins partition the throws."""
-    s = bench_json[0]
+    s = bench_json[1]
     paired = s["paired"]
     assert paired["reference"] == "tree" and set(paired["planners"]) == {"naive", "oracle"}
     cells = ("both", "only_reference", "only_other", "neither")
@@ -182,31 +196,38 @@ def test_bench_command_refuses_bad_planners_and_files(tree_path, tmp_path):
     assert_one_line_error(run_cli("thinkfast-sim", "bench", "--tree", str(bad)), str(bad))
 
 
-def test_wind_ups_and_a_feint_run_end_to_end_and_are_reported_per_kind(tree_path, tmp_path):
+def test_wind_ups_and_a_feint_run_end_to_end_and_are_reported_per_kind(
+    tree_path, bench_rows, tmp_path
+):
+    """The bench's still throws, wind-ups and feint (:data:`BENCH`), every planner: each kind
+    has its own entry, the kinds add up to the planner's figures, and the oracle (which never
+    leaves for a feint) leaves a wind-up's flight as it leaves its still twin's."""
     import dataclasses
 
     from thinkfast.sim.bench import format_summary, plot_summary
-    from thinkfast.sim.throws import ThrowConfig, sample_throws
+    from thinkfast.sim.cli_options import throw_config
+    from thinkfast.sim.throws import sample_throws
 
-    cfg = ThrowConfig()
-    cfg = dataclasses.replace(cfg, thrower=dataclasses.replace(cfg.thrower, mix=(0.0, 1.0, 0.0)))
-    throws = sample_throws(cfg, 3, seed=5, feints=1)
-    planners = ["tree", "naive", "oracle"]
-    out = run_bench(_Factory(tree_path), throws, planners, seed=5, jobs=1)
-    s = summarize(out, planners)
-    assert (s["throws"], s["feints"], s["kinds"]) == (3, 1, {"windup": 3, "feint": 1})
+    throws, out = bench_rows
+    s = summarize(out, PLANNERS)
+    kinds = s["kinds"]
+    assert set(kinds) == {"still", "windup", "feint"} and kinds["feint"] == 1
+    assert (s["throws"], s["feints"]) == (4, 1) and kinds["still"] + kinds["windup"] == 4
     for e in s["planners"].values():
-        assert set(e["by_kind"]) == {"windup", "feint"}
-        w, f = e["by_kind"]["windup"], e["by_kind"]["feint"]
-        assert {
-            "throws",
-            "blocked",
-            "rate",
-            "ci95",
-            "starts_before_release",
-            "rate_of_feasible",
-        } <= set(w)
-        assert w["blocked"] == e["blocked"] and w["throws"] == 3
+        assert set(e["by_kind"]) == {"still", "windup", "feint"}
+        thrown = [e["by_kind"][k] for k in ("still", "windup")]
+        for x, k in zip(thrown, ("still", "windup"), strict=True):
+            assert {
+                "throws",
+                "blocked",
+                "rate",
+                "ci95",
+                "starts_before_release",
+                "rate_of_feasible",
+            } <= set(x)
+            assert x["throws"] == kinds[k]
+        assert sum(x["blocked"] for x in thrown) == e["blocked"]
+        f = e["by_kind"]["feint"]
         assert {"feints", "starts", "displacement_m", "displacement_max_m", "home_again"} <= set(f)
         assert f["feints"] == 1 and f["home_again"] <= 1
         assert 0.0 <= f["displacement_max_m"] < 3.0
@@ -215,14 +236,16 @@ def test_wind_ups_and_a_feint_run_end_to_end_and_are_reported_per_kind(tree_path
         oracle["starts"] == 0 and oracle["displacement_max_m"] == 0.0 and oracle["home_again"] == 1
     )
     text = format_summary(s)
-    assert "windup" in text and "feints (never released)" in text
+    assert "windup" in text and "still" in text and "feints (never released)" in text
     plot_summary(s, str(tmp_path / "kinds.png"))
     assert (tmp_path / "kinds.png").stat().st_size > 10_000
     # the oracle leaves at the release: a wind-up's flight is its still twin's, bit for bit
-    still = dataclasses.replace(cfg.thrower, mix=(1.0, 0.0, 0.0))
-    twin = sample_throws(dataclasses.replace(cfg, thrower=still), 1, seed=5)[0]
+    i = next(k for k, t in enumerate(throws) if t.kind == "windup")
+    cfg = throw_config(None)
+    still = dataclasses.replace(cfg, thrower=dataclasses.replace(cfg.thrower, mix=(1.0, 0.0, 0.0)))
+    twin = sample_throws(still, i + 1, seed=BENCH["seed"])[i]
     world = _Factory(tree_path)()
-    a, b = simulate(world, throws[0], "oracle", 5), simulate(world, twin, "oracle", 5)
+    a, b = simulate(world, throws[i], "oracle", 5), simulate(world, twin, "oracle", 5)
     assert (a.blocked, a.miss_distance, a.kind, b.kind) == (
         b.blocked,
         b.miss_distance,
