@@ -70,6 +70,9 @@ from thinkfast.control.intake import Accepted, Intake
 from thinkfast.control.safety import Ahead, SafetyConfig, SafetySupervisor
 
 DEFER_MAX = 3  # packets left unanswered after a silence in motion, waiting for a velocity
+# rad/s: a commanded velocity below this on every joint is rest (a numerical residue: the
+# wrist's Ruckig standstill keeps a velocity of ~1e-20 rad/s that never decays)
+REST_SPEED = 1e-9
 
 
 class ControlCore(FaultPolicy):
@@ -139,8 +142,14 @@ class ControlCore(FaultPolicy):
         return self.clock.t + self.cfg.dt
 
     def at_rest(self) -> bool:
-        """Nothing moves and nothing will without a new detection (the time base may move)."""
-        return self.ex.mode == IDLE and self.sup.stopped and not self.sup.braking
+        """Nothing moves and nothing will without a new detection (the time base may move):
+        the executor idle and every commanded velocity below :data:`REST_SPEED` (a shift of
+        the time base by ``lag`` [s] then moves no setpoint by more than ``REST_SPEED * lag``),
+        not braking."""
+        sup = self.sup
+        if self.ex.mode != IDLE or sup.braking:
+            return False
+        return max(map(abs, sup.qd.tolist())) < REST_SPEED
 
     def mode(self) -> str:
         """Executor mode, ``brake`` while braking, ``fault`` while latched."""
