@@ -68,6 +68,7 @@ class DaemonRun:
         DaemonRun.live.add(self)
         self.runner = None
         self.session = None
+        self.stopped = False
         self.status: list[dict] = []
         self.setpoints: list[dict] = []
         self._wait_ready()
@@ -102,7 +103,15 @@ class DaemonRun:
             raise RuntimeError("the daemon's detection subscriber was never matched")
 
     def publish(self, payload: bytes) -> None:
-        self.pub.put(payload)
+        """Put one detection; after :meth:`stop` closed the session (a test's publisher thread
+        that outlived the run) nothing is sent."""
+        if self.stopped:
+            return
+        try:
+            self.pub.put(payload)
+        except Exception:  # zenoh.ZError: session closed by stop() between the test and the put
+            if not self.stopped:
+                raise
 
     def wait_state(self, state: str, timeout: float) -> bool:
         deadline = time.time() + timeout
@@ -120,6 +129,7 @@ class DaemonRun:
             self.runner.stop()
             self.runner.join(2.0)
         err = daemon_log(self.proc)
+        self.stopped = True
         if self.session is not None:
             self.session.close()
         return -9 if code is None else code, err
