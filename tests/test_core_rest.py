@@ -43,6 +43,7 @@ class _Split:
                                robot.home)  # fmt: skip
         self.core = ControlCore(self.follower, sup, CFG.safety)
         self.q0, self.key, self.plan_id = q0, None, 0
+        self.k, self.wall = -1, T0  # the last packet's index and wall clock [s]
 
     def publish(self):
         """The planner's side between two packets: step the executor where the follower did,
@@ -72,11 +73,9 @@ class _Split:
         out = []
         n = round(seconds / DT)
         for _ in range(n):
-            self.k = getattr(self, "k", -1) + 1
+            self.k += 1
             k = self.k
-            self.wall = (
-                getattr(self, "wall", T0) + DT + (STALL if k and k % STALL_EVERY == 0 else 0)
-            )
+            self.wall += DT + (STALL if k and k % STALL_EVERY == 0 else 0)
             tm = (round(self.wall * 1000) + int(rng.integers(-1, 2))) % (1 << 32)
             now = self.wall + 0.0002
             q = self.q0 if self.core.last is None else self.core.sup.q

@@ -170,6 +170,7 @@ class SafetySupervisor:
         self.intervened = 0  # ticks whose request was changed (clamped) or braked
         self._k = TickConstants.of(limits, config.dt)
         self._window = max(1, math.ceil(config.tracking_lag / config.dt - 1e-9)) + 1
+        self.brake_reason: str | None = None
         self.reset(q0)
 
     def reset(self, q0, qd0=None, keep: tuple[str, ...] = ()) -> None:
@@ -191,10 +192,10 @@ class SafetySupervisor:
         v = np.clip(v0, -self.limits.v_max, self.limits.v_max)
         q.setflags(write=False)
         v.setflags(write=False)
-        kept = getattr(self, "brake_reason", None)  # (None before the first reset)
+        kept = self.brake_reason
         self.q, self.qd, self.qdd = q, v, np.zeros(n)
         self._qdd_prev = self.qdd
-        self.brake_reason: str | None = None
+        self.brake_reason = None
         self._stop: JerkLimitedStop | None = None
         if kept in keep:
             self.brake_reason = kept
