@@ -193,9 +193,17 @@ def test_first_light_in_shadow_as_the_doc_says(tree, tmp_path):
         cell.run(lines[1])  # the simulated IRC5
         cell.url_ready()
         assert "/thinkfast/scene" in _foxglove_topics(cell.ports["8765"])
+        seen: dict[str, dict] = {}
+
+        def connected() -> bool:
+            seen["on"] = cell.status()
+            return bool(seen["on"].get("egm_connected"))
+
         for line in lines[2:]:
+            if " start " in line:  # no session yet: the controller sends nothing
+                seen["before"] = cell.status()
             if "status" in line:
-                assert until(lambda: cell.status().get("egm_connected"), START)
+                assert until(connected, START)
             out[line] = r = cell.run(line)
             assert r.returncode == 0, (line, r.stdout, r.stderr)
         assert until(lambda: cell.status().get("egm_connected") is False, START)
@@ -205,9 +213,19 @@ def test_first_light_in_shadow_as_the_doc_says(tree, tmp_path):
     assert codes == [0, 0], log
     state, status = out[lines[2]].stdout, out[lines[4]].stdout
     assert "motoron" in state.replace(" ", "").lower() or "motors on" in state.lower(), state
+    assert "stopped" in state.lower(), state  # RAPID not yet started
     assert "shadow" in status.lower() or "idle" in status.lower(), status
-    for word in ("foxglove on ws://", "egm_connected", "controller_state", "egm_lost"):
+    # the status over zenoh, in a session: the controller's state and the shadow plan
+    assert seen["before"]["egm_connected"] is False
+    on = seen["on"]
+    assert on["controller"]["motors_on"] and on["controller"]["rapid_running"]
+    assert on["controller"]["mci_running"] and on["shadow"] is not None
+    assert on["egm"]["replied"] > 0
+    for word in ("foxglove on ws://", "egm_connected", "controller_state", "egm_lost",
+                 '"tree_fingerprint"'):  # fmt: skip
         assert word in log, word
+    said = "\n".join(cell.controller_lines)
+    assert f"RWS on http://127.0.0.1:{cell.ports['8080']}" in said and "tf_status session" in said
 
 
 def test_a_slow_recorded_session_and_its_calibration_as_the_doc_says(tree, tmp_path):

@@ -200,7 +200,6 @@ def test_sigint_during_motion_brakes_within_limits_then_exits_0(tree_file, tmp_p
     assert np.all(np.diff(speed[turn:], axis=0) <= 1e-9)
 
 
-@pytest.mark.realtime
 def test_a_failing_planner_still_answers_every_packet_and_brakes(tree_file, robot, monkeypatch):
     """Executor.setpoint raising: one EgmSensor per EgmRobot all the same, braking, no crash."""
     from thinkfast.contract.egm import decode_sensor, encode_robot
@@ -245,7 +244,6 @@ def _in_process_daemon(tree_file, robot):
     )
 
 
-@pytest.mark.realtime
 def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervisor(
     tree_file, robot, monkeypatch
 ):

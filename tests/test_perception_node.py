@@ -4,6 +4,7 @@ errors."""
 
 import json
 import signal
+import socket
 import struct
 import subprocess
 import sys
@@ -66,7 +67,16 @@ class Detector:
         time.sleep(0.3)  # routes for the publishers
 
     def _connect(self):
+        """A session once the detector listens: a session opened before that would retry
+        after zenoh's own back-off (1, 2, 4 s), not when the port opens."""
         deadline = time.time() + 30
+        while True:
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", self.port)) == 0:
+                    break
+            assert self.proc.poll() is None, self.proc.stderr.read()
+            assert time.time() < deadline, "thinkfast-detect did not listen"
+            time.sleep(0.05)
         while True:
             try:
                 return open_peer(connect=[f"tcp/127.0.0.1:{self.port}"])
