@@ -13,6 +13,12 @@ $(TREE): $(STAMP) $(CONFIG)
 
 EXTRAS := dev,cell,sweep,ros,view,foxglove
 
+# Python's bytecode caches (the gitignored __pycache__ directories) are written even where the
+# environment sets PYTHONDONTWRITEBYTECODE: the tests and the demo start the package's programs
+# hundreds of times, and without the caches every start compiles the package again (0.4 s of
+# CPU per daemon start, pytest's collection 11.6 s instead of 5.0 s: docs/BENCHMARKS.md).
+unexport PYTHONDONTWRITEBYTECODE
+
 # uv (from PyPI, into the venv) installs the same packages as pip, downloading in parallel:
 # 3 min against 16 min on a loaded host (docs/BENCHMARKS.md, "The test suite"). Plain pip when
 # uv cannot be had or fails.
