@@ -22,16 +22,20 @@ ROBOT_TOML = ROOT / "robots" / "irb1600" / "robot.toml"
 # The parallel step's longest modules (setup and calls, docs/BENCHMARKS.md "The test suite"),
 # collected first: with `--no-loadscope-reorder` (Makefile) xdist hands them out first and the
 # many short modules fill both workers to the end, instead of a long one running alone last.
-LONG_MODULES = (
+LONG_MODULES = (  # measured with --durations=0 on 2026-11-28
     "test_sim_sweep.py",
     "test_sim_lockstep.py",
-    "test_branches.py",
+    "test_tree_cli.py",
     "test_cameras.py",
-    "test_perception_acceptance.py",
-    "test_calib.py",
-    "test_launch.py",
     "test_safety.py",
-    "test_grow.py",
+    "test_perception_acceptance.py",
+    "test_retract.py",
+    "test_calib.py",
+    "test_egm_control.py",
+    "test_path_value.py",
+    "test_cell.py",
+    "test_branches.py",
+    "test_record_tools.py",
 )
 
 
