@@ -37,7 +37,7 @@ from typing import NamedTuple
 import numpy as np
 
 from thinkfast.config import spec
-from thinkfast.decide import iso_disk
+from thinkfast.decide import iso_disk, pair_jit
 from thinkfast.decide.path_value import PathValueConfig, block_probability
 from thinkfast.decide.shield_paths import block_geometry, pack, shield_paths
 from thinkfast.estimate.linalg import inv
@@ -137,6 +137,7 @@ class Chooser:
         self.quadrature = quadrature
         iso_disk.warm_up()  # its table now, not in the first decision (docs/BENCHMARKS.md,
         # "Path values: moving shields": many EGM cycles)
+        pair_jit.warm_up()  # the compiled kernels (or their disk cache) now, likewise
 
     # ------------------------------------------------------------------ candidates
     def candidate_goals(self, mean_yz: np.ndarray, cov_yz: np.ndarray) -> np.ndarray:
