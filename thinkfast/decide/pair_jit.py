@@ -21,7 +21,7 @@ import numpy as np
 from thinkfast.decide import iso_disk
 from thinkfast.decide.path_pairs import REACH_A, REACH_Z, CrossingConditional, _radii
 from thinkfast.decide.shield_paths import BlockGeometry, ShieldPaths
-from thinkfast.robot import shield_path
+from thinkfast.robot import shield_path, traj_jit
 
 _NONE = np.zeros(0)  # an absent optional array (writable: the same numba type as the others)
 
@@ -302,3 +302,4 @@ def warm_up() -> None:
                 w, 5)  # fmt: skip
     pair_values(paths, one, zero, zero, False, b, geom, None, np.full(1, 0.01), eta, w, 5)
     shield_path.warm_up()  # the shield centres' row pass
+    traj_jit.warm_up()  # the joint paths
