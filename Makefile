@@ -14,7 +14,7 @@ $(TREE): $(STAMP) $(CONFIG)
 EXTRAS := dev,cell,sweep,ros,view,foxglove
 
 # numba compiles the decision's kernels once into its disk cache (thinkfast/decide/*_jit.py:
-# about N s; loading them is about M s), before the tests or the demo need them.
+# about 6 s; loading them about 1 s), before the tests or the demo need them.
 WARM = $(PY) -c 'import thinkfast.decide.pair_jit as p, thinkfast.decide.tree_jit as t; p.warm_up(); t.warm_up()'
 
 # uv (from PyPI, into the venv) installs the same packages as pip, downloading in parallel:
