@@ -13,6 +13,10 @@ $(TREE): $(STAMP) $(CONFIG)
 
 EXTRAS := dev,cell,sweep,ros,view,foxglove
 
+# numba compiles the decision's kernels once into its disk cache (thinkfast/decide/*_jit.py:
+# about 6 s; loading them about 1 s), before the tests or the demo need them.
+WARM = $(PY) -c 'import thinkfast.decide.pair_jit as p, thinkfast.decide.tree_jit as t; p.warm_up(); t.warm_up()'
+
 # uv (from PyPI, into the venv) installs the same packages as pip, downloading in parallel:
 # 3 min against 16 min on a loaded host (docs/BENCHMARKS.md, "The test suite"). Plain pip when
 # uv cannot be had or fails.
@@ -22,6 +26,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q uv && $(VENV)/bin/uv pip install -q --native-tls --compile-bytecode \
 	    --python $(PY) -e '.[$(EXTRAS)]' \
 	  || { $(PY) -m pip install -q --upgrade pip && $(PY) -m pip install -q -e '.[$(EXTRAS)]'; }
+	$(WARM)
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -36,6 +41,7 @@ JOBS ?= auto
 RT_FILES = $(shell grep -lw realtime tests/test_*.py)
 
 test: $(STAMP)
+	$(WARM)
 	$(PY) -m pytest -q -m "not realtime and not quarantine" -n $(JOBS) --dist loadscope \
 	    --no-loadscope-reorder --durations=10
 	$(PY) -m pytest -q -m "realtime and not quarantine" -p no:xdist --durations=10 \

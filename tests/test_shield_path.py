@@ -53,6 +53,7 @@ def test_centre_rows_equal_centres_bit_for_bit(robot):
     :meth:`ShieldSampler.centres`, element for element, into a given array."""
     q = robot.home[:3] + np.random.default_rng(4).uniform(-1.0, 1.0, (500, 3))
     sampler = ShieldSampler(robot)
+    assert sampler._plan is not None  # this robot's chain takes the compiled row pass
     out = np.full((6, 500), np.nan)
     got = sampler.centre_rows(q, out=out[:3])
     assert np.shares_memory(got, out)

@@ -67,14 +67,12 @@ import numpy as np
 
 from thinkfast.config import spec
 from thinkfast.decide.normal_rules import cells, normal_rule
+from thinkfast.decide.pair_jit import pair_values
 from thinkfast.decide.path_pairs import (
     REACH_A,
     REACH_Z,
     CrossingConditional,
     conditional,
-    cut_cells,
-    disk_mean,
-    relative,
 )
 from thinkfast.decide.shield_paths import BlockGeometry, ShieldPaths
 
@@ -164,8 +162,9 @@ def block_probability(
             cfg.step_ratio,
             cfg.k_sigma,
         )
-        rel = relative(paths, alive[:, None], start[:, None], b, zt, geom, approach)
-        out[keep] = disk_mean(*rel, b, eta, we, geom, cfg.radius_levels) @ wt
+        val = pair_values(paths, alive, start, zt, True, b, geom, approach, None, eta, we,
+                          cfg.radius_levels)  # fmt: skip
+        out[keep] = val.reshape(len(alive), len(zt)) @ wt
         return out
     parts = []  # pairs flat, with the half width of each node's cell [s] (0: the node alone)
     for group in (~jumps, jumps):
@@ -185,10 +184,8 @@ def block_probability(
         parts.append((np.repeat(np.flatnonzero(group), len(zt)), *tiled))
     which, z, w, half = (np.concatenate(a) for a in zip(*parts, strict=True))
     path = alive[which]
-    z, share = cut_cells(paths, path, start[which], b, z, half)
-    r_y, r_z, rho, contact = relative(paths, path, start[which], b, z, geom, approach)
-    contact = share if contact is None else contact * share
-    w *= disk_mean(r_y, r_z, rho, contact, b, eta, we, geom, cfg.radius_levels)
+    w *= pair_values(paths, path, start[which], z, False, b, geom, approach, half, eta, we,
+                     cfg.radius_levels)  # fmt: skip
     out[keep] = np.bincount(which, w, minlength=len(alive))
     return out
 

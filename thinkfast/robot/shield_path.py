@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numba
 import numpy as np
 
 from thinkfast.errors import RobotModelError
@@ -53,6 +54,7 @@ class ShieldSampler:
             )
         self.offset = float(local[0])  # L [m]
         self._wrist_point, self._chain = self._wrist_chain()
+        self._plan = self._row_plan()
         self._offsets: dict[tuple, np.ndarray] = {}
 
     def _wrist_chain(self) -> tuple[np.ndarray, list]:
@@ -128,11 +130,37 @@ class ShieldSampler:
         same operations on contiguous rows, without the (N, 3) layout's strided columns)."""
         q123 = np.asarray(q123, dtype=float)
         out = np.empty((3, len(q123))) if out is None else out
-        rows = self._wrist_rows(q123)
         off = self._offset((1.0, 0.0, 0.0))
+        if self._plan is not None and out.flags.c_contiguous and out.dtype == np.float64:
+            joints, (point, rot_i, rot_j, rot_q, neg, has_t0, t0) = self._plan
+            trig = np.empty((2, 3, len(q123)))
+            for k in joints:  # numpy's cos and sin of the same columns, as the numpy rows
+                np.cos(q123[:, k], out=trig[0, k])
+                np.sin(q123[:, k], out=trig[1, k])
+            _chain_rows(point, rot_i, rot_j, rot_q, neg, has_t0, t0, trig, off, out)
+            return out
+        rows = self._wrist_rows(q123)
         for c in range(3):
             np.add(rows[c], off[c], out=out[c])
         return out
+
+    def _row_plan(self) -> tuple | None:
+        """The chain as arrays for the compiled row pass, or None when a step is not a
+        rotation about a frame axis without a fixed rotation (then the numpy rows)."""
+        if any(R0 is not None or not isinstance(rot, tuple) for R0, _, rot, _ in self._chain):
+            return None
+        steps = self._chain
+        return sorted({index for *_, index in steps if index >= 0}), (
+            np.array(self._wrist_point, dtype=float),
+            np.array([rot[1] for _, _, rot, _ in steps], dtype=np.intp),
+            np.array([rot[2] for _, _, rot, _ in steps], dtype=np.intp),
+            np.array([index for _, _, _, index in steps], dtype=np.intp),
+            np.array([rot[3] < 0.0 for _, _, rot, _ in steps], dtype=np.bool_),
+            np.array([t0 is not None for _, t0, _, _ in steps], dtype=np.bool_),
+            np.array(
+                [np.zeros(3) if t0 is None else t0 for _, t0, _, _ in steps], dtype=float
+            ).reshape(-1, 3),
+        )
 
     def _wrist_rows(self, q123: np.ndarray) -> list:
         """:meth:`wrist_centres` as three rows (N,) (a row the chain never changes may stay a
@@ -160,6 +188,38 @@ class ShieldSampler:
             n = np.asarray(key)
             self._offsets[key] = self.offset * (n / np.linalg.norm(n))
         return self._offsets[key]
+
+
+@numba.njit(cache=True, nogil=True)
+def _chain_rows(point, rot_i, rot_j, rot_q, neg, has_t0, t0, trig, off, out):
+    """:meth:`ShieldSampler._wrist_rows` plus the offset, sample by sample: the same IEEE
+    operations in the same order (numba without fastmath), ``trig`` (2, 3, N) the cos and sin
+    of joints 1-3 from numpy; writes ``out`` (3, N)."""
+    p = np.empty(3)
+    for m in range(out.shape[1]):
+        p[0], p[1], p[2] = point[0], point[1], point[2]
+        for st in range(len(rot_i)):
+            k = rot_q[st]
+            if k >= 0:
+                c, s = trig[0, k, m], trig[1, k, m]
+                if neg[st]:
+                    s = -s
+                i, j = rot_i[st], rot_j[st]
+                pi, pj = p[i], p[j]
+                p[i] = c * pi - s * pj
+                p[j] = s * pi + c * pj
+            if has_t0[st]:
+                p[0], p[1], p[2] = p[0] + t0[st, 0], p[1] + t0[st, 1], p[2] + t0[st, 2]
+        out[0, m], out[1, m], out[2, m] = p[0] + off[0], p[1] + off[1], p[2] + off[2]
+
+
+def warm_up() -> None:
+    """Compile the row pass (or load it from numba's disk cache) now, with its call types."""
+    steps = np.zeros(1, dtype=np.intp)
+    flags = np.zeros(1, dtype=np.bool_)
+    out = np.empty((6, 1))[:3]  # rows of the packed planes, as the chooser passes them
+    _chain_rows(np.zeros(3), steps, steps + 1, steps, flags, flags, np.zeros((1, 3)),
+                np.zeros((2, 3, 1)), np.zeros(3), out)  # fmt: skip
 
 
 def _place(p: np.ndarray, R0: np.ndarray | None, t0: np.ndarray | None) -> np.ndarray:
