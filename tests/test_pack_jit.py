@@ -8,6 +8,8 @@ import pytest
 
 from thinkfast.decide.shield_paths import MAX_CUTS, BlockGeometry, pack, pack_numpy
 
+pytestmark = pytest.mark.usefixtures("compiled_kernels")  # the dispatching calls too
+
 GEOM = BlockGeometry(plane_x=0.8, shield_radius=0.2, half_thickness=0.005, ball_radius=0.0335)
 
 

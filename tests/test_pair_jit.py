@@ -11,6 +11,8 @@ from thinkfast.decide.pair_jit import pair_values, warm_up
 from thinkfast.decide.path_pairs import conditional, cut_cells, disk_mean, relative
 from thinkfast.decide.shield_paths import BlockGeometry, shield_paths
 
+pytestmark = pytest.mark.usefixtures("compiled_kernels")  # the dispatching calls too
+
 GEOM = BlockGeometry(plane_x=0.8, shield_radius=0.2, half_thickness=0.005, ball_radius=0.0335)
 
 

@@ -4,9 +4,12 @@ times bit for bit, brakes, phase switches and both ends included."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from test_batch_traj import _random_trajectories
 
 from thinkfast.robot.traj_jit import clipped_positions, phases, warm_up
+
+pytestmark = pytest.mark.usefixtures("compiled_kernels")  # the dispatching calls too
 
 
 def test_clipped_positions_equal_at_time_bit_for_bit_around_every_phase_switch(robot):

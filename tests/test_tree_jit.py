@@ -16,6 +16,8 @@ from thinkfast.decide.values import (
     terminal_values_numpy,
 )
 
+pytestmark = pytest.mark.usefixtures("compiled_kernels")  # the dispatching calls too
+
 
 @pytest.mark.parametrize("name", sorted(BELIEFS))
 def test_terminal_values_equal_the_numpy_lookup_bit_for_bit(name):

@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from thinkfast.decide.tree_jit import backup_values
+from thinkfast.robot import kernels
 
 
 class BackupLayout(NamedTuple):
@@ -125,6 +125,10 @@ def backup(lay: BackupLayout, term_value: np.ndarray, goal_mass: np.ndarray) -> 
     Returns:
         A :class:`Backup`.
     """
+    if not kernels.compiled():
+        return backup_numpy(lay, term_value, goal_mass)
+    from thinkfast.decide.tree_jit import backup_values
+
     value, cv, tv = backup_values(  # compiled: one pass over nodes and edges (tree_jit)
         np.ascontiguousarray(term_value, dtype=float),
         lay.child_start,

@@ -21,7 +21,7 @@ import numpy as np
 from thinkfast.decide import iso_disk
 from thinkfast.decide.path_pairs import REACH_A, REACH_Z, CrossingConditional, _radii
 from thinkfast.decide.shield_paths import BlockGeometry, ShieldPaths
-from thinkfast.robot import shield_path, traj_jit
+from thinkfast.robot import shield_jit, traj_jit
 
 _NONE = np.zeros(0)  # an absent optional array (writable: the same numba type as the others)
 
@@ -301,5 +301,5 @@ def warm_up() -> None:
     pair_values(paths, one, zero, zero, True, b, geom, np.array([-5.0, 0.0, 0.0]), None, eta,
                 w, 5)  # fmt: skip
     pair_values(paths, one, zero, zero, False, b, geom, None, np.full(1, 0.01), eta, w, 5)
-    shield_path.warm_up()  # the shield centres' row pass
+    shield_jit.warm_up()  # the shield centres' row pass
     traj_jit.warm_up()  # the joint paths

@@ -49,8 +49,8 @@ from scipy.special import ndtr
 
 from thinkfast.config import spec
 from thinkfast.decide.shield_disk import disk_nodes, plane_frame
-from thinkfast.decide.tree_jit import terminal_lookup
 from thinkfast.errors import ConfigError
+from thinkfast.robot import kernels
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 _BLAS_ONE_THREAD = 250_000  # m n k below OpenBLAS's threading threshold (4 * 65536)
@@ -166,6 +166,10 @@ def terminal_values(
     Returns:
         :class:`TerminalValues` with the (T,) values and the (G,) goal disk masses.
     """
+    if not kernels.compiled():
+        return terminal_values_numpy(lay, o_mean, o_cov, term_remaining)
+    from thinkfast.decide.tree_jit import terminal_lookup
+
     table, mass, t0, step = value_table(lay, o_mean, o_cov)
     value = terminal_lookup(  # compiled: one pass over the edges (tree_jit)
         np.ascontiguousarray(term_remaining, dtype=float),

@@ -16,10 +16,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numba
 import numpy as np
 
 from thinkfast.errors import RobotModelError
+from thinkfast.robot import kernels
 from thinkfast.robot.batch_fk import BatchFK
 from thinkfast.robot.model import Robot
 from thinkfast.robot.wrist import check_wrist_geometry
@@ -127,17 +127,25 @@ class ShieldSampler:
     def centre_rows(self, q123: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """:meth:`centres` (normal +x) of joints 1-3 (N, 3) [rad] as rows x, y, z [m], shape
         (3, N), into ``out`` when given: the same values bit for bit, computed row by row (the
-        same operations on contiguous rows, without the (N, 3) layout's strided columns)."""
+        same operations on contiguous rows, without the (N, 3) layout's strided columns), in
+        one compiled pass (:mod:`shield_jit`) when the kernels are compiled (:mod:`kernels`)."""
         q123 = np.asarray(q123, dtype=float)
         out = np.empty((3, len(q123))) if out is None else out
         off = self._offset((1.0, 0.0, 0.0))
-        if self._plan is not None and out.flags.c_contiguous and out.dtype == np.float64:
+        if (
+            self._plan is not None
+            and out.flags.c_contiguous
+            and out.dtype == np.float64
+            and kernels.compiled()
+        ):
+            from thinkfast.robot.shield_jit import chain_rows
+
             joints, (point, rot_i, rot_j, rot_q, neg, has_t0, t0) = self._plan
             trig = np.empty((2, 3, len(q123)))
             for k in joints:  # numpy's cos and sin of the same columns, as the numpy rows
                 np.cos(q123[:, k], out=trig[0, k])
                 np.sin(q123[:, k], out=trig[1, k])
-            _chain_rows(point, rot_i, rot_j, rot_q, neg, has_t0, t0, trig, off, out)
+            chain_rows(point, rot_i, rot_j, rot_q, neg, has_t0, t0, trig, off, out)
             return out
         rows = self._wrist_rows(q123)
         for c in range(3):
@@ -188,38 +196,6 @@ class ShieldSampler:
             n = np.asarray(key)
             self._offsets[key] = self.offset * (n / np.linalg.norm(n))
         return self._offsets[key]
-
-
-@numba.njit(cache=True, nogil=True)
-def _chain_rows(point, rot_i, rot_j, rot_q, neg, has_t0, t0, trig, off, out):
-    """:meth:`ShieldSampler._wrist_rows` plus the offset, sample by sample: the same IEEE
-    operations in the same order (numba without fastmath), ``trig`` (2, 3, N) the cos and sin
-    of joints 1-3 from numpy; writes ``out`` (3, N)."""
-    p = np.empty(3)
-    for m in range(out.shape[1]):
-        p[0], p[1], p[2] = point[0], point[1], point[2]
-        for st in range(len(rot_i)):
-            k = rot_q[st]
-            if k >= 0:
-                c, s = trig[0, k, m], trig[1, k, m]
-                if neg[st]:
-                    s = -s
-                i, j = rot_i[st], rot_j[st]
-                pi, pj = p[i], p[j]
-                p[i] = c * pi - s * pj
-                p[j] = s * pi + c * pj
-            if has_t0[st]:
-                p[0], p[1], p[2] = p[0] + t0[st, 0], p[1] + t0[st, 1], p[2] + t0[st, 2]
-        out[0, m], out[1, m], out[2, m] = p[0] + off[0], p[1] + off[1], p[2] + off[2]
-
-
-def warm_up() -> None:
-    """Compile the row pass (or load it from numba's disk cache) now, with its call types."""
-    steps = np.zeros(1, dtype=np.intp)
-    flags = np.zeros(1, dtype=np.bool_)
-    out = np.empty((6, 1))[:3]  # rows of the packed planes, as the chooser passes them
-    _chain_rows(np.zeros(3), steps, steps + 1, steps, flags, flags, np.zeros((1, 3)),
-                np.zeros((2, 3, 1)), np.zeros(3), out)  # fmt: skip
 
 
 def _place(p: np.ndarray, R0: np.ndarray | None, t0: np.ndarray | None) -> np.ndarray:
