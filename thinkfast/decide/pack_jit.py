@@ -6,6 +6,8 @@ reference) in the same order, so the packed arrays are equal bit for bit
 (tests/test_pair_jit.py); numba without fastmath. Compiled on first use and cached on disk
 (``cache=True``); :func:`thinkfast.decide.pair_jit.warm_up` compiles or loads it ahead. Pure
 computation.
+Imported only in a process that chose the compiled kernels
+(:mod:`thinkfast.robot.kernels`).
 """
 
 from __future__ import annotations

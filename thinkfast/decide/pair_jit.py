@@ -11,6 +11,8 @@ reassociation, no fused multiply-adds), so the values are the reference's bit fo
 The kernels are compiled on first use and cached on disk (numba's ``cache=True``: next to this
 file, or numba's user cache directory when that is read-only); :func:`warm_up` compiles or loads
 them ahead (the chooser calls it when it is made, not in its first decision). Pure computation.
+Imported only in a process that chose the compiled kernels
+(:mod:`thinkfast.robot.kernels`).
 """
 
 from __future__ import annotations

@@ -8,6 +8,8 @@ so its values are equal bit for bit; the backup takes maxima, which are exact wh
 order, so its values are equal too (tests/test_tree_jit.py, against the numpy code kept as
 the reference). Compiled on first use and cached on disk (``cache=True``); :func:`warm_up`
 compiles or loads them ahead. Pure computation.
+Imported only in a process that chose the compiled kernels
+(:mod:`thinkfast.robot.kernels`).
 """
 
 from __future__ import annotations

@@ -8,6 +8,8 @@ offsets: equal to ``at_time`` bit for bit), one sample at a time (numba without 
 same IEEE operations in the same order; tests/test_traj_jit.py holds it to ``at_time``).
 Compiled on first use and cached on disk (``cache=True``); :func:`warm_up` compiles or loads it
 ahead. Pure computation.
+Imported only in a process that chose the compiled kernels
+(:mod:`thinkfast.robot.kernels`).
 """
 
 from __future__ import annotations
