@@ -19,6 +19,17 @@ EXTRAS := dev,cell,sweep,ros,view,foxglove
 # CPU per daemon start, pytest's collection 11.6 s instead of 5.0 s: docs/BENCHMARKS.md).
 unexport PYTHONDONTWRITEBYTECODE
 
+# numba compiles the decision's compiled kernels (thinkfast/*/*_jit.py, chosen per process by
+# THINKFAST_KERNELS: thinkfast/robot/kernels.py) once into its disk cache, next to the sources
+# (about 6 s), before the daemon, the demo or the tests need them; again only when a kernel's
+# source changes (the stamp). The tests' own processes run the numpy kernels (tests/conftest.py);
+# the tests of the compiled ones then only load the cache, no two workers compiling the same
+# kernel (numba writes its cache files atomically anyway).
+KERNELS := $(VENV)/.kernels-stamp
+$(KERNELS): $(STAMP) $(wildcard thinkfast/*/*_jit.py)
+	THINKFAST_KERNELS=compiled $(PY) -c 'from thinkfast.decide import pair_jit as p, tree_jit as t; p.warm_up(); t.warm_up()'
+	touch $(KERNELS)
+
 # uv (from PyPI, into the venv) installs the same packages as pip, downloading in parallel:
 # 3 min against 16 min on a loaded host (docs/BENCHMARKS.md, "The test suite"). Plain pip when
 # uv cannot be had or fails.
@@ -30,7 +41,7 @@ $(STAMP): pyproject.toml
 	  || { $(PY) -m pip install -q --upgrade pip && $(PY) -m pip install -q -e '.[$(EXTRAS)]'; }
 	touch $(STAMP)
 
-install: $(STAMP)
+install: $(STAMP) $(KERNELS)
 
 # Two steps: tests on simulated or no time in parallel (one worker per core, a module's tests
 # on one worker, the longest modules first: tests/conftest.py LONG_MODULES), then the ones whose
@@ -41,7 +52,7 @@ JOBS ?= auto
 # realtime test): collecting all of them cost twice the CPU for the same tests.
 RT_FILES = $(shell grep -lw realtime tests/test_*.py)
 
-test: $(STAMP)
+test: $(STAMP) $(KERNELS)
 	$(PY) -m pytest -q -m "not realtime and not quarantine" -n $(JOBS) --dist loadscope \
 	    --no-loadscope-reorder --durations=10
 	$(PY) -m pytest -q -m "realtime and not quarantine" -p no:xdist --durations=10 \
@@ -52,7 +63,7 @@ test-quarantine: $(STAMP)
 
 THROWS ?= 5
 
-demo: $(STAMP)
+demo: $(STAMP) $(KERNELS)
 	$(VENV)/bin/thinkfast-compile goals $(CONFIG)
 	$(VENV)/bin/thinkfast-compile tree $(CONFIG) -o $(TREE) --if-changed
 	$(VENV)/bin/thinkfast-sim run --tree $(TREE) --throws $(THROWS) --planner tree
@@ -63,7 +74,7 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff format --check thinkfast tests bench
 	$(VENV)/bin/lint-imports
 
-bench: $(STAMP) $(TREE)
+bench: $(STAMP) $(KERNELS) $(TREE)
 	$(PY) bench/compile.py
 	$(PY) bench/decision.py --tree $(TREE)
 	$(VENV)/bin/thinkfast-sim bench --tree $(TREE) --throws 500 --seed 1

@@ -18,6 +18,11 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = ROOT / "trees" / "irb1600_default.toml"
 ROBOT_TOML = ROOT / "robots" / "irb1600" / "robot.toml"
 
+# The numpy decision kernels here and in every daemon and simulator the tests start (they inherit
+# the variable): no numba import, no kernel loading per process. The tests of the compiled
+# kernels choose them in-process (the fixtures below); thinkfast/robot/kernels.py.
+os.environ.setdefault("THINKFAST_KERNELS", "numpy")
+
 
 # The parallel step's longest modules (setup and calls, docs/BENCHMARKS.md "The test suite"),
 # collected first: with `--no-loadscope-reorder` (Makefile) xdist hands them out first and the
@@ -43,6 +48,26 @@ def pytest_collection_modifyitems(items):
     """The items of :data:`LONG_MODULES` first, in that order; the rest keep theirs."""
     rank = {name: i for i, name in enumerate(LONG_MODULES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
+@pytest.fixture()
+def compiled_kernels():
+    """The compiled decision kernels in this process for one test, then the choice before."""
+    from thinkfast.robot import kernels
+
+    before = kernels.use("compiled")
+    yield
+    kernels.use(before)
+
+
+@pytest.fixture(params=["numpy", "compiled"])
+def kernel_choice(request):
+    """Each decision kernel choice in this process for one test (its name), then the one before."""
+    from thinkfast.robot import kernels
+
+    before = kernels.use(request.param)
+    yield request.param
+    kernels.use(before)
 
 
 @pytest.fixture(scope="session")

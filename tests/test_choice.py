@@ -139,9 +139,9 @@ def test_a_new_chooser_builds_the_disk_table_before_its_first_decision(setup, ro
     assert iso_disk._tables.cache_info().currsize == 1
 
 
-def test_joint_paths_in_one_pass_equal_at_time_sampling_bit_for_bit(setup):
-    """Many samples are read from the trajectories' phases in numpy: the same joints as
-    Ruckig's at_time, for a moving segment in progress and for a held one."""
+def test_joint_paths_in_one_pass_equal_at_time_sampling_bit_for_bit(setup, kernel_choice):
+    """Many samples are read from the trajectories' phases in one pass (numpy or compiled):
+    the same joints as Ruckig's at_time, for a moving segment in progress and a held one."""
     from types import SimpleNamespace
 
     from thinkfast.decide.choice import BATCH_SAMPLES, _joint_paths, _sample
@@ -159,13 +159,13 @@ def test_joint_paths_in_one_pass_equal_at_time_sampling_bit_for_bit(setup):
             [_sample(current.traj, shifted, current.end)]
             + [_sample(t, times, None) for t in trajs[1:]]
         )
-        assert len(times) * len(trajs) >= BATCH_SAMPLES  # the one-pass path is the one tested
+        assert len(times) * len(trajs) >= BATCH_SAMPLES  # numpy: the one-pass path is tested
         assert np.array_equal(got, want)
 
 
-def test_joint_paths_below_the_batch_size_equal_one_at_time_per_sample(setup):
-    """Few samples are read by at_time once per distinct clipped time (the held ends once):
-    the same joints as one at_time per sample, before the start, inside and past the end."""
+def test_few_joint_path_samples_equal_one_at_time_per_sample(setup, kernel_choice):
+    """Few samples, before the start, inside and past the end: the same joints as one
+    at_time per sample (numpy: one at_time per distinct clipped time; or compiled)."""
     from types import SimpleNamespace
 
     from thinkfast.decide.choice import BATCH_SAMPLES, _joint_paths, _sample
@@ -184,5 +184,5 @@ def test_joint_paths_below_the_batch_size_equal_one_at_time_per_sample(setup):
             [_sample(current.traj, shifted, current.end)]
             + [_sample(t, times, None) for t in trajs[1:]]
         )
-        assert len(times) * len(trajs) < BATCH_SAMPLES  # the at_time path is the one tested
+        assert len(times) * len(trajs) < BATCH_SAMPLES  # numpy: the at_time path is tested
         assert np.array_equal(got, want)

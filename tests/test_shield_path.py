@@ -48,11 +48,13 @@ def test_centres_keep_any_leading_shape(robot):
     assert np.allclose(c[2, 5], ShieldSampler(robot).centres(q[2, 5]))
 
 
-def test_centre_rows_equal_centres_bit_for_bit(robot):
+def test_centre_rows_equal_centres_bit_for_bit(robot, kernel_choice):
     """The row layout the chooser packs (x, y, z rows) computes the same values as
-    :meth:`ShieldSampler.centres`, element for element, into a given array."""
+    :meth:`ShieldSampler.centres`, element for element, into a given array (numpy rows and
+    the compiled row pass alike)."""
     q = robot.home[:3] + np.random.default_rng(4).uniform(-1.0, 1.0, (500, 3))
     sampler = ShieldSampler(robot)
+    assert sampler._plan is not None  # this robot's chain can take the compiled row pass
     out = np.full((6, 500), np.nan)
     got = sampler.centre_rows(q, out=out[:3])
     assert np.shares_memory(got, out)

@@ -20,6 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from thinkfast.robot import kernels
+
 
 class BackupLayout(NamedTuple):
     """Static reduction plan of a tree (build once with :func:`backup_layout`).
@@ -81,10 +83,11 @@ def backup_layout(
         term_start, term_count: contiguous terminal edges of each node, shape (N,).
     """
     node_depth = np.asarray(node_depth)
-    child_start = np.asarray(child_start, dtype=np.intp)
-    child_count = np.asarray(child_count, dtype=np.intp)
-    term_start = np.asarray(term_start, dtype=np.intp)
-    term_count = np.asarray(term_count, dtype=np.intp)
+    # copies: writable intp arrays, the one type the compiled backup is made for
+    child_start = np.array(child_start, dtype=np.intp)
+    child_count = np.array(child_count, dtype=np.intp)
+    term_start = np.array(term_start, dtype=np.intp)
+    term_count = np.array(term_count, dtype=np.intp)
     bounds = np.searchsorted(node_depth, np.arange(int(node_depth.max(initial=0)) + 2))
     levels = []
     for d in range(1, len(bounds) - 1):
@@ -122,6 +125,23 @@ def backup(lay: BackupLayout, term_value: np.ndarray, goal_mass: np.ndarray) -> 
     Returns:
         A :class:`Backup`.
     """
+    if not kernels.compiled():
+        return backup_numpy(lay, term_value, goal_mass)
+    from thinkfast.decide.tree_jit import backup_values
+
+    value, cv, tv = backup_values(  # compiled: one pass over nodes and edges (tree_jit)
+        np.ascontiguousarray(term_value, dtype=float),
+        lay.child_start,
+        lay.child_count,
+        lay.term_start,
+        lay.term_count,
+    )
+    goal = int(np.argmax(goal_mass)) if len(goal_mass) else -1
+    return Backup(value, cv, tv, goal)
+
+
+def backup_numpy(lay: BackupLayout, term_value: np.ndarray, goal_mass: np.ndarray) -> Backup:
+    """:func:`backup` in numpy, level by level (the reference of the compiled pass)."""
     n = len(lay.child_count)
     tv = np.zeros(n)
     if lay.term_rows is not None and len(lay.term_nodes):

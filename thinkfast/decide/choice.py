@@ -41,13 +41,15 @@ from thinkfast.decide import iso_disk
 from thinkfast.decide.path_value import PathValueConfig, block_probability
 from thinkfast.decide.shield_paths import block_geometry, pack, shield_paths
 from thinkfast.estimate.linalg import inv
+from thinkfast.robot import kernels
 from thinkfast.robot.batch_traj import TrajectoryTable
 from thinkfast.robot.shield_path import ShieldSampler
 from thinkfast.robot.steering import Steering
 
 CONTINUE, DIRECT, BRANCH = "continue", "direct", "branch"
-BATCH_SAMPLES = 768  # from this many samples, paths are read in one numpy pass, not by at_time
-# (below it the numpy pass costs more: docs/BENCHMARKS.md, "The tree planner's choice, replayed")
+BATCH_SAMPLES = 768  # numpy kernels: from this many samples, paths are read in one numpy pass,
+# not by at_time (below it the numpy pass costs more: docs/BENCHMARKS.md, "The tree planner's
+# choice, replayed")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,6 +139,10 @@ class Chooser:
         self.quadrature = quadrature
         iso_disk.warm_up()  # its table now, not in the first decision (docs/BENCHMARKS.md,
         # "Path values: moving shields": many EGM cycles)
+        if kernels.compiled():  # the compiled kernels (or their disk cache) now, likewise
+            from thinkfast.decide import pair_jit
+
+            pair_jit.warm_up()
 
     # ------------------------------------------------------------------ candidates
     def candidate_goals(self, mean_yz: np.ndarray, cov_yz: np.ndarray) -> np.ndarray:
@@ -254,25 +260,36 @@ class Chooser:
 
 def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndarray):
     """Joints 1-3 (1 + M, T, 3): the segment in progress at ``current_times`` and ``trajs`` at
-    ``times`` [s], each clipped to its trajectory (as :func:`_sample`, bit for bit; many samples
-    are read from the trajectories' phases in one numpy pass)."""
+    ``times`` [s], each clipped to its trajectory (as :func:`_sample`, bit for bit: with compiled
+    kernels the phases read once per trajectory and evaluated in one compiled pass,
+    :mod:`traj_jit`; with numpy ones many samples in one numpy pass, few by at_time)."""
     n_t = len(times)
     moving = ([current.traj] if current.traj is not None else []) + list(trajs)
-    if len(moving) * n_t < BATCH_SAMPLES:
+    jit = kernels.compiled()
+    if not jit and len(moving) * n_t < BATCH_SAMPLES:
         flat = _flat(current.traj, current_times.tolist(), current.end)
         shared = times.tolist()
         for tr in trajs:
             flat += _flat(tr, shared, None)
         return np.array(flat, dtype=float).reshape(1 + len(trajs), n_t, 3)
     out = np.empty((1 + len(trajs), n_t, 3))
-    table = TrajectoryTable(moving)
-    owner = np.repeat(np.arange(len(moving)), n_t)
-    t = np.concatenate([current_times] * (current.traj is not None) + [times] * len(trajs))
-    t = np.minimum(np.maximum(t, 0.0), table.duration[owner])
     first = 0 if current.traj is not None else 1
     if first:
         out[0] = np.asarray(current.end[:3], dtype=float)
-    out[first:] = table.positions(owner, t).reshape(len(moving), n_t, 3)
+    if not jit:
+        table = TrajectoryTable(moving)
+        owner = np.repeat(np.arange(len(moving)), n_t)
+        t = np.concatenate([current_times] * (current.traj is not None) + [times] * len(trajs))
+        t = np.minimum(np.maximum(t, 0.0), table.duration[owner])
+        out[first:] = table.positions(owner, t).reshape(len(moving), n_t, 3)
+    elif moving:
+        from thinkfast.robot.traj_jit import clipped_positions, phases
+
+        t = np.empty((len(moving), n_t))
+        if not first:
+            t[0] = current_times
+        t[1 - first :] = times
+        clipped_positions(*phases(moving), t, out[first:])
     return out
 
 

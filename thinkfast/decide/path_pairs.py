@@ -2,7 +2,10 @@
 kernel's terms, the shield at every (path, tau node) pair, and the isotropic disk probability
 averaged over the nodes along the belief's major axis.
 
-All pure numpy over arrays of pairs (any shape that broadcasts); no loops over paths.
+All pure numpy over arrays of pairs (any shape that broadcasts); no loops over paths. The
+kernel calls :func:`conditional`; :func:`cut_cells`, :func:`relative` and :func:`disk_mean` are
+the reference of their compiled pass (:mod:`thinkfast.decide.pair_jit`, equal bit for bit),
+which the kernel calls instead.
 """
 
 from __future__ import annotations

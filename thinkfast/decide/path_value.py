@@ -77,6 +77,7 @@ from thinkfast.decide.path_pairs import (
     relative,
 )
 from thinkfast.decide.shield_paths import BlockGeometry, ShieldPaths
+from thinkfast.robot import kernels
 
 
 @dataclasses.dataclass(frozen=True)
@@ -157,6 +158,9 @@ def block_probability(
     jumps = _jumps(paths, alive, start, b, geom, cfg)
     out = np.zeros(n_paths)
     eta = b.sig_e * ze
+    jit = kernels.compiled()  # pair_jit's one pass, else the numpy reference (bit for bit)
+    if jit:
+        from thinkfast.decide.pair_jit import pair_values
     if not np.logical_or.reduce(jumps):  # pairs as (A, Q); .any() without its wrapper
         zt, wt = normal_rule(
             _time_scale(paths, alive, b, geom) / cfg.refine,
@@ -164,8 +168,13 @@ def block_probability(
             cfg.step_ratio,
             cfg.k_sigma,
         )
-        rel = relative(paths, alive[:, None], start[:, None], b, zt, geom, approach)
-        out[keep] = disk_mean(*rel, b, eta, we, geom, cfg.radius_levels) @ wt
+        if jit:
+            val = pair_values(paths, alive, start, zt, True, b, geom, approach, None, eta, we,
+                              cfg.radius_levels)  # fmt: skip
+            out[keep] = val.reshape(len(alive), len(zt)) @ wt
+        else:
+            rel = relative(paths, alive[:, None], start[:, None], b, zt, geom, approach)
+            out[keep] = disk_mean(*rel, b, eta, we, geom, cfg.radius_levels) @ wt
         return out
     parts = []  # pairs flat, with the half width of each node's cell [s] (0: the node alone)
     for group in (~jumps, jumps):
@@ -185,10 +194,14 @@ def block_probability(
         parts.append((np.repeat(np.flatnonzero(group), len(zt)), *tiled))
     which, z, w, half = (np.concatenate(a) for a in zip(*parts, strict=True))
     path = alive[which]
-    z, share = cut_cells(paths, path, start[which], b, z, half)
-    r_y, r_z, rho, contact = relative(paths, path, start[which], b, z, geom, approach)
-    contact = share if contact is None else contact * share
-    w *= disk_mean(r_y, r_z, rho, contact, b, eta, we, geom, cfg.radius_levels)
+    if jit:
+        w *= pair_values(paths, path, start[which], z, False, b, geom, approach, half, eta, we,
+                         cfg.radius_levels)  # fmt: skip
+    else:
+        z, share = cut_cells(paths, path, start[which], b, z, half)
+        r_y, r_z, rho, contact = relative(paths, path, start[which], b, z, geom, approach)
+        contact = share if contact is None else contact * share
+        w *= disk_mean(r_y, r_z, rho, contact, b, eta, we, geom, cfg.radius_levels)
     out[keep] = np.bincount(which, w, minlength=len(alive))
     return out
 

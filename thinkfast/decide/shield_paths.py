@@ -14,6 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from thinkfast.robot import kernels
+
 MAX_CUTS = 4  # touch-depth crossings kept per path; a path with more is always integrated finely
 
 
@@ -114,7 +116,27 @@ def shield_paths(times: np.ndarray, centre: np.ndarray, geom: BlockGeometry) -> 
 def pack(times: np.ndarray, planes: np.ndarray, geom: BlockGeometry) -> ShieldPaths:
     """:func:`shield_paths` of centres already in ``planes[:3]`` (the layout of
     :attr:`ShieldPaths.planes`), unchecked: ``times`` (T,) uniform and increasing, ``planes``
-    (6, M * T) finite. Fills the velocity rows ``planes[3:]`` in place."""
+    (6, M * T) finite, float64 and C-contiguous. Fills the velocity rows ``planes[3:]`` in
+    place. Compiled (:mod:`pack_jit`) when the kernels are (:mod:`thinkfast.robot.kernels`):
+    :func:`pack_numpy`'s values bit for bit."""
+    if not kernels.compiled():
+        return pack_numpy(times, planes, geom)
+    from thinkfast.decide.pack_jit import pack_kernel
+
+    times = np.asarray(times, dtype=float)
+    n_t = len(times)
+    dt = float(times[1] - times[0]) if n_t > 1 else 1.0
+    return ShieldPaths(
+        float(times[0]),
+        dt,
+        planes,
+        n_t,
+        *pack_kernel(times, planes, n_t, geom.plane_x, geom.touch_x, MAX_CUTS),
+    )
+
+
+def pack_numpy(times: np.ndarray, planes: np.ndarray, geom: BlockGeometry) -> ShieldPaths:
+    """:func:`pack` in numpy (the reference of the compiled kernel)."""
     n_t = len(times)
     m = planes.shape[1] // n_t
     dt = float(times[1] - times[0]) if n_t > 1 else 1.0

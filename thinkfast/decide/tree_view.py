@@ -19,6 +19,7 @@ import numpy as np
 from thinkfast.decide import backup as bk
 from thinkfast.decide import values as vl
 from thinkfast.estimate import crossing as delta
+from thinkfast.robot import kernels
 from thinkfast.tree.action_tree import ActionTree
 from thinkfast.tree.provenance import Provenance
 
@@ -65,6 +66,10 @@ class RuntimeTree:
         self.blay = bk.backup_layout(
             tree.node_depth, tree.child_start, tree.child_count, tree.term_start, tree.term_count
         )
+        if kernels.compiled():  # the compiled lookup and backup now, not in the first decision
+            from thinkfast.decide import tree_jit
+
+            tree_jit.warm_up()
 
     def crossing(self, mean: np.ndarray, cov: np.ndarray, gravity: float) -> delta.Crossing:
         """Plane crossing of the ball belief N(mean, cov)."""

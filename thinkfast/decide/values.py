@@ -50,6 +50,7 @@ from scipy.special import ndtr
 from thinkfast.config import spec
 from thinkfast.decide.shield_disk import disk_nodes, plane_frame
 from thinkfast.errors import ConfigError
+from thinkfast.robot import kernels
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 _BLAS_ONE_THREAD = 250_000  # m n k below OpenBLAS's threading threshold (4 * 65536)
@@ -165,6 +166,27 @@ def terminal_values(
     Returns:
         :class:`TerminalValues` with the (T,) values and the (G,) goal disk masses.
     """
+    if not kernels.compiled():
+        return terminal_values_numpy(lay, o_mean, o_cov, term_remaining)
+    from thinkfast.decide.tree_jit import terminal_lookup
+
+    table, mass, t0, step = value_table(lay, o_mean, o_cov)
+    value = terminal_lookup(  # compiled: one pass over the edges (tree_jit)
+        np.ascontiguousarray(term_remaining, dtype=float),
+        lay.cfg.margin - t0,
+        1.0 / step,
+        lay.cfg.time_points - 1.0 - 1e-9,
+        lay.flat,
+        table[0].ravel(),
+        table[1].ravel(),
+    )
+    return TerminalValues(value, mass)
+
+
+def terminal_values_numpy(
+    lay: ValueLayout, o_mean: np.ndarray, o_cov: np.ndarray, term_remaining: np.ndarray
+) -> TerminalValues:
+    """:func:`terminal_values` in numpy (the reference of the compiled lookup)."""
     table, mass, t0, step = value_table(lay, o_mean, o_cov)
     pos = np.asarray(term_remaining, dtype=float) + (lay.cfg.margin - t0)
     pos *= 1.0 / step

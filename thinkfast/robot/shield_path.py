@@ -19,6 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from thinkfast.errors import RobotModelError
+from thinkfast.robot import kernels
 from thinkfast.robot.batch_fk import BatchFK
 from thinkfast.robot.model import Robot
 from thinkfast.robot.wrist import check_wrist_geometry
@@ -53,6 +54,7 @@ class ShieldSampler:
             )
         self.offset = float(local[0])  # L [m]
         self._wrist_point, self._chain = self._wrist_chain()
+        self._plan = self._row_plan()
         self._offsets: dict[tuple, np.ndarray] = {}
 
     def _wrist_chain(self) -> tuple[np.ndarray, list]:
@@ -125,14 +127,48 @@ class ShieldSampler:
     def centre_rows(self, q123: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """:meth:`centres` (normal +x) of joints 1-3 (N, 3) [rad] as rows x, y, z [m], shape
         (3, N), into ``out`` when given: the same values bit for bit, computed row by row (the
-        same operations on contiguous rows, without the (N, 3) layout's strided columns)."""
+        same operations on contiguous rows, without the (N, 3) layout's strided columns), in
+        one compiled pass (:mod:`shield_jit`) when the kernels are compiled (:mod:`kernels`)."""
         q123 = np.asarray(q123, dtype=float)
         out = np.empty((3, len(q123))) if out is None else out
-        rows = self._wrist_rows(q123)
         off = self._offset((1.0, 0.0, 0.0))
+        if (
+            self._plan is not None
+            and out.flags.c_contiguous
+            and out.dtype == np.float64
+            and kernels.compiled()
+        ):
+            from thinkfast.robot.shield_jit import chain_rows
+
+            joints, (point, rot_i, rot_j, rot_q, neg, has_t0, t0) = self._plan
+            trig = np.empty((2, 3, len(q123)))
+            for k in joints:  # numpy's cos and sin of the same columns, as the numpy rows
+                np.cos(q123[:, k], out=trig[0, k])
+                np.sin(q123[:, k], out=trig[1, k])
+            chain_rows(point, rot_i, rot_j, rot_q, neg, has_t0, t0, trig, off, out)
+            return out
+        rows = self._wrist_rows(q123)
         for c in range(3):
             np.add(rows[c], off[c], out=out[c])
         return out
+
+    def _row_plan(self) -> tuple | None:
+        """The chain as arrays for the compiled row pass, or None when a step is not a
+        rotation about a frame axis without a fixed rotation (then the numpy rows)."""
+        if any(R0 is not None or not isinstance(rot, tuple) for R0, _, rot, _ in self._chain):
+            return None
+        steps = self._chain
+        return sorted({index for *_, index in steps if index >= 0}), (
+            np.array(self._wrist_point, dtype=float),
+            np.array([rot[1] for _, _, rot, _ in steps], dtype=np.intp),
+            np.array([rot[2] for _, _, rot, _ in steps], dtype=np.intp),
+            np.array([index for _, _, _, index in steps], dtype=np.intp),
+            np.array([rot[3] < 0.0 for _, _, rot, _ in steps], dtype=np.bool_),
+            np.array([t0 is not None for _, t0, _, _ in steps], dtype=np.bool_),
+            np.array(
+                [np.zeros(3) if t0 is None else t0 for _, t0, _, _ in steps], dtype=float
+            ).reshape(-1, 3),
+        )
 
     def _wrist_rows(self, q123: np.ndarray) -> list:
         """:meth:`wrist_centres` as three rows (N,) (a row the chain never changes may stay a
