@@ -181,14 +181,13 @@ def time_updates(tree, n_throws: int = 40, repeat: int = 3) -> np.ndarray:
 def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) -> dict:
     """Per planner, durations [ms] of ``Executor.on_detection`` calls that made a decision, on the
     same detections of ``n_throws`` simulated throws (planners interleaved per throw, so a
-    change of machine load hits them alike)."""
+    change of machine load hits them alike). Garbage is collected as the daemon does it:
+    never inside a decision, after it when the interpreter's thresholds say so (untimed)."""
     from thinkfast.control.config import RunConfig
-    from thinkfast.control.executor import Executor
-    from thinkfast.control.intake import Intake
     from thinkfast.robot.model import load_robot
-    from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
+    from thinkfast.sim.camera import CameraModelConfig
     from thinkfast.sim.controller import ServoConfig
-    from thinkfast.sim.lockstep import DT, LEAD, World
+    from thinkfast.sim.lockstep import World
     from thinkfast.sim.throws import ThrowConfig, sample_throws
     from thinkfast.tree.file import load_tree
 
@@ -199,6 +198,32 @@ def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) 
     out: dict[str, list[float]] = {p: [] for p in names}
     warm: dict[str, list[float]] = {p: [] for p in names}
     passes = [(0, balls[0], warm)] + [(i, b, out) for i, b in enumerate(balls)]
+    gc.collect()
+    gc.freeze()  # as the daemon at start: the tree and the set-up never collected
+    gc.disable()  # and no collection inside a decision: one after it, untimed (_collect)
+    try:
+        _fly(passes, world, cfg, planners, seed)
+    finally:
+        gc.enable()
+        gc.unfreeze()
+    return {p: np.array(v) for p, v in out.items() if v or p in planners}
+
+
+def _collect() -> None:
+    """Collect as the interpreter would (its thresholds), between decisions (the daemon's
+    ``_collect_garbage`` does so between replies)."""
+    counts, limits = gc.get_count(), gc.get_threshold()
+    if counts[0] >= limits[0]:
+        gc.collect(0 if counts[1] < limits[1] else 1 if counts[2] < limits[2] else 2)
+
+
+def _fly(passes, world, cfg, planners, seed: int) -> None:
+    """Every pass's throw through each planner's executor, the decisions timed into ``keep``."""
+    from thinkfast.control.executor import Executor
+    from thinkfast.control.intake import Intake
+    from thinkfast.sim.camera import detection_payload, observe
+    from thinkfast.sim.lockstep import DT, LEAD
+
     for i, ball, keep in passes:  # the first throw once more first, to warm up (not kept)
         t_rel = LEAD + ball.t_release
         dets = observe(ball, world.camera, cfg.camera, np.random.default_rng(seed + i), t_rel)
@@ -224,9 +249,9 @@ def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) 
                         keep[planner].append(dt * 1e3)
                     elif hedged[0]:
                         keep[f"{planner} hedge stage"].append(dt * 1e3)
+                    _collect()
                 ex.setpoint(t)
                 t += DT
-    return {p: np.array(v) for p, v in out.items() if v or p in planners}
 
 
 def _watch_hedge(ex) -> list[bool]:
