@@ -47,24 +47,23 @@ def backup_values(term_value, child_start, child_count, term_start, term_count):
     cv = np.zeros(n)
     tv = np.zeros(n)
     for node in range(n - 1, -1, -1):
-        c = term_count[node]
-        if c > 0:
-            s = term_start[node]
-            best = term_value[s]
-            for e in range(s + 1, s + c):
-                best = max(best, term_value[e])
-            tv[node] = best
-        c = child_count[node]
+        if term_count[node] > 0:
+            tv[node] = _range_max(term_value, term_start[node], term_count[node])
         v = tv[node]
-        if c > 0:
-            s = child_start[node]
-            best = value[s]
-            for k in range(s + 1, s + c):
-                best = max(best, value[k])
-            cv[node] = best
-            v = max(v, best)
+        if child_count[node] > 0:
+            cv[node] = _range_max(value, child_start[node], child_count[node])
+            v = max(v, cv[node])
         value[node] = v
     return value, cv, tv
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _range_max(a, start, count):
+    """The largest of ``a[start : start + count]`` (``count`` >= 1), first to last."""
+    best = a[start]
+    for k in range(start + 1, start + count):
+        best = max(best, a[k])
+    return best
 
 
 def warm_up() -> None:
