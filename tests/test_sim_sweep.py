@@ -25,7 +25,7 @@ from tests.conftest import ROOT, assert_one_line_error, compile_cached, run_cli,
 pytest.importorskip("distributed")
 
 PLANNERS = ["tree", "oracle"]
-THROWS, FEINTS, SEED, MIX = 2, 1, 5, "still=0.5,windup=0.5"
+THROWS, FEINTS, SEED, MIX = 1, 1, 5, "still=0.5,windup=0.5"
 
 SWEEP = """[sweep]
 compile_config = "base.toml"
@@ -44,8 +44,9 @@ launch.window = [6, 8]
 """
 
 
-def write_sweep(directory: Path, chunk: int = 2, name: str = "sweep.toml") -> Path:
-    """A sweep of 2 tiny trees x 2 launch windows (4 points) over 2 throws and a feint."""
+def write_sweep(directory: Path, chunk: int = 1, name: str = "sweep.toml") -> Path:
+    """A sweep of 2 tiny trees x 2 launch windows (4 points) over a throw and a feint, in
+    chunks of ``chunk``."""
     base = small_tree_config(directory, spacing=0.45, depth=1)
     base.rename(directory / "base.toml")
     path = directory / name
@@ -168,11 +169,11 @@ def test_a_rerun_computes_only_what_is_missing(local_run, reference, tmp_path):
         assert (again.points_from_disk, again.chunks_computed, again.trees_compiled) == (4, 0, 0)
         p = spec.points[2]
         copy.point_path(p.point_key).unlink()
-        copy.chunk_path(p.point_key, 2, THROWS + FEINTS).unlink()
-        before = copy.chunk_path(p.point_key, 0, 2).stat().st_mtime_ns
+        copy.chunk_path(p.point_key, 1, THROWS + FEINTS).unlink()
+        before = copy.chunk_path(p.point_key, 0, 1).stat().st_mtime_ns
         third = run_sweep(spec, copy, client)
     assert (third.points_from_disk, third.chunks_from_disk, third.chunks_computed) == (3, 1, 1)
-    assert copy.chunk_path(p.point_key, 0, 2).stat().st_mtime_ns == before  # not recomputed
+    assert copy.chunk_path(p.point_key, 0, 1).stat().st_mtime_ns == before  # not recomputed
     assert without_seconds(third.docs[2]["summary"]) == reference[2][1]
 
 
@@ -269,7 +270,7 @@ def test_a_separate_cluster_runs_bench_and_a_sweep_that_survives_a_killed_worker
 
     directory = tmp_path / "s"
     directory.mkdir()
-    path = write_sweep(directory, chunk=1)
+    path = write_sweep(directory)
     spec = load_sweep(path)
     out = SweepStore(tmp_path / "out")
     for p in spec.points:  # the serial run's trees (the same ones): only benches remain

@@ -168,3 +168,39 @@ def test_config_loads_from_toml_tables_and_refuses_inverted_ranges():
     assert from_dict(ThrowConfig, to_dict(CFG), "x.toml") == CFG
     with pytest.raises(ConfigError, match="flight_time"):
         from_dict(ThrowConfig, {"flight_time": [0.8, 0.4]}, "x.toml")
+
+
+def _grid_with_arrays(y0, t_end, k, g):
+    """The grid as the array RK4 step gives it (the reference for the per-row integrator)."""
+    from thinkfast.sim.throws import STEP, _rk4
+
+    n = int(math.floor(t_end / STEP + 1e-9))
+    out = np.empty((n + 1, *y0.shape))
+    out[0] = y0
+    for i in range(n):
+        out[i + 1] = _rk4(out[i], STEP, k, g)
+    return out
+
+
+def test_the_per_row_integrator_equals_the_array_step_bit_for_bit(throws):
+    from thinkfast.sim.throws import _grid, _rk4, _rk4_row
+
+    rng = np.random.default_rng(3)
+    y0 = np.concatenate([rng.uniform(-8, 8, (200, 3)), rng.uniform(-25, 25, (200, 3))], axis=1)
+    for k in (0.0, CFG.drag_k(), 0.05):
+        for h in (0.005, 0.0013, 1e-7, 0.4):
+            rows = np.array([_rk4_row(tuple(y), h, k, 9.81) for y in y0.tolist()])
+            assert np.array_equal(rows, _rk4(y0, h, k, 9.81)), (k, h)
+        assert np.array_equal(_grid(y0[:4], 0.9, k, 9.81), _grid_with_arrays(y0[:4], 0.9, k, 9.81))
+    for th in throws[:10]:  # the flown states and the crossing, as the array steps give them
+        y = np.concatenate([th.p_release, th.v_release])[None]
+        ref = _grid_with_arrays(y, 1.2, th.drag, th.gravity)[:, 0]
+        assert np.array_equal(_grid(y, 1.2, th.drag, th.gravity)[:, 0], ref)
+        i = int(np.argmax(ref[:, 0] <= th.plane_x))
+        prev, s = ref[i - 1 : i], (ref[i - 1, 0] - th.plane_x) / -ref[i - 1, 3]
+        for _ in range(8):
+            x = _rk4(prev, s, th.drag, th.gravity)[0]
+            s -= (x[0] - th.plane_x) / x[3]
+        x = _rk4(prev, s, th.drag, th.gravity)[0]
+        c = plane_crossing(th)
+        assert (c.t, c.y, c.z) == ((i - 1) * 0.005 + s, x[1], x[2]) and np.array_equal(c.v, x[3:])
