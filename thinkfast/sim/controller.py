@@ -224,18 +224,19 @@ class SimController:
                     self._ref = self._queue.popleft()[1:]
                 if self._ref is not active:
                     active = self._ref
-                    ref = tuple(np.broadcast_to(r, (6,)).tolist() for r in active)
+                    ref = tuple(_joint_list(r) for r in active)
                 refs.append(ref)
             gain = (cfg.kff, cfg.kp, h / cfg.tau_v)
             # A zero substep divides by zero: numpy scalars give inf/nan as the arrays did.
             h_j = h if h else np.float64(h)
-            rows = (np.broadcast_to(x, (6,)).tolist() for x in (self.q, self.qd, fq, fqd))
-            states = zip(*rows, strict=True)
+            q, qd, fq, fqd = (_joint_list(x) for x in (self.q, self.qd, fq, fqd))
             joints = [
-                _servo_joint(state, refs, j, self._joint_limits[j], gain, alpha, h_j)
-                for j, state in enumerate(states)
+                _servo_joint(
+                    (q[j], qd[j], fq[j], fqd[j]), refs, j, self._joint_limits[j], gain, alpha, h_j
+                )
+                for j in range(6)
             ]
-            q, qd, fq, fqd = (np.array(x, dtype=float) for x in zip(*joints, strict=True))
+            q, qd, fq, fqd = np.array(joints, dtype=float).T.copy()  # rows: C-contiguous (6,)
             self._filt = (fq, fqd)
             self.q, self.qd, self.t = q, qd, self.t + dt
             self._hist.append((self.t, q.copy(), qd.copy()))
@@ -261,6 +262,13 @@ class SimController:
             np.array([r[1] for r in rows]),
             np.array([r[2] for r in rows]),
         )
+
+
+def _joint_list(x) -> list:
+    """Six joint values as floats, broadcast as the array form would (a (6,) array is quick)."""
+    if getattr(x, "shape", None) == (6,):
+        return x.tolist()
+    return np.broadcast_to(x, (6,)).tolist()
 
 
 def _servo_joint(state, refs, j, limits, gain, alpha, h):
