@@ -149,6 +149,9 @@ class SimController:
         )
         self._lim = tuple(np.array(x) for x in (config.q_min, config.q_max, config.v_max))
         self._a_max = np.array(config.a_max)
+        # Per joint (q_min, q_max, v_max, -v_max, a_max, -a_max), negated as arrays are.
+        lim = (*self._lim, -self._lim[2], self._a_max, -self._a_max)
+        self._joint_limits = np.array(lim, dtype=float).T.tolist()
         # What the controller reports in every EgmRobot. Motors off, or EGM motion not running
         # (MCI stopped), the arm stops and references are ignored; RAPID stopped ends EGM too.
         self.motors_on = True
@@ -207,31 +210,33 @@ class SimController:
         n = max(1, math.ceil(dt / cfg.substep - 1e-9))
         h = dt / n
         alpha = 1.0 - math.exp(-2.0 * math.pi * cfg.lowpass_hz * h)
-        q_min, q_max, v_max = self._lim
-        a = self._a_max
-        q, qd = self.q.copy(), self.qd.copy()
-        fq, fqd = self._filt
         with self._lock:
+            fq, fqd = self._filt
             if not self.following:  # references ignored: the servo stops the arm where it is
                 self._queue.clear()
-                self._ref = (q + qd * np.abs(qd) / (2.0 * a), np.zeros(6))
+                qd = self.qd
+                self._ref = (self.q + qd * np.abs(qd) / (2.0 * self._a_max), np.zeros(6))
                 fq, fqd = self._ref
-            for i in range(n):
+            refs, ref, active = [], None, None
+            for i in range(n):  # each substep's reference, as joint lists
                 t = self.t + i * h
                 while self._queue and self._queue[0][0] <= t + 1e-12:
                     self._ref = self._queue.popleft()[1:]
-                rq, rqd = self._ref
-                fq, fqd = fq + alpha * (rq - fq), fqd + alpha * (rqd - fqd)
-                v_cmd = np.clip(cfg.kff * fqd + cfg.kp * (fq - q), -v_max, v_max)
-                dv = np.clip((v_cmd - qd) * (h / cfg.tau_v), -a * h, a * h)
-                # Soft limits: never faster than a stop at a_max / 2 (or one step) allows.
-                up, dn = np.maximum(q_max - q, 0.0), np.maximum(q - q_min, 0.0)
-                v_up = np.minimum(np.sqrt(a * up), up / h)
-                v_dn = np.minimum(np.sqrt(a * dn), dn / h)
-                qd = np.clip(qd + dv, np.maximum(-v_max, -v_dn), np.minimum(v_max, v_up))
-                q = q + qd * h
-                stop = (q < q_min) | (q > q_max)
-                q, qd = np.clip(q, q_min, q_max), np.where(stop, 0.0, qd)
+                if self._ref is not active:
+                    active = self._ref
+                    ref = tuple(_joint_list(r) for r in active)
+                refs.append(ref)
+            gain = (cfg.kff, cfg.kp, h / cfg.tau_v)
+            # A zero substep divides by zero: numpy scalars give inf/nan as the arrays did.
+            h_j = h if h else np.float64(h)
+            q, qd, fq, fqd = (_joint_list(x) for x in (self.q, self.qd, fq, fqd))
+            joints = [
+                _servo_joint(
+                    (q[j], qd[j], fq[j], fqd[j]), refs, j, self._joint_limits[j], gain, alpha, h_j
+                )
+                for j in range(6)
+            ]
+            q, qd, fq, fqd = np.array(joints, dtype=float).T.copy()  # rows: C-contiguous (6,)
             self._filt = (fq, fqd)
             self.q, self.qd, self.t = q, qd, self.t + dt
             self._hist.append((self.t, q.copy(), qd.copy()))
@@ -257,3 +262,65 @@ class SimController:
             np.array([r[1] for r in rows]),
             np.array([r[2] for r in rows]),
         )
+
+
+def _joint_list(x) -> list:
+    """Six joint values as floats, broadcast as the array form would (a (6,) array is quick)."""
+    if getattr(x, "shape", None) == (6,):
+        return x.tolist()
+    return np.broadcast_to(x, (6,)).tolist()
+
+
+def _servo_joint(state, refs, j, limits, gain, alpha, h):
+    """One joint through the substeps of :meth:`SimController.step`, on plain floats.
+
+    Every expression keeps the order of operations of the array form; the min, max and clip
+    are numpy's (``np.maximum``, ``np.minimum``, ``np.clip``): NaN propagates and a tie gives
+    the second operand, so the result is the same to the bit.
+
+    Args:
+        state: ``(q, qd, fq, fqd)``: position [rad], speed [rad/s] and the low-passed
+            reference position [rad] and speed [rad/s].
+        refs: per substep, the active ``(q_ref, qd_ref)`` as lists of six joints [rad], [rad/s].
+        j: joint index.
+        limits: ``(q_min, q_max, v_max, -v_max, a_max, -a_max)`` of the joint [rad, rad/s,
+            rad/s^2].
+        gain: ``(kff, kp, h / tau_v)``.
+        alpha: reference low-pass factor of one substep.
+        h: substep [s].
+
+    Returns:
+        ``(q, qd, fq, fqd)`` after the substeps.
+    """
+    q, qd, f, fd = state
+    lo, hi, vm, nvm, a, na = limits
+    kff, kp, g = gain
+    ah, nah = a * h, na * h
+    sqrt = math.sqrt if a >= 0.0 else np.sqrt  # np.sqrt: nan (not an error) below zero
+    for rq, rqd in refs:
+        f, fd = f + alpha * (rq[j] - f), fd + alpha * (rqd[j] - fd)
+        v = kff * fd + kp * (f - q)
+        v = v if v > nvm or v != v else nvm
+        v = v if v < vm or v != v else vm
+        dv = (v - qd) * g
+        dv = dv if dv > nah or dv != dv else nah
+        dv = dv if dv < ah or dv != dv else ah
+        # Soft limits: never faster than a stop at a_max / 2 (or one step) allows.
+        up, dn = hi - q, q - lo
+        up = up if up > 0.0 or up != up else 0.0
+        dn = dn if dn > 0.0 or dn != dn else 0.0
+        v_up, step_up = sqrt(a * up), up / h
+        v_up = v_up if v_up < step_up or v_up != v_up else step_up
+        v_dn, step_dn = sqrt(a * dn), dn / h
+        v_dn = -(v_dn if v_dn < step_dn or v_dn != v_dn else step_dn)
+        v_lo = nvm if nvm > v_dn or nvm != nvm else v_dn
+        v_hi = vm if vm < v_up or vm != vm else v_up
+        qd = qd + dv
+        qd = qd if qd > v_lo or qd != qd else v_lo
+        qd = qd if qd < v_hi or qd != qd else v_hi
+        q = q + qd * h
+        if q < lo or q > hi:  # a hard stop
+            qd = 0.0
+        q = q if q > lo or q != q else lo
+        q = q if q < hi or q != q else hi
+    return q, qd, f, fd
