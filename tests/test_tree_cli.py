@@ -13,7 +13,7 @@ from tests.conftest import ROBOT_TOML, assert_one_line_error, run_cli
 BASE = """
 robot = "{robot}"
 [goals]
-spacing = 0.3
+spacing = 0.45
 [tree]
 max_depth = {depth}
 eps = {eps}

@@ -226,11 +226,13 @@ def estimate_dynamics(
             f"{source}: no commanded motion (speed above {opts.motion_speed} rad/s) to measure"
         )
     lags: list[list[float]] = [[] for _ in range(6)]
+    # one joint's path alone for the shift search (the same values as that column of cmd's)
+    joint_cmd = [CubicHermiteSpline(t, q_cmd[:, j], qd_cmd[:, j]) for j in range(6)]
     for a, b in segs:
         for j in range(6):
             if np.ptp(qc[a:b, j]) < opts.min_travel:
                 continue
-            lags[j].append(best_shift(grid[a:b], fb[a:b, j], cmd, j, opts.max_lag))
+            lags[j].append(best_shift(grid[a:b], fb[a:b, j], joint_cmd[j], opts.max_lag))
     joints = []
     for j in range(6):
         acc, acc_c = (held_peak(x[:, j], dt, 2, opts, ignore) for x in (fb, qc))
@@ -308,14 +310,13 @@ def motion_segments(qd: np.ndarray, dt: float, opts: DynamicsOptions) -> list[tu
     return out
 
 
-def best_shift(
-    t: np.ndarray, q_fb: np.ndarray, cmd: CubicHermiteSpline, joint: int, max_lag: float
-) -> float:
+def best_shift(t: np.ndarray, q_fb: np.ndarray, cmd: CubicHermiteSpline, max_lag: float) -> float:
     """The shift ``tau`` [s] in [0, max_lag] best aligning ``q_cmd(t - tau)`` (plus an offset)
-    with ``q_fb(t)`` for one joint (grid at 0.5 ms, then a bounded scalar search)."""
+    with ``q_fb(t)`` for one joint, ``cmd`` its commanded path (grid at 0.5 ms, then a bounded
+    scalar search)."""
 
     def cost(tau: float) -> float:
-        e = q_fb - cmd(t - tau)[:, joint]
+        e = q_fb - cmd(t - tau)
         e = e - e.mean()
         return float(e @ e)
 
