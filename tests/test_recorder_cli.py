@@ -29,7 +29,6 @@ def _sysfs_refuses_files() -> bool:
     return False
 
 
-@pytest.mark.realtime
 @pytest.mark.parametrize("case", ["missing_directory", "read_only_directory"])
 def test_an_unusable_record_path_stops_the_daemon_before_any_egm_reply(tree_file, tmp_path, case):
     """The real daemon, with a controller sending real EgmRobot messages from its start: it
@@ -39,7 +38,10 @@ def test_an_unusable_record_path_stops_the_daemon_before_any_egm_reply(tree_file
     directory anyway (permission bits do not bind it), whereas sysfs refuses to create files
     for everyone (EACCES, or EROFS where /sys is mounted read-only as in many containers). A
     read-only mount would need mount rights, which a container may not grant. (The other
-    refusals, a file as parent or a directory as path, are tests/test_recorder.py's.)"""
+    refusals, a file as parent or a directory as path, are tests/test_recorder.py's.)
+
+    Not ``realtime``: the path is checked before the EGM socket is served, so no reply can
+    come however slowly a loaded host starts the daemon; the wait only gives up (60 s)."""
     if case == "read_only_directory" and not _sysfs_refuses_files():
         pytest.skip("/sys accepts new files here")
     record = {
