@@ -147,10 +147,10 @@ class SimController:
         self._cmds: collections.deque[tuple[float, np.ndarray, np.ndarray]] = collections.deque(
             maxlen=max_history
         )
-        self._lim = tuple(np.array(x) for x in (config.q_min, config.q_max, config.v_max))
+        q_min, q_max, v_max = (np.array(x) for x in (config.q_min, config.q_max, config.v_max))
         self._a_max = np.array(config.a_max)
         # Per joint (q_min, q_max, v_max, -v_max, a_max, -a_max), negated as arrays are.
-        lim = (*self._lim, -self._lim[2], self._a_max, -self._a_max)
+        lim = (q_min, q_max, v_max, -v_max, self._a_max, -self._a_max)
         self._joint_limits = np.array(lim, dtype=float).T.tolist()
         # What the controller reports in every EgmRobot. Motors off, or EGM motion not running
         # (MCI stopped), the arm stops and references are ignored; RAPID stopped ends EGM too.

@@ -159,30 +159,30 @@ def _rk4(y: np.ndarray, h: np.ndarray | float, k: float, g: float) -> np.ndarray
     return y + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
+def _drag_gravity(v: tuple, k: float, g: float) -> tuple:
+    """:func:`_deriv`'s acceleration [m/s^2] for one velocity ``v`` (3 floats), in Python floats:
+    the norm's squares summed x, y then z, as numpy's reduction does."""
+    c = -k * math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return (c * v[0], c * v[1], c * v[2] - g)
+
+
 def _rk4_row(y: tuple, h: float, k: float, g: float) -> tuple:
     """:func:`_rk4` for one state ``y`` (6 floats) and a scalar ``h`` [s], in Python floats.
 
-    The same operations in the same order as the array version (the norm's squares summed
-    x, y then z, as numpy's reduction does), so the same values bit for bit
-    (tests/test_sim_throws.py); without numpy's cost per call on six numbers.
+    The same operations in the same order as the array version, so the same values bit for
+    bit (tests/test_sim_throws.py); without numpy's cost per call on six numbers.
     """
-    px, py, pz, vx, vy, vz = y
-    c = -k * math.sqrt(vx * vx + vy * vy + vz * vz)
-    a1 = (c * vx, c * vy, c * vz - g)
-    hh = 0.5 * h
-    u2 = (vx + hh * a1[0], vy + hh * a1[1], vz + hh * a1[2])
-    c = -k * math.sqrt(u2[0] * u2[0] + u2[1] * u2[1] + u2[2] * u2[2])
-    a2 = (c * u2[0], c * u2[1], c * u2[2] - g)
-    u3 = (vx + hh * a2[0], vy + hh * a2[1], vz + hh * a2[2])
-    c = -k * math.sqrt(u3[0] * u3[0] + u3[1] * u3[1] + u3[2] * u3[2])
-    a3 = (c * u3[0], c * u3[1], c * u3[2] - g)
-    u4 = (vx + h * a3[0], vy + h * a3[1], vz + h * a3[2])
-    c = -k * math.sqrt(u4[0] * u4[0] + u4[1] * u4[1] + u4[2] * u4[2])
-    a4 = (c * u4[0], c * u4[1], c * u4[2] - g)
+    v1, hh = y[3:], 0.5 * h  # the velocities at the four stages: the position's derivatives
+    a1 = _drag_gravity(v1, k, g)
+    v2 = (v1[0] + hh * a1[0], v1[1] + hh * a1[1], v1[2] + hh * a1[2])
+    a2 = _drag_gravity(v2, k, g)
+    v3 = (v1[0] + hh * a2[0], v1[1] + hh * a2[1], v1[2] + hh * a2[2])
+    a3 = _drag_gravity(v3, k, g)
+    v4 = (v1[0] + h * a3[0], v1[1] + h * a3[1], v1[2] + h * a3[2])
+    a4 = _drag_gravity(v4, k, g)
     w = h / 6.0
-    v1, v2, v3 = (vx, vy, vz), u2, u3  # the position's derivatives at the four stages
     return (
-        *(y[i] + w * (v1[i] + 2.0 * v2[i] + 2.0 * v3[i] + u4[i]) for i in range(3)),
+        *(y[i] + w * (v1[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i]) for i in range(3)),
         *(y[3 + i] + w * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i]) for i in range(3)),
     )
 
@@ -364,10 +364,9 @@ def plane_crossing(throw: Throw, plane_x: float | None = None, t_max: float = 5.
     if throw.kind == "feint":
         raise NoSolutionError(f"throw {throw.id} is a feint: it is never released")
     plane_x = throw.plane_x if plane_x is None else float(plane_x)
-    y0 = np.concatenate([throw.p_release, throw.v_release])[None]
-    if y0[0, 0] <= plane_x:
-        return TrueCrossing(0.0, float(y0[0, 1]), float(y0[0, 2]), throw.v_release.copy())
-    y, i = tuple(y0[0].tolist()), 0
+    y, i = (*throw.p_release.tolist(), *throw.v_release.tolist()), 0
+    if y[0] <= plane_x:
+        return TrueCrossing(0.0, y[1], y[2], throw.v_release.copy())
     while y[0] > plane_x:
         if i * STEP > t_max:
             raise NoSolutionError(
