@@ -72,6 +72,7 @@ from thinkfast.daemon.rt_thread import pin_thread
 from thinkfast.errors import ThinkfastError
 from thinkfast.sim.controller import ServoConfig, SimController
 from thinkfast.sim.controller_runner import ControllerRunner
+from thinkfast.sim.realtime import log_text
 
 DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"
 
@@ -312,8 +313,7 @@ def _stop(proc: subprocess.Popen, timeout: float) -> int | None:
 
 
 def _tail(log, proc, n: int = 2000) -> str:
-    log.seek(0)
-    return f"exit code {proc.poll()}: {log.read()[-n:].strip()}"
+    return f"exit code {proc.poll()}: {log_text(log)[-n:].strip()}"
 
 
 def main(argv=None) -> int:

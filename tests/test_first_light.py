@@ -226,7 +226,7 @@ def test_log_format_json_gives_one_object_per_line(tree_file, tmp_path, robot):
     )
     try:  # until the events the test looks for are logged (no fixed wait)
         words = ('"event": "egm_connected"', '"event": "controller_state"')
-        assert until(lambda: all(w in daemon_log(run.proc) for w in words), 10.0, poll=0.02)
+        assert until(lambda: all(w in daemon_log(run.proc) for w in words), 30.0, poll=0.02)
     finally:
         code, err = run.stop()
     assert code == 0, err

@@ -1,5 +1,6 @@
 """thinkfast-sim run against a running daemon (--egm/--zenoh): a daemon that dies mid-run is
-noticed, and the run exits non-zero naming what went silent (real processes, real sockets)."""
+noticed, and the run exits non-zero naming what went silent (real processes, real sockets); a
+child's log read while it writes loses no line."""
 
 from __future__ import annotations
 
@@ -15,11 +16,32 @@ import pytest
 from tests.daemon_harness import free_port, until
 from thinkfast.contract import keys
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
-from thinkfast.sim.realtime import start_daemon, wait_port
-
-pytestmark = pytest.mark.realtime
+from thinkfast.sim.realtime import log_text, start_daemon, wait_port
 
 
+def test_a_log_read_while_its_writer_writes_keeps_every_line(tmp_path):
+    """The reader shares the file offset with the child writing through it: reading must not
+    move it (a ``seek(0)`` there once put a daemon's line over the start of its log)."""
+    n = 4000
+    script = (
+        "import sys\n"
+        f"for i in range({n}):\n"
+        '    sys.stderr.write(\'{"line": %d, "pad": "%s"}\\n\' % (i, \'x\' * 60))\n'
+        "    sys.stderr.flush()\n"
+    )
+    with open(tmp_path / "log", "w+") as log:
+        child = subprocess.Popen([sys.executable, "-c", script], stderr=log)
+        reads = 0
+        while child.poll() is None:
+            log_text(log)
+            reads += 1
+        assert child.wait() == 0
+        lines = log_text(log).splitlines()
+    assert reads > 0
+    assert [json.loads(ln)["line"] for ln in lines] == list(range(n))
+
+
+@pytest.mark.realtime
 def test_sim_run_exits_non_zero_when_its_daemon_dies(small_tree_015):
     egm, zport = free_port(), free_tcp_port()
     daemon = start_daemon(small_tree_015, "tree", egm, zport, "thinkfast", None, None)
@@ -54,6 +76,7 @@ def test_sim_run_exits_non_zero_when_its_daemon_dies(small_tree_015):
     assert "blocked" not in out.split("\n")[-2]  # no summary of throws that never ran
 
 
+@pytest.mark.realtime
 def test_two_daemons_on_one_host_with_one_key_prefix_never_hear_each_other(
     small_tree_015, tmp_path, robot
 ):

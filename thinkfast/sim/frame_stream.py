@@ -28,6 +28,7 @@ from thinkfast.contract.camera_mode import ZED_MODES
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.sim.camera import CameraModelConfig
 from thinkfast.sim.frames import FrameRenderConfig, FrameRenderer
+from thinkfast.sim.realtime import log_text
 from thinkfast.sim.throws import Throw, ball_states, observed_until
 
 RESOLUTIONS = {k.lower(): (m.image_size, m.focal_px) for k, m in ZED_MODES.items()}
@@ -146,8 +147,7 @@ def wait_detector(session: zenoh.Session, prefix: str, proc: subprocess.Popen, t
         deadline = time.time() + timeout
         while not heard.wait(0.1):
             if proc.poll() is not None:
-                proc.log.seek(0)
-                raise RuntimeError(f"thinkfast-detect exited: {proc.log.read().strip()}")
+                raise RuntimeError(f"thinkfast-detect exited: {log_text(proc.log).strip()}")
             if time.time() > deadline:
                 raise RuntimeError("no status from thinkfast-detect")
     finally:
