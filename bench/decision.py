@@ -34,6 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from thinkfast.daemon import gc_rule  # noqa: E402
 from thinkfast.decide import backup as bk  # noqa: E402
 from thinkfast.decide import values as vl  # noqa: E402
 from thinkfast.estimate import crossing as dm  # noqa: E402
@@ -198,23 +199,12 @@ def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) 
     out: dict[str, list[float]] = {p: [] for p in names}
     warm: dict[str, list[float]] = {p: [] for p in names}
     passes = [(0, balls[0], warm)] + [(i, b, out) for i, b in enumerate(balls)]
-    gc.collect()
-    gc.freeze()  # as the daemon at start: the tree and the set-up never collected
-    gc.disable()  # and no collection inside a decision: one after it, untimed (_collect)
+    gc_rule.hold()  # as the daemon: no collection inside a decision, one after it, untimed
     try:
         _fly(passes, world, cfg, planners, seed)
     finally:
-        gc.enable()
-        gc.unfreeze()
+        gc_rule.release()
     return {p: np.array(v) for p, v in out.items() if v or p in planners}
-
-
-def _collect() -> None:
-    """Collect as the interpreter would (its thresholds), between decisions (the daemon's
-    ``_collect_garbage`` does so between replies)."""
-    counts, limits = gc.get_count(), gc.get_threshold()
-    if counts[0] >= limits[0]:
-        gc.collect(0 if counts[1] < limits[1] else 1 if counts[2] < limits[2] else 2)
 
 
 def _fly(passes, world, cfg, planners, seed: int) -> None:
@@ -249,7 +239,7 @@ def _fly(passes, world, cfg, planners, seed: int) -> None:
                         keep[planner].append(dt * 1e3)
                     elif hedged[0]:
                         keep[f"{planner} hedge stage"].append(dt * 1e3)
-                    _collect()
+                    gc_rule.collect_due()
                 ex.setpoint(t)
                 t += DT
 

@@ -231,14 +231,14 @@ def test_first_light_in_shadow_as_the_doc_says(tree, tmp_path):
 def test_a_slow_recorded_session_and_its_calibration_as_the_doc_says(tree, tmp_path):
     lines, cell = rehearsal_blocks()[1], Cell(tree, tmp_path)
     try:
-        cell.throw(lines)  # --speed-scale 0.2 --record cal.h5, --throws 3, cell start
+        cell.throw(lines)  # --speed-scale 0.2 --record cal.h5, --throws 2, cell start
         stopped = cell.run(lines[3])
         assert stopped.returncode == 0, stopped.stderr
     finally:
         codes, log = cell.stop()  # Ctrl-C: the record is complete
         cell.print_output()
     assert codes == [0, 0], log
-    assert len([ln for ln in cell.controller_lines if ln.startswith("throw ")]) == 3
+    assert len([ln for ln in cell.controller_lines if ln.startswith("throw ")]) == 2
     calib, check = cell.run(lines[4]), cell.run(lines[5])
     print(calib.stdout, check.stdout, sep="\n")
     assert calib.returncode == 0, calib.stderr

@@ -150,7 +150,6 @@ def two_peers():
     ep = loopback_endpoint()
     a = open_peer(listen=[ep])
     b = open_peer(connect=[ep])
-    time.sleep(0.3)
     yield a, b
     b.close()
     a.close()
@@ -190,7 +189,6 @@ def _wait(cond, timeout=5.0):
     ],
     ids=["JointState", "PointStamped", "DiagnosticArray"],
 )  # fmt: skip
-@pytest.mark.realtime
 def test_each_message_round_trips_through_zenoh_with_attachment(
     two_peers, topic, msgtype, key, cdr, check
 ):
@@ -198,7 +196,7 @@ def test_each_message_round_trips_through_zenoh_with_attachment(
     got, _sub = _collect(b, key)  # the documented key, written out: not derived by the code
     node = ros_zenoh.RosNode(a, 0, "test_node")
     pub = node.publisher(topic, msgtype)
-    time.sleep(0.3)
+    assert _wait(lambda: pub.pub.matching_status.matching, 30.0), "no route to the subscriber"
     t0 = time.time_ns()
     for _ in range(3):
         pub.put(cdr)

@@ -51,7 +51,7 @@ def _silence_figures(cell: Cell, events: list[tuple[float, float]]) -> dict:
 def silence_rest(ctx, opts):
     def body(cell):
         events = []
-        for seconds in SILENCES:
+        for seconds in SILENCES[-1:] if opts.quick else SILENCES:  # quick: the longest
             cell.ctl.gap(seconds)
             time.sleep(seconds + 1.0)
             events.append((seconds, cell.ctl.gap_log[-1][1]))

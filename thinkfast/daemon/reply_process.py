@@ -27,7 +27,6 @@ No zenoh, no recorder, no logging inside the loop.
 
 from __future__ import annotations
 
-import gc
 import math
 import os
 import select
@@ -41,7 +40,7 @@ from thinkfast.contract.egm import EgmEncodeError, sensor_body
 from thinkfast.control.core import ControlCore
 from thinkfast.control.plan import SIZE, PlanFollower, decode_plan
 from thinkfast.control.safety import SafetySupervisor, robot_limits
-from thinkfast.daemon import orphan_status
+from thinkfast.daemon import gc_rule, orphan_status
 from thinkfast.daemon.cycle import Cycle
 from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.reply_rows import WIDTH, call_row, event_row, reply_row
@@ -207,9 +206,7 @@ class ReplyLoop:
         poller = select.poll()
         poller.register(egm.fileno(), select.POLLIN)
         cycle = Cycle(self.cfg.safety.dt, spin_ahead)
-        gc.collect()
-        gc.freeze()
-        gc.disable()  # collected between replies, never inside one
+        gc_rule.hold()  # collected between replies, never inside one
         last_rx = -math.inf
         while True:
             if self.stop:  # brake while the controller still talks, then end
@@ -223,9 +220,7 @@ class ReplyLoop:
                 last_rx = time.time()
             self.between(replied, time.monotonic())
             if cycle.time_left(time.time() - last_rx) > 0.001:
-                counts, limits = gc.get_count(), gc.get_threshold()
-                if counts[0] >= limits[0]:
-                    gc.collect(0 if counts[1] < limits[1] else 1)
+                gc_rule.collect_due(oldest=1)
 
 
 def main(conn, bind, controller, handover, robot, cfg, plan_name, ring_name, parent,

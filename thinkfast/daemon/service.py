@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import collections
 import functools
-import gc
 import json
 import logging
 import math
@@ -44,6 +43,7 @@ from thinkfast.config import to_dict
 from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
 from thinkfast.control.executor import EXECUTING, IDLE, STAGE_KEYS
+from thinkfast.daemon import gc_rule
 from thinkfast.daemon.cycle import Cycle
 from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.home_watch import HomeWatch
@@ -229,9 +229,7 @@ class Daemon:
             signal.signal(sig, self._on_signal)
         poller = select.poll()
         poller.register(self.egm.fileno(), select.POLLIN)
-        gc.collect()
-        gc.freeze()  # nothing allocated so far is ever collected: shorter GC pauses
-        gc.disable()  # collections run after replies (_collect_garbage), never inside one
+        gc_rule.hold()  # collections run after replies (_collect_garbage), never inside one
         status_period = 1.0 / self.cfg.status_rate
         next_status = time.time()
         spin = "always" if self.cycle.busy else f"{1e3 * self.cycle.spin_ahead:g} ms ahead"
@@ -273,8 +271,7 @@ class Daemon:
                 if self.stop_reason is not None and self._may_exit(now):
                     break
         finally:
-            gc.enable()
-            gc.unfreeze()
+            gc_rule.release()
             self.zio.publish_status({**self.status(time.time()), "exiting": True})
             self.recorder.close()
             self.egm.close()
@@ -315,10 +312,8 @@ class Daemon:
 
     def _collect_garbage(self, now: float) -> None:
         """Collect as the interpreter would (same thresholds), where it cannot delay a reply."""
-        counts, limits = gc.get_count(), gc.get_threshold()
-        if counts[0] < limits[0] or self._time_left(now) < 0.001:
-            return
-        gc.collect(0 if counts[1] < limits[1] else 1 if counts[2] < limits[2] else 2)
+        if self._time_left(now) >= 0.001:
+            gc_rule.collect_due()
 
     def _take_detections(self, replied: bool) -> None:
         """Take queued detections: the first at once if a reply just left, the others while
