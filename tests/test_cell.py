@@ -135,6 +135,22 @@ def test_resetpp_only_when_stopped_and_restarts_from_main(fake, capsys):
     assert "rw/rapid/execution" in posts(fake)
 
 
+def test_a_restart_from_main_does_not_lose_the_request_to_its_stale_waiting(capsys):
+    """After ``stop --halt`` tf_status still says "waiting" until the restarted program's first
+    statement (0.3 s here): the request set on that stale value is cleared by the program's
+    loop, and set again once the program waits."""
+    with FakeRwsController(timing=ProgramTiming(start_delay=0.3)) as fake:
+        assert run(capsys, "start", "--url", fake.url)[0] == 0
+        assert run(capsys, "stop", "--url", fake.url, "--halt")[0] == 0
+        assert fake.status() == "waiting" and fake.execstate == "stopped"
+        code, out, err = run(capsys, "start", "--url", fake.url, "--resetpp", "--wait", "5")
+        assert code == 0, err
+        assert "EGM session running" in out and fake.status() == "session"
+        sets = [p for m, p in fake.requests if m == "POST" and "tf_start_request" in p]
+        assert len(sets) == 3  # the first start, the stale "waiting", the program's own
+        assert fake.var("tf_start_request") == "FALSE"  # taken by the program
+
+
 def test_lost_session_is_one_line(fake, capsys):
     fake.egm_peer = False  # thinkfast-run silent: the module's ERR_UDPUC_COMM handler stops
     code, _, err = run(capsys, "start", "--url", fake.url)

@@ -189,13 +189,16 @@ class Cell:
         )
         return str(execution.ctrlexecstate), str(status).strip().strip('"')
 
-    def _wait_status(self, wanted: set[str], wait: float, what: str) -> str:
-        """Poll until tf_status is in ``wanted``; CellError when RAPID stops or ``wait`` passes."""
+    def _wait_status(self, wanted: set[str], wait: float, what: str, each=None) -> str:
+        """Poll until tf_status is in ``wanted``; CellError when RAPID stops or ``wait`` passes.
+        ``each(status)`` runs after every poll that has not found it."""
         deadline = time.monotonic() + wait
         while True:
             execstate, status = self._progress()
             if status in wanted:
                 return status
+            if each is not None:
+                each(status)
             if execstate != "running":
                 raise CellError(
                     f"RAPID stopped while waiting for {what} (tf_status {status!r}): see the "
@@ -206,6 +209,25 @@ class Cell:
                     f"timed out after {wait:g} s waiting for {what} (tf_status {status!r})"
                 )
             time.sleep(self.poll)
+
+    def _request_again(self, status: str) -> None:
+        """Set tf_start_request again if the program cleared it without taking it.
+
+        A "waiting" read just after RAPID started from main is the stopped program's, not yet
+        overwritten: the request set then is cleared when the module's loop starts. The request
+        is read first and tf_status after it: FALSE then "waiting" means the loop cleared it,
+        FALSE then "session" that the program took it. (Should a request still be set twice,
+        the module clears it before its next wait: never a second session.)"""
+        if (
+            status == "waiting"
+            and self._flag("tf_start_request") != "TRUE"
+            and self._progress()[1] == "waiting"
+        ):
+            self._request("tf_start_request")
+
+    def _flag(self, name: str) -> str:
+        value = self._call(f"read {self.task}/{name}", self.rws.get_rapid_variable, name, self.task)
+        return str(value).strip().upper()
 
     def _request(self, name: str) -> None:
         self._call(f"set {self.task}/{name}", self.rws.set_rapid_variable, name, "TRUE", self.task)
@@ -219,7 +241,8 @@ class Cell:
         Refuses (CellRefused, one line naming everything missing) unless the controller is in
         auto mode with the motors on and the task holds the kit. ``resetpp`` moves the program
         pointer to main first (RAPID must be stopped). Waits up to ``wait`` [s] for the program
-        to show "waiting", sets tf_start_request, up to ``wait`` again for "session", and then
+        to show "waiting", sets tf_start_request (again if the program's loop cleared it: a stale
+        "waiting" after a start from main), up to ``wait`` again for "session", and then
         watches the session for ``settle`` [s] (a silent daemon loses it after the module's
         ``\\CommTimeout``).
 
@@ -249,7 +272,9 @@ class Cell:
             return "an EGM session is already running (tf_status session)"
         self._request("tf_start_request")
         say("tf_start_request set")
-        status = self._wait_status({"session", "lost"}, wait, "the EGM session to open")
+        status = self._wait_status(
+            {"session", "lost"}, wait, "the EGM session to open", self._request_again
+        )
         # the session ends on the controller's \CommTimeout when the daemon is silent: watch it
         deadline = time.monotonic() + settle
         while status == "session" and time.monotonic() < deadline:

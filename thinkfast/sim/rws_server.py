@@ -56,6 +56,7 @@ class ProgramTiming:
     home_time: float = 0.05  # MoveAbsJ to TF_HOME
     ramp_out: float = 0.3  # EGM_RAMP_OUT_TIME of the module
     comm_timeout: float = 0.1  # EGM_COMM_TIMEOUT of the module
+    start_delay: float = 0.0  # from a start over RWS to the program's next statement
 
 
 @dataclasses.dataclass
@@ -104,6 +105,7 @@ class FakeRwsController:
         self.pp_at_main = True  # program pointer at main (after load or resetpp)
         self.requests: list[tuple[str, str]] = []  # (method, path) of every authorised request
         self._until = 0.0  # end of the current timed phase (monotonic)
+        self._resumes = 0.0  # when a started program runs its next statement (monotonic)
         self._stop = threading.Event()
         self.server = ThreadingHTTPServer((host, port), make_handler(self))
         self.server.daemon_threads = True
@@ -161,7 +163,7 @@ class FakeRwsController:
         """One step of ThinkfastEGM.mod's main loop (the caller holds the lock)."""
         if self.ctrlstate != "motoron" and self.execstate == "running":
             self._halt()  # the controller stops RAPID when the motors go off
-        if self.execstate != "running":
+        if self.execstate != "running" or now < self._resumes:
             return
         status = self.status()
         if self.pp_at_main:
@@ -277,6 +279,7 @@ class FakeRwsController:
             if cycle != "asis":
                 self.cycle = cycle
             self.execstate = "running"
+            self._resumes = time.monotonic() + self.timing.start_delay
             for t in self.tasks.values():
                 if t.active:
                     t.excstate = "started"
