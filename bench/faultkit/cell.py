@@ -13,6 +13,7 @@ and :meth:`Cell.process_failures` checks the process (alive, stderr, exit status
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import signal
 import subprocess
@@ -259,7 +260,11 @@ class Cell:
         self.checker.feed(rows, self.monitor.braking)
         fig = self.checker.summary()
         fig.update(attribute(self.checker.missed_times, self.checker.missed_late, self.stalls))
-        return fig, self.checker.failures()
+        failures = self.checker.failures()
+        t = self.checker.worst_brake_jerk_at
+        if any("jerk" in f for f in failures) and math.isfinite(t):  # where: the daemon's modes
+            fig["worst_brake_jerk_modes"] = sorted(self.monitor.modes_between(t - 0.1, t + 0.02))
+        return fig, failures
 
     def process_failures(self, expect_exit0: bool = True) -> list[str]:
         """Crash, non-zero exit, exception or traceback on stderr, a latched fault."""

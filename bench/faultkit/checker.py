@@ -79,6 +79,7 @@ class ReplyChecker:
         self.missed_times: list[float] = []  # t_send of cycles without a reply
         self.missed_late: int = 0  # ... of which this process sent late (its own stall)
         self.worst_a_at = float("nan")
+        self.worst_brake_jerk_at = float("nan")  # send time of the worst braking jerk window
         self.resync_fail: list[dict] = []
         self.resyncs: list[dict] = []  # every resync checked (at most 1000)
         self._pending_resync = True  # the first reply is a resync too
@@ -323,7 +324,10 @@ class ReplyChecker:
                 n["a_violations"] += int((r[clean] > tol).sum())
             else:  # all four cycles braking (the entry is judged on speedRef below)
                 b = brake[3:] & brake[2:-1] & brake[1:-2] & brake[:-3]
-                f["jerk_ratio_brake"] = max(f["jerk_ratio_brake"], _max(r[clean & b]))
+                if _max(r[clean & b]) > f["jerk_ratio_brake"]:
+                    f["jerk_ratio_brake"] = _max(r[clean & b])
+                    at = allr[order:][clean & b][np.argmax(r[clean & b]), R.T_SEND]
+                    self.worst_brake_jerk_at = float(at)
                 f["jerk_ratio_normal"] = max(f["jerk_ratio_normal"], _max(r[clean & ~b]))
                 n["jerk_violations"] += int((r[clean & b] > self.jerk_tol).sum())
             if key == "a":  # second differences of speedRef ending in a braking cycle

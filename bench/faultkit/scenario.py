@@ -110,7 +110,7 @@ _KEEP = ("answered_pct", "cycles", "missed", "missed_host_stall", "missed_unexpl
          "jerk_ratio_brake", "speedref_jerk_ratio_brake", "jerk_ratio_normal",
          "resyncs_checked", "resyncs_late", "missed_after_silence", "resync_pos_err_mrad",
          "resync_vel_ratio", "gaps", "brake_cycles", "extra_replies", "nonfinite",
-         "outside_urdf", "bad_replies")  # fmt: skip
+         "outside_urdf", "bad_replies", "worst_brake_jerk_modes")  # fmt: skip
 
 
 def finish(name: str, cell: Cell, t_start: float, figures: dict, failures: list[str], *,
