@@ -13,7 +13,6 @@ and :meth:`Cell.process_failures` checks the process (alive, stderr, exit status
 from __future__ import annotations
 
 import dataclasses
-import math
 import re
 import signal
 import subprocess
@@ -260,11 +259,10 @@ class Cell:
         self.checker.feed(rows, self.monitor.braking)
         fig = self.checker.summary()
         fig.update(attribute(self.checker.missed_times, self.checker.missed_late, self.stalls))
-        failures = self.checker.failures()
         t = self.checker.worst_brake_jerk_at
-        if any("jerk" in f for f in failures) and math.isfinite(t):  # where: the daemon's modes
+        if self.checker.f["jerk_ratio_brake"] > self.checker.jerk_tol:  # where: the daemon's modes
             fig["worst_brake_jerk_modes"] = sorted(self.monitor.modes_between(t - 0.1, t + 0.02))
-        return fig, failures
+        return fig, self.checker.failures()
 
     def process_failures(self, expect_exit0: bool = True) -> list[str]:
         """Crash, non-zero exit, exception or traceback on stderr, a latched fault."""

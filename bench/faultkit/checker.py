@@ -324,12 +324,12 @@ class ReplyChecker:
                 n["a_violations"] += int((r[clean] > tol).sum())
             else:  # all four cycles braking (the entry is judged on speedRef below)
                 b = brake[3:] & brake[2:-1] & brake[1:-2] & brake[:-3]
-                if _max(r[clean & b]) > f["jerk_ratio_brake"]:
-                    f["jerk_ratio_brake"] = _max(r[clean & b])
-                    at = allr[order:][clean & b][np.argmax(r[clean & b]), R.T_SEND]
-                    self.worst_brake_jerk_at = float(at)
+                cb = clean & b
+                if _max(r[cb]) > f["jerk_ratio_brake"]:
+                    f["jerk_ratio_brake"] = _max(r[cb])
+                    self.worst_brake_jerk_at = float(allr[order:][cb][np.argmax(r[cb]), R.T_SEND])
                 f["jerk_ratio_normal"] = max(f["jerk_ratio_normal"], _max(r[clean & ~b]))
-                n["jerk_violations"] += int((r[clean & b] > self.jerk_tol).sum())
+                n["jerk_violations"] += int((r[cb] > self.jerk_tol).sum())
             if key == "a":  # second differences of speedRef ending in a braking cycle
                 rr = (np.abs(np.diff(qd, n=2, axis=0)) / dt**2 / lim.j_max).max(axis=1)
                 sel = clean & brake[order:]

@@ -143,15 +143,17 @@ class Cell:
         out: dict[str, str | None] = {}
         for name in KIT_VARIABLES:
             try:
-                value = self._call(
-                    f"read {self.task}/{name}", self.rws.get_rapid_variable, name, self.task
-                )
+                out[name] = self._var(name)
             except CellError as exc:
                 if isinstance(exc, CellUnreachable | CellAuthError) or "RWS error" not in str(exc):
                     raise
-                value = None
-            out[name] = value if value is None else str(value).strip().strip('"')
+                out[name] = None
         return out
+
+    def _var(self, name: str) -> str:
+        """The kit's variable ``name`` in ``task`` as RWS shows it, without quotes."""
+        value = self._call(f"read {self.task}/{name}", self.rws.get_rapid_variable, name, self.task)
+        return str(value).strip().strip('"')
 
     def read_state(self) -> CellState:
         """Controller state, mode, RAPID execution, tasks, speed ratio and the kit's variables."""
@@ -184,10 +186,7 @@ class Cell:
     def _progress(self) -> tuple[str, str | None]:
         """(RAPID execution state, tf_status) for the waiting loops."""
         execution = self._call("read the RAPID execution state", self.rws.get_execution_state)
-        status = self._call(
-            f"read {self.task}/tf_status", self.rws.get_rapid_variable, "tf_status", self.task
-        )
-        return str(execution.ctrlexecstate), str(status).strip().strip('"')
+        return str(execution.ctrlexecstate), self._var("tf_status")
 
     def _wait_status(self, wanted: set[str], wait: float, what: str, each=None) -> str:
         """Poll until tf_status is in ``wanted``; CellError when RAPID stops or ``wait`` passes.
@@ -220,14 +219,10 @@ class Cell:
         the module clears it before its next wait: never a second session.)"""
         if (
             status == "waiting"
-            and self._flag("tf_start_request") != "TRUE"
-            and self._progress()[1] == "waiting"
+            and self._var("tf_start_request").upper() != "TRUE"
+            and self._var("tf_status") == "waiting"
         ):
             self._request("tf_start_request")
-
-    def _flag(self, name: str) -> str:
-        value = self._call(f"read {self.task}/{name}", self.rws.get_rapid_variable, name, self.task)
-        return str(value).strip().upper()
 
     def _request(self, name: str) -> None:
         self._call(f"set {self.task}/{name}", self.rws.set_rapid_variable, name, "TRUE", self.task)
