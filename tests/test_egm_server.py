@@ -164,6 +164,29 @@ def test_a_backlog_is_answered_once_with_the_newest_packet(client):
         _no_reply(a)
 
 
+def test_malformed_packets_in_a_backlog_are_counted_malformed_not_superseded(client):
+    """A backlog of the peer: three valid packets, a malformed one after each of the first two.
+    The newest valid one is answered with the valid one before it (the malformed one between
+    them skipped); the two older valid ones were superseded; the malformed ones are counted as
+    malformed (loopback queues each datagram before sendto returns: one poll reads all five)."""
+    a = client()
+    got = []
+
+    def reply(fb, before=None):
+        got.append((fb.seqno, before.seqno))
+        return _hold(fb)
+
+    with EgmServer(f"{LOOPBACK}:0", reply, controller=LOOPBACK) as server:
+        for i in range(3):
+            a.sendto(egm.encode_robot(i + 1, 4 * i, np.zeros(6)), server.address)
+            if i < 2:
+                a.sendto(egm.encode_robot(9, 4 * i, np.zeros(6))[:30], server.address)
+        assert server.poll() == 1
+        k = server.counters
+        assert (k.received, k.replied, k.superseded, k.malformed) == (5, 1, 2, 2)
+        assert got == [(3, 2)]
+
+
 def _fuzz_packets(rng, n):
     good = [egm.encode_robot(i, i, rng.uniform(-3, 3, 6)) for i in range(50)]
     out = []

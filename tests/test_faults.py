@@ -265,6 +265,26 @@ def test_a_restart_answering_the_packet_before_is_excused_only_after_a_missed_cy
         assert checker.resync_fail and checker.f["resync_pos_err_mrad"] == pytest.approx(1.2)
 
 
+@pytest.mark.parametrize("batches", [1, 2])
+def test_replies_beyond_the_requests_sent_are_extra_and_a_late_first_reply_is_not(robot, batches):
+    """The first reply may arrive a cycle late, in the cycle of the second packet with that
+    packet's own reply: two replies for two packets, none extra (the count starts before the
+    first reply). A cycle with two replies that follows no unanswered one is one extra reply (a
+    daemon answering something the controller never sent as a request)."""
+    n = 40
+    q = np.tile(robot.home, (n, 1))
+    late_first = np.ones(n, dtype=int)
+    late_first[0], late_first[1] = 0, 2
+    extra = np.ones(n, dtype=int)
+    extra[30] = 2
+    for replied, want in ((late_first, 0), (extra, 1)):
+        rows = _rows(q, qd=np.zeros((n, 6)), replied=replied)
+        checker = ReplyChecker(robot)
+        for part in np.array_split(rows, batches):
+            checker.feed(part)
+        assert checker.n["extra_replies"] == want
+
+
 def test_stalls_near_attributes_events_to_overlapping_stalls():
     stalls = np.array([[10.0, 0.005], [20.0, 0.1]])
     got = stalls_near(np.array([9.997, 10.02, 20.05, 30.0]), stalls, 0.006, 0.004)

@@ -29,7 +29,10 @@ Checks (relative tolerance ``rtol``; ratios are value / limit, per joint, the ma
   ``missed`` nor in the cycles of ``answered_pct``; a further miss counts as usual, and the
   reply after it may answer the packet before it (arrived a cycle late): it is then checked
   against that packet's measured state (``resyncs_late``);
-* every reply finite and inside the URDF limits.
+* every reply finite and inside the URDF limits;
+* no more valid replies than requests sent (``extra_replies``: replies to something else, such
+  as a malformed datagram), counted from the controller's first request: a first reply that
+  arrives a cycle late lands in the cycle of the second request, beside that one's reply.
 
 :meth:`ReplyChecker.feed` takes rows in batches (the soak feeds it every few seconds).
 """
@@ -131,6 +134,11 @@ class ReplyChecker:
         """Count the batch's cycles from the first reply ever on; returns the index of the
         first row counted."""
         n = self.n
+        # every request the controller sent counts towards the replies it may receive, those
+        # before the first reply too: that reply may answer one of them, arriving a cycle late
+        self._replies += int(rows[:, R.N_VALID].sum())
+        self._copies += int(np.where(rows[:, R.FLAGS].astype(int) & R.DUP, 2, 1).sum())
+        n["extra_replies"] = max(0, self._replies - self._copies)  # replies to something else
         valid = rows[:, R.N_VALID]
         if not self.started:
             first = np.flatnonzero(valid > 0)
@@ -149,10 +157,6 @@ class ReplyChecker:
         self.missed_late += int((miss & (rows[:, R.FLAGS].astype(int) & R.LATE > 0)).sum())
         n["bad_replies"] += int(rows[:, R.N_BAD].sum())
         n["nonfinite"] += int(rows[:, R.N_NONFINITE].sum())
-        copies = np.where(rows[:, R.FLAGS].astype(int) & R.DUP, 2, 1)
-        self._replies += int(valid.sum())
-        self._copies += int(copies.sum())
-        n["extra_replies"] = max(0, self._replies - self._copies)  # replies to something else
         lo, hi = self.lim.q_lower, self.lim.q_upper
         applied_out = ((rows[:, R.CMD_Q] < lo) | (rows[:, R.CMD_Q] > hi)).any(axis=1)
         # replies outside the URDF limits: every reply as counted by the controller, or the

@@ -106,10 +106,10 @@ class EgmServer:
         bind: ``"HOST:PORT"`` string or ``(host, port)`` to bind; port 0 picks a free port.
         reply_fn: ``reply_fn(feedback, before) -> (q_rad, qd_rad_s)``, two sequences of 6 finite
             values: the setpoint to send in answer to ``feedback``; ``before`` is the peer's
-            valid packet just before it when that one was superseded in the same drain (else
-            None). A third element, when there is one, is their ``sensor_body`` encoded ahead
-            (:mod:`thinkfast.contract.egm`). Returning None leaves the request unanswered
-            (counted in ``deferred``).
+            newest valid packet before it when that one was superseded in the same drain
+            (malformed ones between them skipped; else None). A third element, when there is
+            one, is their ``sensor_body`` encoded ahead (:mod:`thinkfast.contract.egm`).
+            Returning None leaves the request unanswered (counted in ``deferred``).
             Called once per answered request, on the thread that calls :meth:`poll`.
         controller: ``"IP"`` or ``"IP:PORT"`` of the one controller to serve; None serves the
             first sender of a valid ``EgmRobot`` (see the module doc).
@@ -274,12 +274,14 @@ class EgmServer:
             if sources[k] != peer:
                 self._count_foreign(sources[k])
             elif answered >= 0:
+                try:  # (decoded to count it right: a malformed packet superseded nothing)
+                    older = decode_robot(packets[k][0])
+                except EgmDecodeError:
+                    c.malformed += k not in bad
+                    continue
                 c.superseded += 1
-                if before is None:  # the peer's packet just before the answered one
-                    try:
-                        before = decode_robot(packets[k][0])
-                    except EgmDecodeError:
-                        before = False
+                if before is None:  # the peer's valid packet just before the answered one
+                    before = older
             elif k not in bad:
                 try:
                     fb = decode_robot(packets[k][0])
