@@ -1,9 +1,10 @@
-"""Braking kernels: a jerk-limited stop reaches rest, never reverses, keeps a_max and j_max."""
+"""Braking kernels: a jerk-limited stop reaches rest, keeps a_max and j_max, and never reverses a
+joint but one already turning round."""
 
 import numpy as np
 import pytest
 
-from thinkfast.control.safety_brake import JerkLimitedStop, brake_velocity
+from thinkfast.control.safety_brake import JerkLimitedStop, brake_velocity, turning
 from thinkfast.control.safety_limits import make_limits
 
 DT = 0.004
@@ -50,6 +51,30 @@ def test_jerk_limited_stop_follows_ruckigs_profile_to_rest():
     acc = np.diff(vs, axis=0) / DT
     assert (np.abs(acc) <= LIM.a_max * (1 + 1e-6)).all()
     assert len(vs) - 1 >= int(2.5 / 12.0 / DT)  # not faster than a_max allows
+
+
+def test_a_joint_turning_round_as_the_stop_begins_passes_zero_and_keeps_j_max():
+    """Joint 3 of a fault-campaign brake: -0.25 rad/s and +11.8 rad/s^2 (a^2 / 2j = 0.46 rad/s
+    of change left at j_max 150). Cut at zero, its acceleration fell from about 8 to 0 in one
+    tick (jerk 9 j_max); the stop now carries it through zero and back to rest within j_max.
+    The other joints (along and against their motion, but able to stop) never reverse."""
+    v0, a0 = np.array([1.0, -1.5, -0.25]), np.array([6.0, 3.0, 11.8])
+    assert turning(v0, a0, LIM.j_max).tolist() == [False, False, True]
+    stop = JerkLimitedStop.plan(v0, a0, LIM)
+    vs = [v0]
+    for _ in range(1000):
+        vs.append(stop.next(DT))
+        if not vs[-1].any():
+            break
+    vs = np.array(vs)
+    assert not vs[-1].any()
+    assert (vs[:, :2] * np.sign(v0[:2]) >= 0).all()
+    peak = vs[:, 2].max()
+    assert 0.1 < peak <= a0[2] ** 2 / (2 * LIM.j_max[2]) - 0.25 + 1e-6  # through zero, bounded
+    acc = np.diff(np.vstack([v0 - a0 * DT, vs]), axis=0) / DT  # a0 held before the stop
+    assert (np.abs(acc) <= LIM.a_max * (1 + 1e-6)).all()
+    jerk = np.diff(acc, axis=0) / DT
+    assert (np.abs(jerk) <= 1.05 * LIM.j_max).all()
 
 
 def test_jerk_limited_stop_refuses_a_non_finite_state():

@@ -321,13 +321,14 @@ class SafetySupervisor:
             kinds = ("nonfinite",)
             self.request_brake("nonfinite")
         if self.braking:
-            if self._stop is not None:  # a joint that stood (a limit stopped it) stays
-                v_des = np.where(self.qd == 0.0, 0.0, self._stop.next(h))
+            if self._stop is not None:  # a joint that stood (a limit stopped it) stays,
+                stood = (self.qd == 0.0) & ~self._stop.through  # but for one turning round
+                v_des = np.where(stood, 0.0, self._stop.next(h))
             else:
                 v_des = brake_velocity(self.qd, self.qdd, lim, h)
             q, v = limit_step(self.q, self.qd, v_des, lim, h)
             # rounding in the limit bounds can leave +-1e-13 rad/s of the wrong sign: a stop
-            # is exactly zero, never a reversal
+            # ends at exactly zero
             v = np.where(np.abs(v) < 1e-9, 0.0, v)
         else:
             with np.errstate(over="ignore", invalid="ignore"):  # as in filter_step

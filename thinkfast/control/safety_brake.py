@@ -3,10 +3,16 @@
 Every joint's velocity is driven to zero along the time-optimal jerk-limited stop from the
 commanded velocity and acceleration (:class:`JerkLimitedStop`, Ruckig's velocity interface), or,
 where Ruckig refuses the state, with ``|acc| <= a_max`` and the acceleration ramped at ``j_max``
-(a sqrt law, :func:`brake_velocity`). Jerk is honoured unless the state when braking starts
-makes it impossible without reversing (then the velocity stops at zero), or a position limit
-demands a harder stop (:func:`thinkfast.control.safety_limits.limit_step` still guards them).
-Joints brake independently (each as fast as it may). Pure: no clock, no I/O.
+(a sqrt law, :func:`brake_velocity`). A stop does not reverse a joint, but for one that is
+turning round already when the brake starts: its acceleration opposes its velocity and is too
+large to ramp to zero at ``j_max`` before the velocity passes zero (``a^2 / (2 j_max) > |v|``).
+That joint follows Ruckig's stop through zero and back to rest, where cutting its velocity at
+zero would step the acceleration down in one tick (seen at 5 to 9 times ``j_max`` on joint 3 in
+the fault campaign: from -0.25 rad/s and +11.8 rad/s^2 it now goes back 16 mrad, at 0.21 rad/s
+at most). Jerk is honoured unless a position limit
+demands a harder stop (:func:`thinkfast.control.safety_limits.limit_step` still guards them),
+or Ruckig refuses the state (the sqrt law then stops at zero). Joints brake independently (each
+as fast as it may). Pure: no clock, no I/O.
 """
 
 from __future__ import annotations
@@ -70,11 +76,14 @@ class JerkLimitedStop:
     """The time-optimal stop of every joint from velocity and acceleration (Ruckig's velocity
     interface, joints independent), sampled tick by tick: the commanded velocity follows a
     continuous jerk-limited profile, so braking honours j_max exactly (where the position
-    limits allow; :func:`limit_step` still guards them)."""
+    limits allow; :func:`limit_step` still guards them). A joint that reaches zero stays there,
+    unless it was turning round as the stop began (:func:`turning`): that one follows the
+    profile through zero and back to rest."""
 
-    def __init__(self, traj: Trajectory, v0: np.ndarray):
+    def __init__(self, traj: Trajectory, v0: np.ndarray, through=None):
         self._traj, self._t = traj, 0.0
-        self._sign = np.sign(v0)  # a stop never reverses: a joint that reaches zero stays
+        self._sign = np.sign(v0)  # the direction a joint may not leave (0: it stands)
+        self.through = np.zeros(len(v0), dtype=bool) if through is None else through
 
     @classmethod
     def plan(cls, v0, a0, lim: SafetyLimits) -> JerkLimitedStop | None:
@@ -91,12 +100,23 @@ class JerkLimitedStop:
         traj = stop_trajectory(np.zeros(n), v0, a0, (v_lim, lim.a_max, lim.j_max), sync=False)
         if traj is None:
             return None
-        return cls(traj, v0)
+        return cls(traj, v0, turning(v0, a0, lim.j_max))
 
     def next(self, h: float) -> np.ndarray:
         """The stop's velocity [rad/s] (n,) ``h`` seconds after the previous call."""
         self._t = min(self._t + h, self._traj.duration)
+        if self._t >= self._traj.duration:  # at rest, exactly (whatever Ruckig's rounding)
+            return np.zeros(self._sign.size)
         v = np.array(self._traj.at_time(self._t)[1])
-        v = np.where((v * self._sign > 0.0) & (np.abs(v) >= 1e-9), v, 0.0)
+        keep = (self.through | (v * self._sign > 0.0)) & (np.abs(v) >= 1e-9)
+        v = np.where(keep, v, 0.0)
         self._sign = np.where(v == 0.0, 0.0, self._sign)
         return v
+
+
+def turning(v, a, j_max) -> np.ndarray:
+    """Per joint, whether no stop at ``j_max`` keeps the velocity ``v`` [rad/s] (n,) from
+    passing zero: the acceleration ``a`` [rad/s^2] (n,) opposes it (or the joint stands) and
+    ramping it to zero changes the velocity by more than is left (``a^2 / (2 j_max) > |v|``)."""
+    v, a = np.asarray(v, dtype=float), np.asarray(a, dtype=float)
+    return (a * v <= 0.0) & (a * a > 2.0 * j_max * np.abs(v))
