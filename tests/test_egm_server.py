@@ -138,15 +138,22 @@ def test_a_named_controller_port_is_the_only_one_served(client):
         assert (server.counters.foreign, server.counters.replied) == (1, 0)
 
 
-@pytest.mark.realtime
-def test_a_backlog_is_answered_once_with_the_newest_packet(client):
-    a, flood = client(), client()
-    flood.setblocking(False)
+def _answers_with_before():
+    """A setpoint source that notes ``(seqno, seqno of before)`` of each request it answers."""
     got = []
 
     def reply(fb, before=None):
         got.append((fb.seqno, before.seqno))
         return _hold(fb)
+
+    return got, reply
+
+
+@pytest.mark.realtime
+def test_a_backlog_is_answered_once_with_the_newest_packet(client):
+    a, flood = client(), client()
+    flood.setblocking(False)
+    got, reply = _answers_with_before()
 
     with EgmServer(f"{LOOPBACK}:0", reply, controller=LOOPBACK) as server:
         for i in range(5):
@@ -170,11 +177,7 @@ def test_malformed_packets_in_a_backlog_are_counted_malformed_not_superseded(cli
     them skipped); the two older valid ones were superseded; the malformed ones are counted as
     malformed (loopback queues each datagram before sendto returns: one poll reads all five)."""
     a = client()
-    got = []
-
-    def reply(fb, before=None):
-        got.append((fb.seqno, before.seqno))
-        return _hold(fb)
+    got, reply = _answers_with_before()
 
     with EgmServer(f"{LOOPBACK}:0", reply, controller=LOOPBACK) as server:
         for i in range(3):

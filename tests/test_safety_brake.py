@@ -37,16 +37,21 @@ def test_brake_velocity_honours_jerk_from_full_acceleration_away():
     assert ((v1 - v0) / DT * np.sign(v0) >= LIM.a_max - LIM.j_max * DT - 1e-9).all()
 
 
-def test_jerk_limited_stop_follows_ruckigs_profile_to_rest():
-    v0, a0 = np.array([2.5, -1.0, 0.0]), np.array([0.0, 3.0, 0.0])
+def _stop_velocities(v0, a0, ticks=1000):
+    """The planned stop's velocities, tick by tick from ``v0`` until every joint is at rest."""
     stop = JerkLimitedStop.plan(v0, a0, LIM)
     assert stop is not None
-    vs = [v0]
-    for _ in range(1000):
+    vs = [np.asarray(v0, dtype=float)]
+    for _ in range(ticks):
         vs.append(stop.next(DT))
         if not vs[-1].any():
             break
-    vs = np.array(vs)
+    return np.array(vs)
+
+
+def test_jerk_limited_stop_follows_ruckigs_profile_to_rest():
+    v0, a0 = np.array([2.5, -1.0, 0.0]), np.array([0.0, 3.0, 0.0])
+    vs = _stop_velocities(v0, a0)
     assert not vs[-1].any() and (vs * np.sign(v0) >= 0).all()
     acc = np.diff(vs, axis=0) / DT
     assert (np.abs(acc) <= LIM.a_max * (1 + 1e-6)).all()
@@ -60,13 +65,7 @@ def test_a_joint_turning_round_as_the_stop_begins_passes_zero_and_keeps_j_max():
     The other joints (along and against their motion, but able to stop) never reverse."""
     v0, a0 = np.array([1.0, -1.5, -0.25]), np.array([6.0, 3.0, 11.8])
     assert turning(v0, a0, LIM.j_max).tolist() == [False, False, True]
-    stop = JerkLimitedStop.plan(v0, a0, LIM)
-    vs = [v0]
-    for _ in range(1000):
-        vs.append(stop.next(DT))
-        if not vs[-1].any():
-            break
-    vs = np.array(vs)
+    vs = _stop_velocities(v0, a0)
     assert not vs[-1].any()
     assert (vs[:, :2] * np.sign(v0[:2]) >= 0).all()
     peak = vs[:, 2].max()
