@@ -100,7 +100,7 @@ class ReplyChecker:
         allr = np.vstack([self.ctx, rows])
         brake = np.r_[self.ctx_brake, br_new]
         has = np.r_[self.ctx_has, rows[:, R.N_VALID] > 0]
-        copies = np.where(allr[:, R.FLAGS].astype(int) & R.DUP, 2, 1)
+        copies = _copies(allr)
         fresh = has & (allr[:, R.N_VALID] <= copies)
         missed = ~has
         for s in range(1, SETTLE + 1):
@@ -136,10 +136,10 @@ class ReplyChecker:
         n = self.n
         # every request the controller sent counts towards the replies it may receive, those
         # before the first reply too: that reply may answer one of them, arriving a cycle late
-        self._replies += int(rows[:, R.N_VALID].sum())
-        self._copies += int(np.where(rows[:, R.FLAGS].astype(int) & R.DUP, 2, 1).sum())
-        n["extra_replies"] = max(0, self._replies - self._copies)  # replies to something else
         valid = rows[:, R.N_VALID]
+        self._replies += int(valid.sum())
+        self._copies += int(_copies(rows).sum())
+        n["extra_replies"] = max(0, self._replies - self._copies)  # replies to something else
         if not self.started:
             first = np.flatnonzero(valid > 0)
             if len(first) == 0:
@@ -367,6 +367,11 @@ class ReplyChecker:
             if n[key]:
                 out.append(f"{n[key]} {key}")
         return out
+
+
+def _copies(rows: np.ndarray) -> np.ndarray:
+    """Requests sent per cycle: 2 where the ``EgmRobot`` went twice, else 1."""
+    return np.where(rows[:, R.FLAGS].astype(int) & R.DUP, 2, 1)
 
 
 def _max(a: np.ndarray) -> float:

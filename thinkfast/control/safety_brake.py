@@ -9,10 +9,10 @@ large to ramp to zero at ``j_max`` before the velocity passes zero (``a^2 / (2 j
 That joint follows Ruckig's stop through zero and back to rest, where cutting its velocity at
 zero would step the acceleration down in one tick (seen at 5 to 9 times ``j_max`` on joint 3 in
 the fault campaign: from -0.25 rad/s and +11.8 rad/s^2 it now goes back 16 mrad, at 0.21 rad/s
-at most). Jerk is honoured unless a position limit
-demands a harder stop (:func:`thinkfast.control.safety_limits.limit_step` still guards them),
-or Ruckig refuses the state (the sqrt law then stops at zero). Joints brake independently (each
-as fast as it may). Pure: no clock, no I/O.
+at most). Jerk is honoured unless a position limit demands a harder stop
+(:func:`thinkfast.control.safety_limits.limit_step` still guards them), or Ruckig refuses the
+state (the sqrt law then stops at zero). Joints brake independently (each as fast as it may).
+Pure: no clock, no I/O.
 """
 
 from __future__ import annotations
@@ -80,10 +80,10 @@ class JerkLimitedStop:
     unless it was turning round as the stop began (:func:`turning`): that one follows the
     profile through zero and back to rest."""
 
-    def __init__(self, traj: Trajectory, v0: np.ndarray, through=None):
+    def __init__(self, traj: Trajectory, v0: np.ndarray, through: np.ndarray):
         self._traj, self._t = traj, 0.0
         self._sign = np.sign(v0)  # the direction a joint may not leave (0: it stands)
-        self.through = np.zeros(len(v0), dtype=bool) if through is None else through
+        self.through = through  # (n,) bool: turning round as the stop began
 
     @classmethod
     def plan(cls, v0, a0, lim: SafetyLimits) -> JerkLimitedStop | None:

@@ -269,19 +269,14 @@ class EgmServer:
                 return 0
             self.peer = peer
             c.handovers += 1
-        answered, before = -1, None
+        answered, before, rest = -1, None, []
         for k in range(len(packets) - 1, -1, -1):
             if sources[k] != peer:
                 self._count_foreign(sources[k])
+            elif before is not None:
+                rest.append(k)  # counted after the reply: no decoding ahead of it
             elif answered >= 0:
-                try:  # (decoded to count it right: a malformed packet superseded nothing)
-                    older = decode_robot(packets[k][0])
-                except EgmDecodeError:
-                    c.malformed += k not in bad
-                    continue
-                c.superseded += 1
-                if before is None:  # the peer's valid packet just before the answered one
-                    before = older
+                before = self._older(packets[k][0], k in bad)  # the peer's valid one before
             elif k not in bad:
                 try:
                     fb = decode_robot(packets[k][0])
@@ -292,7 +287,21 @@ class EgmServer:
                 data, addr, t_read, stamp, wait, _ = packets[k]
         if answered < 0:
             return 0
-        return self._reply(fb, before or None, addr, t_read, stamp, wait)
+        sent = self._reply(fb, before, addr, t_read, stamp, wait)
+        for k in rest:
+            self._older(packets[k][0], k in bad)
+        return sent
+
+    def _older(self, data: bytes, counted: bool) -> RobotFeedback | None:
+        """A packet of the peer's older than the answered one: superseded when it decodes
+        (returned), else malformed (unless ``counted`` so already)."""
+        try:
+            older = decode_robot(data)
+        except EgmDecodeError:
+            self.counters.malformed += not counted
+            return None
+        self.counters.superseded += 1
+        return older
 
     def _reply(
         self, fb: RobotFeedback, before, addr, t_read: float, stamp: float, wait: float
