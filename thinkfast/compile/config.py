@@ -49,7 +49,10 @@ class TreeConfig:
         doc="steering sub-goal grid step, through home (snapped to goals)",
     )
     connect_radius: float = spec(
-        0.3, lo=0.0, unit="m", doc="leaves connect to every goal this near (shield on the plane)"
+        0.3,
+        lo=0.0,
+        unit="m",
+        doc="leaves connect to every goal this near (shield on the plane, to the micrometre)",
     )
     connect_min: int = spec(
         2, lo=0, doc="every goal also connects to at least this many nearest leaves"

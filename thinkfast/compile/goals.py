@@ -24,6 +24,7 @@ import numpy as np
 
 from thinkfast.compile.config import GoalsConfig
 from thinkfast.errors import ConfigError
+from thinkfast.robot import fixed_order as fo
 from thinkfast.robot.collision import CollisionChecker
 from thinkfast.robot.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
@@ -31,6 +32,15 @@ from thinkfast.robot.model import Robot
 
 SHIELD_NORMAL = np.array([1.0, 0.0, 0.0])  # faces the incoming ball (+x in base)
 _WRAP = 2.0 * np.pi
+
+PLANE_STEP = 1e-6  # m: distances on the plane are compared in whole micrometres (microns)
+
+
+def microns(d):
+    """Distances [m] as whole micrometres: a goal at exactly a radius, or two points equally
+    near, as the symmetric grids make many, are decided the same way whatever the last bits of
+    the distances (the first in index order wins a tie)."""
+    return np.rint(np.asarray(d) / PLANE_STEP)
 
 
 class GoalGrid(NamedTuple):
@@ -127,7 +137,7 @@ def solve_goal_grid(
     scale = 1.0 / robot.v_max  # time at top speed per radian
 
     home_centre = kin.shield(robot.home).centre
-    start = int(np.argmin(np.linalg.norm(yz - home_centre[1:], axis=1)))
+    start = int(np.argmin(microns(np.linalg.norm(yz - home_centre[1:], axis=1))))
     order, seen, queue = [], {start}, deque([start])
     while queue:  # breadth first from the point nearest home
         i = queue.popleft()
@@ -160,7 +170,7 @@ def solve_goal_grid(
                         failure = why  # report the deepest test reached
                     continue
                 jump = max((np.max(np.abs(cand[:3] - q[k, :3])) for k in neighbours), default=0.0)
-                cost = float(np.linalg.norm((cand - robot.home) * scale))
+                cost = float(fo.norm((cand - robot.home) * scale))
                 cost += 1e3 * (jump > cfg.continuity)  # branch switches only as a last resort
                 if cost < best_cost:
                     best, best_cost = cand, cost
@@ -169,10 +179,8 @@ def solve_goal_grid(
             continue
         q[i] = best
         pose = kin.shield(best)
-        pos_err[i] = np.linalg.norm(pose.centre - target)
-        ang_err[i] = np.arctan2(
-            np.linalg.norm(np.cross(pose.normal, SHIELD_NORMAL)), pose.normal[0]
-        )
+        pos_err[i] = fo.norm(pose.centre - target)
+        ang_err[i] = np.arctan2(fo.norm(np.cross(pose.normal, SHIELD_NORMAL)), pose.normal[0])
     reachable = ~np.isnan(q[:, 0])
     for arr in (q, pos_err, ang_err, reachable, yz):
         arr.setflags(write=False)

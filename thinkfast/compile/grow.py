@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from thinkfast.compile.config import TreeConfig
-from thinkfast.compile.goals import GoalGrid
+from thinkfast.compile.goals import GoalGrid, microns
 from thinkfast.compile.pathcheck import PathChecker
 from thinkfast.compile.shield import (
     centres_at,
@@ -177,7 +177,7 @@ def subgoals(grid: GoalGrid, goals_cfg, spacing: float, centre_yz: np.ndarray) -
     out: list[int] = []
     for z in zs:
         for y in ys:
-            k = int(np.argmin(np.linalg.norm(yz - [y, z], axis=1)))
+            k = int(np.argmin(microns(np.linalg.norm(yz - [y, z], axis=1))))
             if k not in out:
                 out.append(k)
     return np.array(out, dtype=np.int32)
@@ -279,8 +279,8 @@ def _connect_plan(inputs: GrowInputs, depth, state, wrist, plane_yz, goal_yz):
     cfg = inputs.tree
     depth = np.asarray(depth)
     q = np.column_stack([np.asarray(state)[:, :3], np.asarray(wrist)])
-    d = np.linalg.norm(plane_yz(q)[:, None, :] - goal_yz[None, :, :], axis=2)  # (N, G)
-    link = d <= cfg.connect_radius
+    d = microns(np.linalg.norm(plane_yz(q)[:, None, :] - goal_yz[None, :, :], axis=2))  # (N, G)
+    link = d <= microns(cfg.connect_radius)
     leaves = np.flatnonzero(depth == cfg.max_depth)
     if not cfg.internal_terminals:
         link[depth < cfg.max_depth] = False

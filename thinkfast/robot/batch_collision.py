@@ -15,6 +15,7 @@ from typing import NamedTuple
 import fcl
 import numpy as np
 
+from thinkfast.robot import fixed_order as fo
 from thinkfast.robot.batch_fk import BatchFK
 from thinkfast.robot.collision import CollisionChecker
 from thinkfast.robot.model import CollisionShape
@@ -41,7 +42,7 @@ def sphere_cover(shape: CollisionShape) -> tuple[np.ndarray, np.ndarray]:
         piece = dims / n
         axes = [(-dims[i] / 2 + piece[i] * (np.arange(n[i]) + 0.5)) for i in range(3)]
         centres = np.array(list(itertools.product(*axes)))
-        return centres, np.full(len(centres), 0.5 * np.linalg.norm(piece))
+        return centres, np.full(len(centres), 0.5 * fo.norm(piece))
     if shape.shape == "cylinder":
         r, length = shape.size
         if length >= r:  # rod: slices along the axis
@@ -89,7 +90,7 @@ class BatchCollision:
                 continue
             c, r = sphere_cover(self.shapes[i])
             T = checker.T_link_shape[i]
-            centres.append(c @ T[:3, :3].T + T[:3, 3])  # in the link frame
+            centres.append(fo.matmul(c, T[:3, :3].T) + T[:3, 3])  # in the link frame
             radii.append(r)
             owner += [i] * len(r)
         self._centres = np.vstack(centres)
@@ -148,13 +149,15 @@ class BatchCollision:
         for k, link in enumerate(self._links):
             sel = self._sphere_link == k
             P = poses[link]
-            out[:, sel] = self._centres[sel] @ P[:, :3, :3].transpose(0, 2, 1) + P[:, None, :3, 3]
+            out[:, sel] = (
+                fo.matmul(self._centres[sel], P[:, :3, :3].transpose(0, 2, 1)) + P[:, None, :3, 3]
+            )
         return out
 
     def _shape_pose(self, b: int, poses: dict[str, np.ndarray]) -> np.ndarray:
         link = self.checker.links[b]
         T = self.checker.T_link_shape[b]
-        return poses[link] @ T if link else T[None]
+        return fo.matmul(poses[link], T) if link else T[None]
 
     def lower_bounds(
         self, q: np.ndarray, poses: dict[str, np.ndarray] | None = None
@@ -173,7 +176,8 @@ class BatchCollision:
             if b not in shape_pose:
                 shape_pose[b] = self._shape_pose(b, poses)
             T = shape_pose[b]  # (N or 1, 4, 4)
-            local = (W[:, spheres] - T[:, None, :3, 3]) @ T[:, :3, :3]  # R^T (w - t), row-wise
+            # R^T (w - t), row-wise
+            local = fo.matmul(W[:, spheres] - T[:, None, :3, 3], T[:, :3, :3])
             d = point_distance(self.shapes[b], local) - self._radii[spheres]
             lb[:, p] = d.min(axis=1)
         return lb, poses
@@ -245,9 +249,9 @@ class BatchCollision:
         """Smallest bound over ``spheres`` (link poses ``P``) against shape ``b`` at ``rows``, as
         :meth:`lower_bounds` computes it."""
         P = P[rows]
-        W = self._centres[spheres] @ P[:, :3, :3].transpose(0, 2, 1) + P[:, None, :3, 3]
+        W = fo.matmul(self._centres[spheres], P[:, :3, :3].transpose(0, 2, 1)) + P[:, None, :3, 3]
         T = T[rows] if len(T) > 1 else T
-        local = (W - T[:, None, :3, 3]) @ T[:, :3, :3]
+        local = fo.matmul(W - T[:, None, :3, 3], T[:, :3, :3])
         return (point_distance(self.shapes[b], local) - self._radii[spheres]).min(axis=1)
 
     def first_collisions(
@@ -275,7 +279,7 @@ class BatchCollision:
         i, j = ck.pairs[p]
         for k in (i, j):
             if ck.links[k]:
-                T = poses[ck.links[k]][n] @ ck.T_link_shape[k]
+                T = fo.matmul(poses[ck.links[k]][n], ck.T_link_shape[k])
                 ck.objects[k].setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
         return fcl.collide(ck.objects[i], ck.objects[j], ck._request, fcl.CollisionResult())
 
@@ -290,7 +294,7 @@ class BatchCollision:
             i, j = ck.pairs[p]
             for k in (i, j):
                 if ck.links[k]:
-                    T = poses[ck.links[k]][n] @ ck.T_link_shape[k]
+                    T = fo.matmul(poses[ck.links[k]][n], ck.T_link_shape[k])
                     ck.objects[k].setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
             if fcl.collide(ck.objects[i], ck.objects[j], ck._request, fcl.CollisionResult()):
                 return Hit(int(n), (ck.names[i], ck.names[j]))

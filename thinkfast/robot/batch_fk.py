@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from thinkfast.robot import fixed_order as fo
 from thinkfast.robot.model import Robot
 
 
@@ -101,13 +102,13 @@ class BatchFK:
                     break
                 continue
             Rp = rot[j.parent]
-            pos[j.child] = pos[j.parent] + Rp @ t0
-            R = Rp if identity else Rp @ R0
+            pos[j.child] = pos[j.parent] + fo.matvec(Rp, t0)
+            R = Rp if identity else fo.matmul(Rp, R0)
             if j.index >= 0:
                 if frame_axis is not None:
                     R = _rotate_about_frame_axis(R, frame_axis[0], frame_axis[1], q[:, j.index])
                 else:
-                    R = R @ axis_rotation(j.axis, q[:, j.index])
+                    R = fo.matmul(R, axis_rotation(j.axis, q[:, j.index]))
             rot[j.child] = R
             if j.child == until:
                 break

@@ -15,6 +15,7 @@ import fcl
 import numpy as np
 
 from thinkfast.errors import RobotModelError
+from thinkfast.robot import fixed_order as fo
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import CollisionShape, Robot
 
@@ -29,7 +30,7 @@ class Distance(NamedTuple):
 def _geometry(shape: CollisionShape) -> tuple[fcl.CollisionGeometry, np.ndarray, float]:
     """fcl geometry, local bounding-sphere centre (3,) and radius [m] of one primitive."""
     if shape.shape == "box":
-        return fcl.Box(*shape.size), np.zeros(3), 0.5 * float(np.linalg.norm(shape.size))
+        return fcl.Box(*shape.size), np.zeros(3), 0.5 * float(fo.norm(shape.size))
     if shape.shape == "cylinder":
         r, length = shape.size
         return fcl.Cylinder(r, length), np.zeros(3), float(np.hypot(r, 0.5 * length))
@@ -78,7 +79,7 @@ class CollisionChecker:
             self._add(s.link, "", geom, s.T_link_shape)
             T = s.T_link_shape  # cell objects are posed in base once
             self.objects[-1].setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
-            centres.append(T[:3, :3] @ c + T[:3, 3])
+            centres.append(fo.matvec(T[:3, :3], c) + T[:3, 3])
             radii.append(r)
             moving.append(False)
         self._shape_centre = np.array(centres)  # shape frame (robot) or base (cell)
@@ -151,9 +152,9 @@ class CollisionChecker:
         oMf = self.kin.data.oMf
         for i in self._robot_shapes:
             M = oMf[self.kin.frame_id(self.links[i])]
-            T = M.homogeneous @ self.T_link_shape[i]
+            T = fo.matmul(M.homogeneous, self.T_link_shape[i])
             self.objects[i].setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
-            self._world_centre[i] = T[:3, :3] @ self._shape_centre[i] + T[:3, 3]
+            self._world_centre[i] = fo.matvec(T[:3, :3], self._shape_centre[i]) + T[:3, 3]
 
     def _candidates(self, margin: float) -> np.ndarray:
         d = np.linalg.norm(self._world_centre[self._pi] - self._world_centre[self._pj], axis=1)

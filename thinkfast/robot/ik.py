@@ -11,12 +11,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from thinkfast.robot import fixed_order as fo
 from thinkfast.robot.kinematics import Kinematics
-
-try:  # the gufunc behind np.linalg.solve for one right-hand side (absent: np.linalg.solve)
-    from numpy.linalg._umath_linalg import solve1 as _lapack_solve1
-except ImportError:  # pragma: no cover
-    _lapack_solve1 = None
 
 
 class IkResult(NamedTuple):
@@ -62,7 +58,7 @@ def solve_shield_ik(
     """
     centre = np.asarray(centre, dtype=np.float64)
     n_target = np.asarray(normal, dtype=np.float64)
-    n_target = n_target / np.linalg.norm(n_target)
+    n_target = n_target / fo.norm(n_target)
     q = np.array(q_seed, dtype=np.float64)
     lam, iterations = 1e-3, 0
 
@@ -74,36 +70,25 @@ def solve_shield_ik(
     r, J = residual(q)
     diag = (np.arange(5), np.arange(5))
     while iterations < max_iter:
-        if np.linalg.norm(r[:3]) < tol and np.linalg.norm(r[3:]) < tol:
+        if fo.norm(r[:3]) < tol and fo.norm(r[3:]) < tol:
             break
         iterations += 1
-        H = J.T @ J
+        H = fo.matmul(J.T, J)
         damp = np.zeros_like(H)
         damp[diag] = H[diag] + 1e-9  # np.diag(np.diag(H) + 1e-9)
-        dq = _solve(H + lam * damp, -J.T @ r)
+        dq = fo.solve(H + lam * damp, -fo.matvec(J.T, r))
         trial = q.copy()
         trial[:5] += dq
         r_new, J_new = residual(trial)
-        if r_new @ r_new < r @ r:  # accept, trust the model more
+        if fo.dot(r_new, r_new) < fo.dot(r, r):  # accept, trust the model more
             q, r, J, lam = trial, r_new, J_new, max(lam * 0.3, 1e-9)
         else:  # reject, damp harder
             lam *= 10.0
             if lam > 1e6:
                 break
     pose = kin.shield(q)
-    pos_err = float(np.linalg.norm(pose.centre - centre))
+    pos_err = float(fo.norm(pose.centre - centre))
     ang_err = float(
-        np.arctan2(np.linalg.norm(np.cross(pose.normal, n_target)), pose.normal @ n_target)
+        np.arctan2(fo.norm(np.cross(pose.normal, n_target)), fo.dot(pose.normal, n_target))
     )
     return IkResult(q, pos_err, ang_err, iterations, bool(pos_err < 1e-6 and ang_err < 1e-6))
-
-
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.linalg.solve(a, b)`` for float64 ``a`` (n, n) and ``b`` (n,): the same LAPACK
-    gufunc without the wrapper (bit for bit); a result that is not finite (a singular ``a``) is
-    left to ``np.linalg.solve``, which raises as before."""
-    if _lapack_solve1 is not None:
-        x = _lapack_solve1(a, b, signature="dd->d")
-        if np.isfinite(x).all():
-            return x
-    return np.linalg.solve(a, b)

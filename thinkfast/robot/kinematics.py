@@ -12,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 import pinocchio as pin
 
+from thinkfast.robot import fixed_order as fo
 from thinkfast.robot.model import Robot
 
 
@@ -74,5 +75,5 @@ class Kinematics:
         )
         M = self.data.oMf[self.shield_id]
         n = M.rotation[:, 2].copy()
-        Jn = -pin.skew(n) @ J[3:]  # d n / dt = omega x n
+        Jn = -fo.matmul(pin.skew(n), J[3:])  # d n / dt = omega x n
         return ShieldPose(M.translation.copy(), n), J[:3].copy(), Jn

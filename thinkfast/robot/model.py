@@ -22,6 +22,7 @@ import pinocchio as pin
 
 from thinkfast.config import from_dict, load_toml, spec
 from thinkfast.errors import ConfigError, RobotModelError
+from thinkfast.robot import fixed_order as fo
 
 
 def frozen(a) -> np.ndarray:
@@ -268,9 +269,9 @@ def _parse_chain(root: ET.Element, urdf_path: Path) -> list[UrdfJoint]:
                     ax.get("xyz") if ax is not None else "1 0 0", 3, f"joint {name} axis", urdf_path
                 )
             )
-            if np.linalg.norm(axis) < 1e-9:
+            if fo.norm(axis) < 1e-9:
                 raise RobotModelError(f"{urdf_path}: joint {name!r} has a zero axis")
-            axis = axis / np.linalg.norm(axis)
+            axis = axis / fo.norm(axis)
         elif kind != "fixed":
             raise RobotModelError(f"{urdf_path}: joint {name!r}: unsupported type {kind!r}")
         T = pose(xyz, rpy)

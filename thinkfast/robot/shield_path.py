@@ -19,6 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from thinkfast.errors import RobotModelError
+from thinkfast.robot import fixed_order as fo
 from thinkfast.robot import kernels
 from thinkfast.robot.batch_fk import BatchFK
 from thinkfast.robot.model import Robot
@@ -47,7 +48,7 @@ class ShieldSampler:
         q = np.array(robot.home, dtype=float)[None]
         poses = self.fk.link_poses(q, until=robot.shield_link)
         w, s = poses[self.wrist_link][0], poses[robot.shield_link][0]
-        local = w[:3, :3].T @ (s[:3, 3] - w[:3, 3])  # in link_5: along x only
+        local = fo.matvec(w[:3, :3].T, s[:3, 3] - w[:3, 3])  # in link_5: along x only
         if not (np.allclose(local[1:], 0.0, atol=1e-9) and np.allclose(w[:3, 0], s[:3, 2])):
             raise RobotModelError(
                 "shield path: the shield centre must lie on link_5's x axis, normal along it"
@@ -108,7 +109,7 @@ class ShieldSampler:
                     cross = np.column_stack([axis[1] * p[:, 2] - axis[2] * p[:, 1],
                                              axis[2] * p[:, 0] - axis[0] * p[:, 2],
                                              axis[0] * p[:, 1] - axis[1] * p[:, 0]])  # fmt: skip
-                    p = c * p + s * cross + (1.0 - c) * (p @ axis)[:, None] * axis
+                    p = c * p + s * cross + (1.0 - c) * fo.dot(p, axis)[:, None] * axis
             p = _place(p, R0, t0)
         return np.array(p)
 
@@ -194,14 +195,14 @@ class ShieldSampler:
         key = tuple(map(float, normal))
         if key not in self._offsets:
             n = np.asarray(key)
-            self._offsets[key] = self.offset * (n / np.linalg.norm(n))
+            self._offsets[key] = self.offset * (n / fo.norm(n))
         return self._offsets[key]
 
 
 def _place(p: np.ndarray, R0: np.ndarray | None, t0: np.ndarray | None) -> np.ndarray:
     """``p @ R0.T + t0`` (N, 3), skipping an identity ``R0`` or a zero ``t0`` (None)."""
     if R0 is not None:
-        p = p @ R0.T
+        p = fo.matmul(p, R0.T)
     return p if t0 is None else p + t0
 
 
