@@ -6,12 +6,10 @@ STAMP  := $(VENV)/.installed-stamp
 CONFIG ?= trees/irb1600_default.toml
 TREE   ?= trees/irb1600_default.h5
 
-.PHONY: install test test-quarantine demo lint bench clean
+.PHONY: install lock lock-check test test-quarantine demo lint bench clean
 
 $(TREE): $(STAMP) $(CONFIG)
 	$(VENV)/bin/thinkfast-compile tree $(CONFIG) -o $(TREE) --if-changed
-
-EXTRAS := dev,cell,sweep,ros,view,foxglove
 
 # Python's bytecode caches (the gitignored __pycache__ directories) are written even where the
 # environment sets PYTHONDONTWRITEBYTECODE: the tests and the demo start the package's programs
@@ -30,16 +28,45 @@ $(KERNELS): $(STAMP) $(wildcard thinkfast/*/*_jit.py)
 	THINKFAST_KERNELS=compiled $(PY) -c 'from thinkfast.decide import pair_jit as p, tree_jit as t; p.warm_up(); t.warm_up()'
 	touch $(KERNELS)
 
-# uv (from PyPI, into the venv) installs the same packages as pip, downloading in parallel:
-# 3 min against 16 min on a loaded host (docs/BENCHMARKS.md, "The test suite"). Plain pip when
-# uv cannot be had or fails.
-$(STAMP): pyproject.toml
+# The environment is requirements.lock: every package of every extra at one version, with its
+# hashes (uv pip compile --universal from pyproject.toml's ranges, which stay for those who
+# install the package into an environment of their own). uv, at one version, into the venv
+# installs the lock and then the package alone (--no-deps), downloading in parallel: 3 min
+# against 16 min for pip on a loaded host (docs/BENCHMARKS.md, "The test suite"). Plain pip,
+# the same two steps, when uv cannot be had or fails.
+UV_VERSION := 0.13.9
+UV   := $(VENV)/bin/uv
+LOCK := requirements.lock
+
+# Before anything is installed: whether the lock was compiled from pyproject.toml's dependencies
+# as they are (a digest in its header, every direct requirement pinned); one line and a failure
+# when not. Stdlib only, offline, run (order-only) before every install and so every `make test`.
+lock-check:
+	@$(PYTHON) .ci/lock_check.py
+$(LOCK):  # only when it is missing: the check says so
+	@$(PYTHON) .ci/lock_check.py
+
+$(STAMP): pyproject.toml $(LOCK) | lock-check
 	$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "thinkfast needs Python >= 3.11"'
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q uv && $(VENV)/bin/uv pip install -q --native-tls --compile-bytecode \
-	    --python $(PY) -e '.[$(EXTRAS)]' \
-	  || { $(PY) -m pip install -q --upgrade pip && $(PY) -m pip install -q -e '.[$(EXTRAS)]'; }
+	$(PY) -m pip install -q uv==$(UV_VERSION) \
+	  && $(UV) pip install -q --native-tls --compile-bytecode --python $(PY) --require-hashes -r $(LOCK) \
+	  && $(UV) pip install -q --native-tls --compile-bytecode --python $(PY) --no-deps -e . \
+	  || { $(PY) -m pip install -q --upgrade pip && $(PY) -m pip install -q --require-hashes -r $(LOCK) \
+	       && $(PY) -m pip install -q --no-deps -e .; }
 	touch $(STAMP)
+
+# requirements.lock again from pyproject.toml, after a dependency there changed: uv keeps the
+# lock's pins that still fit; LOCK_FLAGS=--upgrade moves every package to its newest version,
+# LOCK_FLAGS='--upgrade-package numpy' one. Then the header with the digest (.ci/lock_check.py).
+LOCK_FLAGS ?=
+lock:
+	$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "thinkfast needs Python >= 3.11"'
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q uv==$(UV_VERSION)
+	$(UV) pip compile -q --native-tls pyproject.toml --all-extras --universal --generate-hashes \
+	    --python-version 3.11 --no-header $(LOCK_FLAGS) -o $(LOCK)
+	$(PYTHON) .ci/lock_check.py --stamp
 
 install: $(STAMP) $(KERNELS)
 
