@@ -31,6 +31,7 @@ LONG_MODULES = (  # measured with --durations=0 on 2026-11-28
     "test_sim_sweep.py",
     "test_sim_lockstep.py",
     "test_tree_cli.py",
+    "test_tree_checksums.py",  # 2026-12-02: its every-byte test alone takes 20-30 s
     "test_cameras.py",
     "test_safety.py",
     "test_perception_acceptance.py",

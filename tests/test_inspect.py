@@ -10,13 +10,13 @@ import pytest
 
 from tests.treegen import random_tree, with_config, with_terminals
 from thinkfast.compile.inspect import (
-    config_params,
     depth_counts,
     diff_png,
     earliest_arrival,
     tree_diff,
     tree_info,
 )
+from thinkfast.compile.provenance_text import resolved_parameters
 from thinkfast.tree.action_tree import EDGE_CUT, ActionTree
 from thinkfast.tree.file import load_tree, save_tree
 
@@ -63,8 +63,10 @@ def test_info_shows_counts_per_depth_coverage_arrival_stats_parameters_and_prove
     assert re.search(rf"terminal edges \({tree.n_terminals}\)\s+[\d.]+\s+[\d.]+\s+{p90:.3f}", text)
     assert f"earliest per goal ({covered})" in text
     assert "tree.max_depth = 3" in text and "tree.eps = 0.1" in text
+    assert "tree.connect_min = 2" in text  # a default the config text does not name
     assert tree.meta["config_sha256"][:12] in text and "ruckig_version = 0.19.4" in text
     assert "created = 2025-01-01T00:00:00Z" in text
+    assert "machine:\n  cpu = 'Test CPU 9000'" in text and "blas.architecture = 'Haswell'" in text
     assert "discards:" in text and "collision = 5" in text
     assert "config_text" not in text
 
@@ -88,21 +90,32 @@ def test_diff_of_a_tree_with_itself_and_its_reloaded_copy_is_same(tree, tmp_path
     save_tree(dataclasses.replace(tree, meta=meta), tmp_path / "t.h5")
     result = tree_diff(tree, load_tree(tmp_path / "t.h5"))
     assert result.same, result.text
-    assert "parameters: equal" in result.text and "counts per depth: equal" in result.text
+    assert "  parameters: equal (resolved" in result.text and "datasets: equal" in result.text
+    assert "counts per depth: equal" in result.text and "defect" not in result.text
     assert result.text.splitlines()[-1].startswith("same:")
 
 
 def test_a_changed_parameter_is_reported_even_with_identical_arrays(tree):
     result = tree_diff(tree, with_config(tree, "max_depth = 3", "max_depth = 4"))
     assert not result.same
-    assert "  tree.max_depth: 3 -> 4" in result.text
+    assert "  parameters: 1 of 19 differ (resolved, defaults filled in):\n" in result.text
+    assert "\n    tree.max_depth: 3 -> 4\n" in result.text
     assert result.text.splitlines()[-1] == "different: parameters differ"
 
 
-def test_added_and_removed_parameters_are_reported(tree):
-    b = with_config(tree, "eps = 0.1\n", "jobs_hint = 2\n")
-    text = tree_diff(tree, b).text
-    assert "tree.eps: 0.1 -> (absent)" in text and "tree.jobs_hint: (absent) -> 2" in text
+def test_a_default_left_out_of_or_written_into_the_text_is_no_change(tree):
+    """The resolved parameters are compared, not the TOML text: a default the text does not
+    write is the same value, and a key that differs shows both resolved values."""
+    left_out = with_config(tree, "eps = 0.1\n", "")
+    written = with_config(tree, "connect_radius = 0.3\n", "connect_radius = 0.3\nconnect_min = 2\n")
+    for b in (left_out, written):
+        result = tree_diff(tree, b)
+        assert result.same, result.text
+        assert "  parameters: equal (resolved" in result.text
+        assert "config sha256: " in result.text and "(text only: comments, layout" in result.text
+    text = tree_diff(left_out, with_config(tree, "eps = 0.1\n", "eps = 0.12\n")).text
+    assert "  parameters: 1 of 19 differ" in text and "    tree.eps: 0.1 -> 0.12" in text
+    assert "absent" not in text and "not recorded" not in text
 
 
 def test_comments_and_formatting_in_the_config_are_not_changes(tree):
@@ -168,19 +181,55 @@ def test_goals_are_matched_by_position_not_by_index(tree):
     assert "regressed 0" in result.text and "improved 0" in result.text  # ... the goals do not
 
 
-def test_robot_hash_changes_are_reported(tree):
+def test_robot_hash_changes_are_reported_and_make_another_tree(tree):
     meta = dict(tree.meta, urdf_sha256="f" * 64)
     result = tree_diff(tree, dataclasses.replace(tree, meta=meta))
-    assert "robot: changed" in result.text
-    assert f"  urdf_sha256: {tree.meta['urdf_sha256']!r} -> {'f' * 64!r}" in result.text
-    assert result.same  # identical datasets and parameters: see TreeDiff.same
+    assert "  robot files: differ\n" in result.text
+    assert f"    urdf_sha256: {tree.meta['urdf_sha256']!r} -> {'f' * 64!r}" in result.text
+    assert not result.same  # the robot files are part of the identity: see TreeDiff.same
+    assert result.text.splitlines()[-1] == "different: robot files differ"
+    assert "defect" not in result.text
 
 
-def test_config_params_flattens_tables_and_tolerates_bad_text(tree):
-    params = config_params(tree.meta)
+def test_equal_inputs_with_different_datasets_are_a_defect_naming_machine_and_versions(tree):
+    """Same parameters and robot files, other arrays: one ``defect`` line naming the machine
+    and version fields that differ."""
+    machine = {**tree.meta["machine"], "cpu": "Other CPU", "blas": {"architecture": "Zen"}}
+    meta = {**tree.meta, "numpy_version": "1.26.4", "machine": machine}
+    ttc = tree.node_ttc.copy()
+    ttc[1] += 1e-12
+    b = dataclasses.replace(tree, node_ttc=ttc, meta=meta)
+    result = tree_diff(tree, b)
+    assert not result.same
+    defect = [line for line in result.text.splitlines() if line.startswith("defect:")]
+    assert defect == [
+        "defect: equal inputs gave different trees (machine differs: cpu 'Test CPU 9000' ->"
+        " 'Other CPU', blas.name 'scipy-openblas' -> (not recorded), blas.version '0.3.31' ->"
+        " (not recorded), blas.architecture 'Haswell' -> 'Zen'; versions differ: numpy"
+        " '2.4.6' -> '1.26.4')"
+    ]
+    assert "datasets: 1 of 24 differ (node_ttc)" in result.text
+    assert result.text.splitlines()[-1] == "different: datasets differ"
+    same_machine = tree_diff(tree, dataclasses.replace(tree, node_ttc=ttc)).text
+    assert "(same versions and machine: the compile is not deterministic)" in same_machine
+
+
+def test_versions_and_machine_alone_do_not_make_another_tree(tree):
+    meta = {**tree.meta, "numpy_version": "1.26.4", "machine": {"cpu": "Other CPU"}}
+    result = tree_diff(tree, dataclasses.replace(tree, meta=meta))
+    assert result.same, result.text
+    assert "  versions: differ: numpy '2.4.6' -> '1.26.4'" in result.text
+    assert "  machine: differ: cpu 'Test CPU 9000' -> 'Other CPU'," in result.text
+    assert "defect" not in result.text
+
+
+def test_resolved_parameters_fill_in_defaults_and_tolerate_bad_values(tree):
+    params = resolved_parameters(tree.meta)
     assert params["tree.max_depth"] == 3 and params["plane.distance"] == 0.8
-    assert config_params({"config_text": "not [ toml"}) is None
-    assert config_params({}) is None
+    assert params["tree.connect_min"] == 2 and params["goals.continuity"] == 1.0  # defaults
+    assert resolved_parameters({"parameters": "not json"}) is None
+    assert resolved_parameters({"parameters": "[1, 2]"}) is None
+    assert resolved_parameters({}) is None
 
 
 def test_diff_png_is_written(tree, tmp_path):

@@ -134,7 +134,7 @@ def bench_json(tree_path, bench_rows):
 
 def test_bench_command_prints_one_json_object_identical_for_any_number_of_jobs(bench_json):
     """The command with 2 processes prints what one process computes for the same throws."""
-    one, two = bench_json
+    one, two = bench_json[0], dict(bench_json[1])
     assert two["throws"] == 4 and two["feints"] == 1
     for p in PLANNERS:
         e = two["planners"][p]
@@ -144,7 +144,24 @@ def test_bench_command_prints_one_json_object_identical_for_any_number_of_jobs(b
         )
         assert e["feint_starts"] == e["by_kind"]["feint"]["starts"]
     assert two.pop("seconds") >= 0 and "seconds" not in one  # the only timing field
+    for key in ("tree_fingerprint", "machine", "versions"):  # where it ran, not what it measured
+        two.pop(key)
     assert json.dumps(one, sort_keys=True) == json.dumps(two, sort_keys=True)
+
+
+def test_bench_json_says_which_tree_machine_and_libraries_it_ran_with(bench_json, tree_path):
+    from thinkfast.machine import library_versions, machine_info
+    from thinkfast.sim.bench_cli import PROVENANCE
+    from thinkfast.tree.file import load_tree, tree_fingerprint
+
+    two = bench_json[1]
+    assert set(PROVENANCE) <= set(two)
+    assert two["tree_fingerprint"] == tree_fingerprint(load_tree(tree_path))
+    here = machine_info()
+    assert {k: two["machine"][k] for k in ("cpu", "blas", "numpy_simd", "env")} == {
+        k: here[k] for k in ("cpu", "blas", "numpy_simd", "env")
+    }
+    assert two["versions"] == library_versions()
 
 
 def test_bench_json_pairs_every_planner_with_tree_consistently(bench_json):

@@ -58,8 +58,12 @@ def write_sweep(directory: Path, chunk: int = 1, name: str = "sweep.toml") -> Pa
 
 
 def without_seconds(summary: dict) -> str:
-    """A bench summary as canonical JSON without its only timing field."""
-    return json.dumps({k: v for k, v in summary.items() if k != "seconds"}, sort_keys=True)
+    """A bench summary as canonical JSON without its only timing field and without where it ran
+    (the bench command's tree fingerprint, machine and versions)."""
+    from thinkfast.sim.bench_cli import PROVENANCE
+
+    drop = {"seconds", *PROVENANCE}
+    return json.dumps({k: v for k, v in summary.items() if k not in drop}, sort_keys=True)
 
 
 @pytest.fixture(scope="module")

@@ -52,6 +52,10 @@ def test_tree_writes_a_file_and_reports_progress_and_counts(trees):
         and "terminals" in proc.stdout
         and "tree.max_depth = 2" in proc.stdout
     )
+    for shown in ("machine:\n  cpu = ", "  blas.architecture = ", "  numpy_simd.found = "):
+        assert shown in proc.stdout, shown
+    for version in ("h5py", "scipy", "trimesh", "fcl", "numpy", "ruckig", "pinocchio"):
+        assert f"  {version}_version = " in proc.stdout, version
 
 
 def test_if_changed_skips_an_up_to_date_tree(trees):
@@ -59,6 +63,20 @@ def test_if_changed_skips_an_up_to_date_tree(trees):
         "thinkfast-compile", "tree", str(trees["a_cfg"]), "-o", str(trees["a"]), "--if-changed"
     )
     assert proc.returncode == 0 and "up to date" in proc.stdout
+
+
+def test_if_changed_does_not_trust_a_tree_whose_parameters_were_edited(trees, capsys):
+    """--if-changed reads the file like every reader: one byte changed in its ``parameters``
+    and it is compiled again (said on stderr), not kept."""
+    from thinkfast.compile.cli import _up_to_date
+    from thinkfast.compile.config import load_compile_config
+
+    loaded = load_compile_config(trees["a_cfg"])
+    assert _up_to_date(trees["a"], loaded)
+    bad = trees["tmp"] / "if_changed.h5"
+    _corrupt(trees["a"], bad, "parameters")
+    assert not _up_to_date(bad, loaded)
+    assert "compiling again: " in capsys.readouterr().err
 
 
 def test_diff_of_a_tree_with_itself_exits_0(trees):
@@ -90,7 +108,16 @@ def test_diff_reports_a_changed_parameter_and_exits_1(trees, other, key):
         "thinkfast-compile", "diff", str(trees["a"]), str(trees[other]), "--png", str(png)
     )
     assert proc.returncode == 1, proc.stdout + proc.stderr
-    assert key in proc.stdout
+    lines = proc.stdout.splitlines()
+    assert lines[2:4] == [
+        "provenance:",
+        "  parameters: 1 of 19 differ (resolved, defaults filled in):",
+    ]
+    assert lines[4].startswith(f"    {key}: ")
+    for same in ("  robot files: equal", "  versions: equal", "  machine: equal"):
+        assert any(line.startswith(same) for line in lines), same
+    assert not any(line.startswith("defect") for line in lines)
+    assert lines[-1] == f"wrote {png}" and lines[-2] == "different: datasets and parameters differ"
     assert png.stat().st_size > 10_000
 
 
@@ -117,6 +144,13 @@ def _corrupt(src, dst, how):
             f.attrs["schema_version"] = 99
     elif how == "not_hdf5":
         dst.write_text("this is not a tree\n")
+    elif how == "parameters":  # the user's case: the plane moved inside the runtime's settings
+        data = dst.read_bytes()
+        assert data.count(b'"distance": 0.8') == 1
+        dst.write_bytes(data.replace(b'"distance": 0.8', b'"distance": 0.9'))
+    elif how == "v2":  # written before the checksum table
+        with h5py.File(dst, "r+") as f:
+            f.attrs["schema_version"] = 2
 
 
 @pytest.mark.parametrize(
@@ -126,6 +160,12 @@ def _corrupt(src, dst, how):
         ("flipped", "checksum", ("verify",)),
         ("version", "schema_version", ("diff",)),
         ("not_hdf5", "not an HDF5 file", ("info", "verify", "diff")),
+        (
+            "parameters",
+            "attribute parameters: checksum mismatch (file is corrupt)",
+            ("info", "verify", "diff"),
+        ),
+        ("v2", "v2 has no checksums of its attributes", ("info", "verify", "diff")),
     ],
 )
 def test_damaged_files_are_refused_with_path_and_reason(trees, how, needle, commands):

@@ -1,21 +1,13 @@
-"""The tree layout without HDF5: checksums, fingerprints and every index invariant, each
-violation named (the file round trips: tests/test_treefile.py)."""
+"""The tree layout without HDF5: array checksums and every index invariant, each violation named
+(the file round trips: tests/test_treefile.py; fingerprints: tests/test_tree_checksums.py)."""
 
 from __future__ import annotations
-
-import dataclasses
 
 import numpy as np
 import pytest
 
 from tests.treegen import random_tree
-from thinkfast.tree.layout import (
-    array_sha256,
-    fingerprint_of,
-    layout_problem,
-    shield_dt_problem,
-    tree_fingerprint,
-)
+from thinkfast.tree.layout import array_sha256, layout_problem, shield_dt_problem
 
 
 def test_checksum_covers_bytes_dtype_and_shape_but_not_byte_order():
@@ -26,29 +18,11 @@ def test_checksum_covers_bytes_dtype_and_shape_but_not_byte_order():
     assert array_sha256(a[::2]) == array_sha256(a[::2].copy())
 
 
-def test_fingerprint_follows_every_array_and_ignores_meta():
-    tree = random_tree(3)
-    base = tree_fingerprint(tree)
-    assert tree_fingerprint(dataclasses.replace(tree, meta={})) == base
-    for name, a in tree.arrays().items():
-        if a.size == 0:
-            continue
-        b = a.copy()
-        b.reshape(-1)[0] = not b.reshape(-1)[0] if b.dtype == bool else b.reshape(-1)[0] + 1
-        assert tree_fingerprint(dataclasses.replace(tree, **{name: b})) != base, name
-
-
 def test_treegen_trees_satisfy_the_layout_invariants():
     for seed in range(40):
         tree = random_tree(seed, max_depth=1 + seed % 4, max_children=1 + seed % 3)
         assert layout_problem(tree.arrays()) is None, seed
         assert np.array_equal(tree.term_arrival, tree.node_ttc[tree.term_node] + tree.term_duration)
-
-
-def test_fingerprint_of_checksums_is_the_tree_fingerprint():
-    tree = random_tree(5)
-    sums = {name: array_sha256(a) for name, a in tree.arrays().items()}
-    assert fingerprint_of(sums) == tree_fingerprint(tree)
 
 
 def _broken(change):

@@ -1,8 +1,10 @@
-"""Tree files v2: exact round trip, atomic writes, and a clear refusal for every kind of damage."""
+"""Tree files v3: exact round trip, atomic writes, and a clear refusal for every kind of damage
+(every byte's checksum: tests/test_tree_checksums.py)."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 from pathlib import Path
 
@@ -10,14 +12,16 @@ import h5py
 import numpy as np
 import pytest
 
-from tests.treegen import random_tree
+from tests.treegen import random_tree, resign
 from thinkfast.errors import TreeFileError
 from thinkfast.tree.action_tree import ActionTree
 from thinkfast.tree.file import load_meta, load_tree, save_tree, tree_from_bytes
-from thinkfast.tree.layout import DERIVED, LAYOUT, PATHS, array_sha256, tree_fingerprint
+from thinkfast.tree.identity import tree_fingerprint
+from thinkfast.tree.layout import DERIVED, LAYOUT, PATHS, array_sha256
 
 ROOT = Path(__file__).resolve().parents[1]
-GOLDEN = ROOT / "tests" / "data" / "tree_v2_golden.h5"
+GOLDEN = ROOT / "tests" / "data" / "tree_v3_golden.h5"
+GOLDEN_V2 = ROOT / "tests" / "data" / "tree_v2_golden.h5"
 GOLDEN_V1 = ROOT / "tests" / "data" / "tree_v1_golden.h5"
 
 
@@ -110,7 +114,9 @@ def test_created_is_taken_from_meta_or_is_now_in_iso_utc(tmp_path):
     assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", created), created
 
 
-@pytest.mark.parametrize("key", ["format", "schema_version", "fingerprint", "stats.json", ""])
+@pytest.mark.parametrize(
+    "key", ["format", "schema_version", "fingerprint", "checksums", "stats.json", ""]
+)
 def test_reserved_meta_keys_are_refused_on_write(tmp_path, key):
     tree = dataclasses.replace(random_tree(0), meta={key: 1})
     with pytest.raises(TreeFileError, match=re.escape(str(tmp_path / "t.h5"))):
@@ -157,15 +163,29 @@ def test_writing_into_a_missing_directory_names_it(tmp_path):
 def test_golden_v1_file_is_refused_naming_its_version_and_the_fix():
     """v1 files have no shield paths: refused in one line that says what to do."""
     message = assert_refused(
-        GOLDEN_V1, "schema_version 1 is not supported (this thinkfast reads 2)", "no shield paths"
+        GOLDEN_V1, "schema_version 1 is not supported (this thinkfast reads 3)", "no shield paths"
     )
     assert "recompile it with `thinkfast-compile tree CONFIG.toml -o tree_v1_golden.h5`" in message
     with pytest.raises(TreeFileError, match="schema_version 1 is not supported"):
         load_meta(GOLDEN_V1)
 
 
-def test_golden_v2_file_still_reads_with_its_known_values():
-    """Breaks when a change makes this thinkfast unable to read files written as v2."""
+def test_golden_v2_file_is_refused_naming_its_version_and_the_fix():
+    """v2 files have no checksums of their attributes (the runtime's settings) and a fingerprint
+    of the datasets alone: refused by every reader, in one line that says to recompile."""
+    message = assert_refused(
+        GOLDEN_V2,
+        "schema_version 2 is not supported (this thinkfast reads 3)",
+        "v2 has no checksums of its attributes",
+        "recompile it with `thinkfast-compile tree CONFIG.toml -o tree_v2_golden.h5`",
+    )
+    with pytest.raises(TreeFileError) as info:
+        load_meta(GOLDEN_V2)
+    assert str(info.value) == message
+
+
+def test_golden_v3_file_still_reads_with_its_known_values():
+    """Breaks when a change makes this thinkfast unable to read files written as v3."""
     tree = load_tree(GOLDEN)
     assert GOLDEN.stat().st_size < 50_000
     assert tree.node_parent.tolist() == [-1, 0, 0, 1, 2]
@@ -185,13 +205,15 @@ def test_golden_v2_file_still_reads_with_its_known_values():
     assert tree.meta["created"] == "2025-01-01T00:00:00Z"
     assert "max_depth = 2" in tree.meta["config_text"]
     assert tree.meta["config_sha256"].startswith("0bc819342769")
+    assert json.loads(tree.meta["parameters"])["tree"]["max_depth"] == 2
+    assert tree.meta["robot_name"] == "golden" and tree.meta["machine"]["cpu"] == "Golden CPU"
     assert tree.meta["shield_dt"] == 0.05
     assert tree.edge_shield.shape == (5, 3, 3) and tree.term_shield.shape == (4, 8, 3)
     assert np.allclose(tree.edge_shield[3, 2], [0.7, 0.3, 1.0], rtol=0, atol=1e-15)
     assert np.allclose(tree.term_shield[1, 2], [0.74, 0.0, 1.0], rtol=0, atol=1e-15)
     assert np.allclose(tree.term_shield[2, 7], [0.8, 0.0, 1.0], rtol=0, atol=1e-15)  # held
     assert tree_fingerprint(tree) == (
-        "6779ca84c5fb0a2d5c94bebde4c7a2e8ecaa5851f7a738c24d6c79286b470594"
+        "7e354edd593e18e97bc41d31fea5953e83ecb686ee18facfcaf89a8365390303"
     )
 
 
@@ -205,7 +227,7 @@ def test_every_tree_array_has_a_dataset_and_every_dataset_is_documented():
 
 def test_every_dataset_carries_units_doc_and_checksum(tree_file):
     with h5py.File(tree_file) as f:
-        assert f.attrs["format"] == "thinkfast-tree" and f.attrs["schema_version"] == 2
+        assert f.attrs["format"] == "thinkfast-tree" and f.attrs["schema_version"] == 3
         for path in [*PATHS.values(), *(p for p, _, _ in DERIVED)]:
             ds = f[path]
             assert ds.attrs["units"] and ds.attrs["doc"]
@@ -250,11 +272,11 @@ def test_one_flipped_byte_inside_a_dataset_fails_its_checksum(tree_file, path):
     assert_refused(tree_file, f"dataset {path}: checksum mismatch (file is corrupt)")
 
 
-@pytest.mark.parametrize("version", [7, 3, 1, 0])
+@pytest.mark.parametrize("version", [7, 4, 2, 1, 0])
 def test_unknown_schema_version_is_refused(tree_file, version):
     with h5py.File(tree_file, "r+") as f:
         f.attrs["schema_version"] = version
-    assert_refused(tree_file, f"schema_version {version} is not supported (this thinkfast reads 2)")
+    assert_refused(tree_file, f"schema_version {version} is not supported (this thinkfast reads 3)")
     with pytest.raises(TreeFileError, match="is not supported"):
         load_meta(tree_file)
 
@@ -288,11 +310,14 @@ def test_missing_dataset(tree_file, path):
 
 
 def rewrite(path: Path, dataset: str, data: np.ndarray) -> None:
-    """Replace a dataset with a valid checksum: damage that only the structural checks can see."""
+    """Replace a dataset with valid checksums (its own and the table's): damage that only the
+    structural checks can see."""
     with h5py.File(path, "r+") as f:
+        attrs = dict(f[dataset].attrs)
         del f[dataset]
         f[dataset] = data
-        f[dataset].attrs["sha256"] = array_sha256(data)
+        f[dataset].attrs.update({**attrs, "sha256": array_sha256(data)})
+    resign(path)
 
 
 def test_wrong_dtype(tree_file):
@@ -343,19 +368,24 @@ def test_derived_edge_dataset_that_disagrees_is_refused(tree_file):
 def test_fingerprint_attribute_must_match(tree_file):
     with h5py.File(tree_file, "r+") as f:
         f.attrs["fingerprint"] = "0" * 64
-    assert_refused(tree_file, "attribute fingerprint does not match the datasets")
+    assert_refused(tree_file, "attribute fingerprint: checksum mismatch (file is corrupt)")
+    resign(tree_file)
+    assert_refused(
+        tree_file, "attribute fingerprint does not match the datasets and identity attributes"
+    )
 
 
 def test_bad_json_attribute(tree_file):
     with h5py.File(tree_file, "r+") as f:
         f.attrs["discards.json"] = "{not json"
+    resign(tree_file)
     assert_refused(tree_file, "attribute discards.json is not valid JSON")
 
 
 def test_missing_checksum_attribute(tree_file):
     with h5py.File(tree_file, "r+") as f:
         del f["/goals/q"].attrs["sha256"]
-    assert_refused(tree_file, "dataset /goals/q: missing sha256 attribute")
+    assert_refused(tree_file, "missing attribute /goals/q@sha256")
 
 
 def test_shield_paths_round_trip_with_their_spacing(tmp_path):
@@ -375,6 +405,8 @@ def test_a_missing_or_bad_shield_spacing_is_refused(tmp_path, tree_file, value):
             del f.attrs["shield_dt"]
         else:
             f.attrs["shield_dt"] = value
+    assert_refused(tree_file, "attribute shield_dt")  # the checksum table first
+    resign(tree_file)
     assert_refused(tree_file, "meta shield_dt (sample spacing of the shield paths, s)")
     meta = {k: v for k, v in random_tree(0).meta.items() if k != "shield_dt"}
     with pytest.raises(TreeFileError, match="shield_dt"):

@@ -11,9 +11,13 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
+import tomllib
 
 import numpy as np
 
+from thinkfast.compile.config import CompileConfig
+from thinkfast.config import from_dict, to_dict
 from thinkfast.tree.action_tree import EDGE_CUT, EDGE_REACHED, ActionTree
 
 SHIELD_DT = 0.02  # s
@@ -126,6 +130,17 @@ def random_tree(
     return with_terminals(tree, np.array(term_node), np.array(term_goal), term_duration)
 
 
+MACHINE = {
+    "cpu": "Test CPU 9000",
+    "cores": 2,
+    "machine": "x86_64",
+    "system": "Linux",
+    "blas": {"name": "scipy-openblas", "version": "0.3.31", "architecture": "Haswell"},
+    "numpy_simd": {"baseline": ["X86_V2"], "found": ["X86_V3"]},
+    "env": {},
+}
+
+
 def sample_meta(**params: float) -> dict:
     """Provenance and statistics like the compiler writes, around a TOML config text."""
     text = CONFIG_TEMPLATE.format(**params)
@@ -134,15 +149,26 @@ def sample_meta(**params: float) -> dict:
         "thinkfast_version": "0.1.0",
         "ruckig_version": "0.19.4",
         "pinocchio_version": "3.4.0",
+        "numpy_version": "2.4.6",
+        "machine": MACHINE,
         "config_text": text,
         "config_sha256": hashlib.sha256(text.encode()).hexdigest(),
         "urdf_sha256": hashlib.sha256(b"urdf").hexdigest(),
         "robot_toml_sha256": hashlib.sha256(b"robot.toml").hexdigest(),
+        "robot_name": "irb1600",
+        "parameters": resolved(text),
+        "plane_distance": 0.8,
+        "shield_radius": 0.2,
         "jobs": 2,
         "seconds": 1.5,
         "discards": {"position_limit": 3, "collision": 5},
         "shield_dt": SHIELD_DT,
     }
+
+
+def resolved(text: str) -> str:
+    """The resolved parameters of a compile config text, as the compiler writes them (JSON)."""
+    return json.dumps(to_dict(from_dict(CompileConfig, tomllib.loads(text), "treegen")))
 
 
 def with_terminals(
@@ -167,12 +193,12 @@ def with_terminals(
 
 
 def with_config(tree: ActionTree, old: str, new: str) -> ActionTree:
-    """The tree with ``old`` replaced by ``new`` in its config text (arrays unchanged)."""
+    """The tree with ``old`` replaced by ``new`` in its config text and the parameters resolved
+    again from it (arrays unchanged)."""
     text = tree.meta["config_text"].replace(old, new)
     assert text != tree.meta["config_text"], old
-    meta = dict(
-        tree.meta, config_text=text, config_sha256=hashlib.sha256(text.encode()).hexdigest()
-    )
+    sha = hashlib.sha256(text.encode()).hexdigest()
+    meta = dict(tree.meta, config_text=text, config_sha256=sha, parameters=resolved(text))
     return dataclasses.replace(tree, meta=meta)
 
 
@@ -183,3 +209,26 @@ def terminal_shield(goal_yz: np.ndarray, duration: np.ndarray) -> np.ndarray:
     u = np.clip(np.arange(s)[None, :] * SHIELD_DT / np.maximum(duration[:, None], 1e-9), 0, 1)
     start, end = np.array([0.7, 0.0, 1.0]), np.c_[np.full(len(goal_yz), 0.8), goal_yz]
     return start + u[:, :, None] * (end[:, None, :] - start)
+
+
+def resign(path) -> None:
+    """Write the checksum table of a tree file again over what it now holds, as the writer would:
+    a test's edit then reaches the checks behind the table (layout, JSON, fingerprint)."""
+    import h5py
+
+    from thinkfast.tree.manifest import TABLE, entries_of, plain, table_text
+
+    with h5py.File(path, "r+") as f:
+        root = {k: plain(v) for k, v in f.attrs.items() if k != TABLE}
+        groups: dict = {}
+        datasets: dict = {}
+
+        def visit(_, obj) -> None:
+            attrs = {k: plain(v) for k, v in obj.attrs.items()}
+            if isinstance(obj, h5py.Dataset):
+                datasets[obj.name] = (np.asarray(obj[()]), attrs)
+            else:
+                groups[obj.name] = attrs
+
+        f.visititems(visit)
+        f.attrs[TABLE] = table_text(entries_of(root, groups, datasets))

@@ -1,9 +1,9 @@
-"""Write the golden tree file of schema version 2 (``tests/data/tree_v2_golden.h5``).
+"""Write the golden tree file of the current schema version (``tests/data/tree_v3_golden.h5``).
 
 Run once per schema version and commit the output; never regenerate a released version's golden
 file (it is what old files look like). ``tests/test_treefile.py`` checks its known values (and
-that ``tree_v1_golden.h5``, written by this script before v2 added the shield paths, is refused
-with the fix named).
+that ``tree_v1_golden.h5`` and ``tree_v2_golden.h5``, written by this script before v2 added the
+shield paths and before v3 added the checksum table, are refused with the fix named).
 
     python tests/data/make_golden_tree.py [OUT] [--force]
 """
@@ -12,13 +12,17 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import json
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
 
+from thinkfast.compile.config import CompileConfig
+from thinkfast.config import from_dict, to_dict
 from thinkfast.tree.action_tree import EDGE_CUT, EDGE_REACHED, ActionTree
-from thinkfast.tree.file import save_tree
+from thinkfast.tree.file import SCHEMA_VERSION, save_tree
 
 CONFIG_TEXT = """\
 robot = "../robots/irb1600/robot.toml"
@@ -81,10 +85,19 @@ def golden_tree() -> ActionTree:
             "thinkfast_version": "0.1.0",
             "ruckig_version": "0.19.4",
             "pinocchio_version": "3.4.0",
+            "numpy_version": "2.4.6",
+            "machine": {"cpu": "Golden CPU", "blas": {"name": "openblas", "architecture": "Zen"}},
+            "config_path": "/golden/tree.toml",
             "config_text": CONFIG_TEXT,
             "config_sha256": hashlib.sha256(CONFIG_TEXT.encode()).hexdigest(),
             "urdf_sha256": hashlib.sha256(b"golden urdf").hexdigest(),
             "robot_toml_sha256": hashlib.sha256(b"golden robot.toml").hexdigest(),
+            "robot_name": "golden",
+            "parameters": json.dumps(
+                to_dict(from_dict(CompileConfig, tomllib.loads(CONFIG_TEXT), "golden"))
+            ),
+            "plane_distance": 0.8,
+            "shield_radius": 0.2,
             "jobs": 1,
             "seconds": 0.25,
             "deterministic": True,
@@ -97,7 +110,9 @@ def golden_tree() -> ActionTree:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "out", nargs="?", default=str(Path(__file__).with_name("tree_v2_golden.h5"))
+        "out",
+        nargs="?",
+        default=str(Path(__file__).with_name(f"tree_v{SCHEMA_VERSION}_golden.h5")),
     )
     parser.add_argument("--force", action="store_true", help="overwrite an existing file")
     args = parser.parse_args(argv)

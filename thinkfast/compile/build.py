@@ -4,36 +4,25 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import platform
 import time
 
 import numpy as np
 
-from thinkfast import __version__
 from thinkfast.compile.config import LoadedConfig
 from thinkfast.compile.goals import require_reachable, solve_goal_grid
 from thinkfast.compile.grow import GrowInputs, Progress, grow, subgoals
 from thinkfast.compile.shield import pad_terminals, sample_spacing
 from thinkfast.config import to_dict
+from thinkfast.machine import library_versions, machine_info
 from thinkfast.robot.batch_fk import BatchFK
 from thinkfast.robot.model import Robot, load_robot
 from thinkfast.tree.action_tree import ActionTree
 
 
 def versions() -> dict[str, str]:
-    """Versions of the libraries that shape a tree."""
-    import fcl
-    import pinocchio
-    import ruckig
-
-    return {
-        "thinkfast_version": __version__,
-        "ruckig_version": getattr(ruckig, "__version__", "unknown"),
-        "pinocchio_version": pinocchio.__version__,
-        "fcl_version": getattr(fcl, "__version__", "unknown"),
-        "numpy_version": np.__version__,
-        "python_version": platform.python_version(),
-    }
+    """Versions of Python and the libraries that shape a tree, as meta keys ``<name>_version``
+    (:func:`thinkfast.machine.library_versions`)."""
+    return {f"{k}_version": v for k, v in library_versions().items()}
 
 
 def shield_on_plane(robot: Robot):
@@ -85,6 +74,7 @@ def compile_tree(
     meta = {
         "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         **versions(),
+        "machine": machine_info(),
         "config_path": str(loaded.path.resolve()),
         "config_text": loaded.text,
         "config_sha256": loaded.sha256,

@@ -99,7 +99,8 @@ def tree(
 
 
 def _up_to_date(output: Path, loaded) -> bool:
-    """True when OUTPUT exists, reads, and was compiled from the same config, robot and version."""
+    """True when OUTPUT exists, passes every check of its format and checksums, and was compiled
+    from the same config, robot and version; a file refused is said so (on stderr) and rebuilt."""
     from thinkfast import __version__
     from thinkfast.errors import ThinkfastError
     from thinkfast.robot.model import load_robot
@@ -109,7 +110,8 @@ def _up_to_date(output: Path, loaded) -> bool:
         return False
     try:
         meta = load_meta(output)
-    except ThinkfastError:
+    except ThinkfastError as exc:
+        print(f"thinkfast-compile: compiling again: {exc}", file=sys.stderr)
         return False
     robot = load_robot(loaded.robot_path)
     return (
@@ -164,20 +166,23 @@ def verify(
         None, "--robot", help="robot.toml (default: the one the tree's config names)"
     ),
 ) -> None:
-    """Recompute every edge with Ruckig and re-check limits and collisions; exit 1 on a problem."""
-    import tomllib
+    """Recompute every edge with Ruckig and re-check limits and collisions; exit 1 on a problem.
 
+    The configuration re-checked against is the tree's resolved ``parameters`` (what the runtime
+    reads), not its config text."""
     from thinkfast.compile.config import CompileConfig
     from thinkfast.compile.grow import default_jobs
     from thinkfast.compile.verify import verify_tree
     from thinkfast.config import from_dict
     from thinkfast.robot.model import load_robot
     from thinkfast.tree.file import load_tree
+    from thinkfast.tree.provenance import Provenance
 
     tree_ = load_tree(path)
-    config = from_dict(CompileConfig, tomllib.loads(tree_.meta["config_text"]), f"{path}:config")
+    prov = Provenance.of(tree_.meta, str(path))
+    config = from_dict(CompileConfig, prov.parameters, f"{path}: attribute parameters")
     if robot_path is None:
-        robot_path = (Path(tree_.meta["config_path"]).parent / config.robot).resolve()
+        robot_path = (Path(prov.config_path).parent / config.robot).resolve()
     robot = load_robot(robot_path)
     report = verify_tree(tree_, robot, config, factor, jobs or default_jobs(), ProgressBar())
     print(

@@ -6,16 +6,14 @@ no file reading); the CLI loads the trees and prints what these return.
 
 from __future__ import annotations
 
-import json
-import tomllib
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
+from thinkfast.compile.provenance_text import defect_line, meta_lines, provenance_diff
 from thinkfast.tree.action_tree import EDGE_CUT, EDGE_REACHED, ActionTree
-from thinkfast.tree.file import tree_fingerprint
+from thinkfast.tree.identity import ROBOT_KEYS, array_checksums, identity_changes, tree_fingerprint
 
-ROBOT_KEYS = ("urdf_sha256", "robot_toml_sha256")
 GOAL_KEY_SCALE = 1e6  # goals of two trees are the same goal when (y, z) agree to 1e-6 m
 ARRIVAL_TOL = 1e-6  # s: arrival times closer than this are unchanged (float noise, not a change)
 MIN_COLOUR_SPAN = 1e-3  # s: the B - A colour scale spans at least +-1 ms (noise stays white)
@@ -28,8 +26,9 @@ class TreeDiff(NamedTuple):
     """Result of :func:`tree_diff`.
 
     Attributes:
-        same: True exactly when the arrays are identical (equal fingerprints) and the compile
-            parameters (flattened ``config_text``) are equal.
+        same: True exactly when the fingerprints are equal: identical datasets and identity
+            attributes (resolved parameters, robot files, ...: :mod:`thinkfast.tree.identity`).
+            Versions, machine, creation time and config text may differ.
         text: the report, several lines.
     """
 
@@ -70,32 +69,6 @@ def depth_counts(tree: ActionTree) -> np.ndarray:
     ).astype(np.int64)
 
 
-def config_params(meta: dict[str, Any]) -> dict[str, Any] | None:
-    """The compile config of ``meta["config_text"]`` as flat ``{"tree.max_depth": 3, ...}``.
-
-    Returns:
-        None when the text is absent or not valid TOML.
-    """
-    text = meta.get("config_text")
-    if not isinstance(text, str):
-        return None
-    try:
-        return _flatten(tomllib.loads(text))
-    except tomllib.TOMLDecodeError:
-        return None
-
-
-def _flatten(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in table.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            out.update(_flatten(value, name + "."))
-        else:
-            out[name] = value
-    return out
-
-
 def tree_info(tree: ActionTree) -> str:
     """Summary of a tree: fingerprint (as :func:`tree_diff` and the daemon's start log give it),
     counts per depth, goal coverage, arrival times, parameters, provenance."""
@@ -122,7 +95,7 @@ def tree_info(tree: ActionTree) -> str:
         shown = ", ".join(missing[:LARGEST]) + (", ..." if len(missing) > LARGEST else "")
         lines.append(f"uncovered goals ({len(missing)}): {shown}")
     lines += ["", *shield_lines(tree)]
-    lines += ["", *_meta_lines(tree.meta)]
+    lines += ["", *meta_lines(tree.meta)]
     return "\n".join(lines)
 
 
@@ -161,81 +134,41 @@ def _yz(yz: np.ndarray) -> str:
     return f"(y {y:+.3f}, z {z:.3f})"
 
 
-def _meta_lines(meta: dict[str, Any]) -> list[str]:
-    params = config_params(meta)
-    lines = [f"parameters (config sha256 {str(meta.get('config_sha256', '?'))[:12]}):"]
-    if params is None:
-        lines.append("  none recorded (no readable config_text)")
-    lines += [f"  {k} = {_fmt(v)}" for k, v in params.items()] if params else []
-    prov = [k for k in meta if k == "created" or k.endswith(("_version", "_sha256"))]
-    lines += ["provenance:", *(f"  {k} = {meta[k]}" for k in prov)]
-    discard = [k for k in meta if "discard" in k]
-    for k in discard:
-        value = _json_dict(meta[k])
-        items = _flatten(value).items() if isinstance(value, dict) else [("", value)]
-        lines.append(f"{k}:" + ("" if items else " none"))
-        lines += [f"  {name or 'total'} = {_fmt(v)}" for name, v in items]
-    rest = [k for k in meta if k not in {*prov, *discard, "config_text"}]
-    if rest:
-        lines += ["other statistics:", *(f"  {k} = {_fmt(meta[k])}" for k in rest)]
-    return lines
-
-
-def _json_dict(v: Any) -> Any:
-    """A dict stored as a JSON string (as some writers do) becomes the dict; others unchanged."""
-    if isinstance(v, str) and v.startswith("{"):
-        try:
-            return json.loads(v)
-        except ValueError:
-            return v
-    return v
-
-
-def _fmt(v: Any) -> str:
-    text = repr(v) if isinstance(v, str) else str(v)
-    return text if len(text) <= 100 else text[:97] + "..."
-
-
 def tree_diff(a: ActionTree, b: ActionTree) -> TreeDiff:
-    """Compare two trees: parameters, robot, counts per depth, goals, earliest arrival times.
+    """Compare two trees: first what they were compiled from and with (resolved parameters,
+    config text, robot files, versions, machine; a ``defect`` line when equal inputs gave
+    different datasets), then the datasets: counts per depth, shield paths, goals, earliest
+    arrival times.
 
     Goals are matched by their plane position (y, z) rounded to 1e-6 m, since goal indices differ
-    between trees. Robot hash and version changes are reported but do not by themselves make the
-    trees differ (see :class:`TreeDiff`).
+    between trees. See :class:`TreeDiff` for when two trees are the same.
     """
     fa, fb = tree_fingerprint(a), tree_fingerprint(b)
-    pa, pb = config_params(a.meta), config_params(b.meta)
-    lines = [_headline("A", a, fa), _headline("B", b, fb)]
-    param_lines = _dict_changes(pa or {}, pb or {})
-    if (pa is None) != (pb is None):
-        param_lines.insert(0, f"  config_text: {_readable(pa)} -> {_readable(pb)}")
-    lines += [f"parameters: {len(param_lines)} changed" if param_lines else "parameters: equal"]
-    lines += param_lines
-
-    def provenance(meta: dict[str, Any]) -> dict[str, Any]:
-        return {k: v for k, v in meta.items() if k.endswith(("_version", "_sha256"))}
-
-    prov = _dict_changes(provenance(a.meta), provenance(b.meta))
-    prov = [line for line in prov if not line.startswith("  config_sha256:")]
-    robot = [line for line in prov if line.startswith(tuple(f"  {k}:" for k in ROBOT_KEYS))]
-    if robot:
-        lines += ["robot: changed", *robot]
-    elif any(k in a.meta or k in b.meta for k in ROBOT_KEYS):
-        lines.append("robot: same hashes")
-    else:
-        lines.append("robot: no hashes recorded")
-    if len(prov) > len(robot):
-        lines += ["versions:", *(line for line in prov if line not in robot)]
+    sa, sb = array_checksums(a), array_checksums(b)
+    differ = [name for name in sa if sa[name] != sb[name]]
+    prov = provenance_diff(a.meta, b.meta)
+    lines = [_headline("A", a, fa), _headline("B", b, fb), *prov.lines]
+    if prov.inputs_equal and differ:
+        lines.append(defect_line(prov))
+    shown = ", ".join(differ[:LARGEST]) + (", ..." if len(differ) > LARGEST else "")
+    count = f"{len(differ)} of {len(sa)} differ ({shown})"
+    lines.append(f"datasets: {count}" if differ else "datasets: equal")
     lines += _count_lines(a, b)
     lines += _shield_diff(a, b)
     lines += _goal_lines(a, b)
-    same = fa == fb and pa == pb
-    if same:
-        lines.append(f"same: identical datasets (fingerprint {fa[:16]}) and parameters")
+    if fa == fb:
+        lines.append(f"same: identical datasets and identity attributes (fingerprint {fa[:16]})")
     else:
-        why = [w for w, d in (("datasets", fa != fb), ("parameters", pa != pb)) if d]
-        lines.append(f"different: {' and '.join(why)} differ")
-    return TreeDiff(same=same, text="\n".join(lines))
+        why = ["datasets"] if differ else []
+        for key in identity_changes(a.meta, b.meta):
+            name = "robot files" if key in ROBOT_KEYS else key
+            why += [name] if name not in why else []
+        lines.append(f"different: {_and(why)} differ")
+    return TreeDiff(same=fa == fb, text="\n".join(lines))
+
+
+def _and(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
 
 
 def _headline(label: str, t: ActionTree, fingerprint: str) -> str:
@@ -243,21 +176,6 @@ def _headline(label: str, t: ActionTree, fingerprint: str) -> str:
         f"{label}: {t.n_nodes} nodes, {t.n_terminals} terminal edges, max depth {t.max_depth},"
         f" created {t.meta.get('created', '?')}, fingerprint {fingerprint[:16]}"
     )
-
-
-def _readable(params: dict[str, Any] | None) -> str:
-    return "absent or invalid" if params is None else "present"
-
-
-def _dict_changes(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
-    """``"  key: old -> new"`` for every key whose value differs (``(absent)`` when missing)."""
-    out = []
-    for key in sorted(set(a) | set(b)):
-        va = _fmt(a[key]) if key in a else "(absent)"
-        vb = _fmt(b[key]) if key in b else "(absent)"
-        if key not in a or key not in b or a[key] != b[key]:
-            out.append(f"  {key}: {va} -> {vb}")
-    return out
 
 
 def _count_lines(a: ActionTree, b: ActionTree) -> list[str]:

@@ -149,7 +149,7 @@ def verify_tree(
     Args:
         tree: the loaded tree.
         robot: the robot it was compiled for.
-        config: its compile configuration (from the file's ``config_text``).
+        config: its compile configuration (from the file's resolved ``parameters``).
         factor: how much finer than at compile time collisions and limits are re-checked.
         jobs: worker processes.
         progress: called with (phase, done, total).

@@ -20,6 +20,9 @@ from thinkfast.sim.cli_options import (
 )
 from thinkfast.sim.planners import DEFAULT, check_planners, lockstep_planners
 
+# the bench JSON's keys that say where its numbers came from (the rest are the statistics)
+PROVENANCE = ("tree_fingerprint", "machine", "versions")
+
 
 def bench(
     tree: Path = typer.Option(..., "--tree", help="compiled action tree (HDF5)"),
@@ -57,19 +60,22 @@ def bench(
     shield left home and whether it was home again within 2 s. Every planner is compared with
     the --reference planner on the same throws: counts of throws both / only one / neither
     blocked, the difference in rate with a 95 % interval (Newcombe) and an exact McNemar p.
+    The JSON also says where the numbers came from (:data:`PROVENANCE`): the tree's
+    fingerprint, the machine and the library versions.
     """
     from thinkfast.compile.grow import default_jobs
     from thinkfast.control.config import load_run_config
     from thinkfast.errors import ConfigError
+    from thinkfast.machine import library_versions, machine_info
     from thinkfast.sim.bench import format_summary, plot_summary, run_bench, summarize
-    from thinkfast.tree.file import load_tree
+    from thinkfast.tree.file import load_tree, tree_fingerprint
 
     names = [p.strip() for p in planners.split(",") if p.strip()]
     check_planners(names, "--planners", None)
     if reference is not None and reference not in names:
         raise ConfigError("--reference", None, f"{reference!r} is not one of --planners {names}")
     cfg = with_cameras(load_run_config(config), cameras)
-    load_tree(tree)  # fail here, with the file's name, not in a worker
+    fingerprint = tree_fingerprint(load_tree(tree))  # fail here, with the file's name
     if feints == -1:
         feints = 0 if throw_set is not None else n // 10
     if chunk < 1:
@@ -97,6 +103,9 @@ def bench(
     summary["seed"] = seed
     if cameras is not None:
         summary["cameras"] = ["base", *(c.id for c in cfg.cameras)]
+    summary["tree_fingerprint"] = fingerprint  # PROVENANCE: where the numbers came from
+    summary["machine"] = machine_info()
+    summary["versions"] = library_versions()
     if as_json:
         print(json.dumps(summary))
     else:

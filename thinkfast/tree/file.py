@@ -1,9 +1,11 @@
-"""Action tree files (HDF5, format ``thinkfast-tree`` v2): write, read and verify.
+"""Action tree files (HDF5, format ``thinkfast-tree`` v3): write, read and verify.
 
 The file describes itself: format name and schema version, the compiler's provenance and full
 config as root attributes, one dataset per :class:`~thinkfast.tree.action_tree.ActionTree` array
-with ``units``, ``doc`` and a ``sha256`` checksum. The layout is documented in
-``docs/TREE_FORMAT.md`` and checked by :mod:`thinkfast.tree.layout`. Every refusal is a
+with ``units``, ``doc`` and a ``sha256`` checksum, and a table of the checksums of every attribute
+and dataset (:mod:`thinkfast.tree.manifest`) that every reader verifies before it uses anything.
+The layout is documented in ``docs/TREE_FORMAT.md`` and checked by :mod:`thinkfast.tree.layout`;
+the fingerprint is :mod:`thinkfast.tree.identity`'s. Every refusal is a
 :class:`~thinkfast.errors.TreeFileError` naming the path and the reason.
 """
 
@@ -24,32 +26,44 @@ import numpy as np
 
 from thinkfast.errors import TreeFileError
 from thinkfast.tree.action_tree import DTYPES, UNITS, ActionTree
+from thinkfast.tree.identity import fingerprint_of
+from thinkfast.tree.identity import tree_fingerprint as tree_fingerprint  # callers import it here
 from thinkfast.tree.layout import (
     DERIVED,
     GROUPS,
     LAYOUT,
     PATHS,
     array_sha256,
-    fingerprint_of,
     layout_problem,
     shield_dt_problem,
 )
-from thinkfast.tree.layout import tree_fingerprint as tree_fingerprint  # callers import it here
+from thinkfast.tree.manifest import (
+    TABLE,
+    Verified,
+    entries_of,
+    read_attr,
+    read_verified,
+    table_text,
+)
 
 FORMAT = "thinkfast-tree"
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 # why an older version is refused, and the fix
-OLDER = {1: "v1 has no shield paths"}
+OLDER = {
+    1: "v1 has no shield paths",
+    2: "v2 has no checksums of its attributes, and its fingerprint covers the datasets only",
+}
 JSON_SUFFIX = ".json"  # a meta value stored as a JSON string lives in attribute "<key>.json"
-RESERVED_ATTRS = ("format", "schema_version", "fingerprint")
+RESERVED_ATTRS = ("format", "schema_version", "fingerprint", "checksums")
 
 
 def save_tree(tree: ActionTree, path: str | os.PathLike) -> None:
     """Write a tree atomically (temporary file in the same directory, then ``os.replace``).
 
     Root attributes: ``format``, ``schema_version``, ``created`` (``tree.meta["created"]`` when
-    present, else now, ISO 8601 UTC), ``fingerprint`` and every ``tree.meta`` entry (str, int,
-    float and bool as they are; anything else as JSON in attribute ``"<key>.json"``).
+    present, else now, ISO 8601 UTC), every ``tree.meta`` entry (str, int, float and bool as they
+    are; anything else as JSON in attribute ``"<key>.json"``), ``fingerprint``
+    (:func:`tree_fingerprint`) and ``checksums.json``, the sha256 of every attribute and dataset.
 
     Raises:
         TreeFileError: the tree violates the layout, a meta key is reserved or a value is not
@@ -67,14 +81,20 @@ def save_tree(tree: ActionTree, path: str | os.PathLike) -> None:
     problem = problem or shield_dt_problem(tree.meta)
     if problem:
         raise TreeFileError(f"{path}: refusing to write an invalid tree: {problem}")
-    checksums = {name: array_sha256(a) for name, a in arrays.items()}
-    attrs["fingerprint"] = fingerprint_of(checksums)
     if not path.parent.is_dir():
         raise TreeFileError(f"{path}: cannot write: directory {path.parent} does not exist")
+    checksums = {name: array_sha256(a) for name, a in arrays.items()}
+    root = {
+        "format": FORMAT,
+        "schema_version": SCHEMA_VERSION,
+        "created": attrs.pop("created", _now()),
+        **attrs,
+        "fingerprint": fingerprint_of(checksums, tree.meta),
+    }
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     try:
         with h5py.File(tmp, "x", track_order=True) as f:
-            _write(f, arrays, checksums, attrs)
+            _write(f, root, _datasets(arrays, checksums))
         fd = os.open(tmp, os.O_RDONLY)
         try:
             os.fsync(fd)
@@ -88,30 +108,36 @@ def save_tree(tree: ActionTree, path: str | os.PathLike) -> None:
         raise
 
 
-def _write(
-    f: h5py.File,
-    arrays: Mapping[str, np.ndarray],
-    checksums: Mapping[str, str],
-    attrs: Mapping[str, Any],
-) -> None:
-    f.attrs["format"] = FORMAT
-    f.attrs["schema_version"] = SCHEMA_VERSION
-    f.attrs["created"] = attrs.get("created", _now())
-    for key, value in attrs.items():
-        if key != "created":
-            f.attrs[key] = value
-    for group, (sym, doc) in GROUPS.items():
-        g = f.create_group(group, track_order=True)
-        g.attrs["rows"] = sym
-        g.attrs["doc"] = doc
+def _datasets(
+    arrays: Mapping[str, np.ndarray], checksums: Mapping[str, str]
+) -> dict[str, tuple[np.ndarray, dict[str, str]]]:
+    """(little-endian array, attributes) of every dataset by path, derived ones last."""
     derived = _derived(arrays)
     items = [(p, arrays[name], UNITS[name], doc, checksums[name]) for name, p, doc in LAYOUT]
     items += [(p, derived[p], u, doc, array_sha256(derived[p])) for p, u, doc in DERIVED]
-    for p, a, units, doc, sha in items:
-        ds = f.create_dataset(p, data=np.asarray(a, dtype=a.dtype.newbyteorder("<")))
-        ds.attrs["units"] = units
-        ds.attrs["doc"] = doc
-        ds.attrs["sha256"] = sha
+    return {
+        p: (np.asarray(a, dtype=a.dtype.newbyteorder("<")), {"units": u, "doc": doc, "sha256": sha})
+        for p, a, u, doc, sha in items
+    }
+
+
+def _write(
+    f: h5py.File,
+    root: Mapping[str, Any],
+    datasets: Mapping[str, tuple[np.ndarray, Mapping[str, str]]],
+) -> None:
+    groups = {f"/{g}": {"rows": sym, "doc": doc} for g, (sym, doc) in GROUPS.items()}
+    for key, value in root.items():
+        f.attrs[key] = value
+    for g, attrs in groups.items():
+        group = f.create_group(g, track_order=True)
+        for key, value in attrs.items():
+            group.attrs[key] = value
+    for p, (a, attrs) in datasets.items():
+        ds = f.create_dataset(p, data=a)
+        for key, value in attrs.items():
+            ds.attrs[key] = value
+    f.attrs[TABLE] = table_text(entries_of(root, groups, datasets))
 
 
 def _derived(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -157,8 +183,9 @@ def load_tree(path: str | os.PathLike) -> ActionTree:
 
     Raises:
         TreeFileError: the file is missing, not HDF5, truncated, of another format or an unknown
-            schema version, lacks a dataset, has a wrong dtype or shape, fails a checksum or
-            violates the layout (see :func:`layout_problem`).
+            schema version; an attribute or dataset fails the checksum table (or is missing from
+            it or from the file); a dataset has a wrong dtype or shape; the tree violates the
+            layout (see :func:`layout_problem`) or its fingerprint attribute does not match.
     """
     return _load(_open(path), path)
 
@@ -175,10 +202,10 @@ def _load(opened, path) -> ActionTree:
     """Read and verify a tree from an opened file (context manager of :func:`_open` or
     :func:`_h5`)."""
     with opened as f:
-        meta = _read_meta(f, path)
-        read = {name: _read_dataset(f, p, DTYPES[name], path) for name, p, _ in LAYOUT}
-        derived = {p: _read_dataset(f, p, np.dtype(np.int32), path)[0] for p, _, _ in DERIVED}
-        fingerprint = _attr(f, "fingerprint", path)
+        meta, found = _read_verified(f, path)
+    fingerprint = meta.pop("fingerprint", None)
+    read = {name: _dataset(found, p, DTYPES[name], path) for name, p, _ in LAYOUT}
+    derived = {p: _dataset(found, p, np.dtype(np.int32), path)[0] for p, _, _ in DERIVED}
     arrays = {name: a for name, (a, _) in read.items()}
     problem = layout_problem(arrays) or shield_dt_problem(meta)
     if problem:
@@ -186,22 +213,27 @@ def _load(opened, path) -> ActionTree:
     for p, want in _derived(arrays).items():
         if not np.array_equal(derived[p], want):
             raise TreeFileError(f"{path}: dataset {p} disagrees with /nodes (file is inconsistent)")
-    if fingerprint != fingerprint_of({name: sha for name, (_, sha) in read.items()}):
-        raise TreeFileError(f"{path}: attribute fingerprint does not match the datasets")
+    if fingerprint != fingerprint_of({name: sha for name, (_, sha) in read.items()}, meta):
+        raise TreeFileError(
+            f"{path}: attribute fingerprint does not match the datasets and identity attributes"
+        )
     tree = ActionTree(**arrays, meta=meta)
     return tree.freeze()
 
 
 def load_meta(path: str | os.PathLike) -> dict[str, Any]:
-    """Read only the root attributes (provenance, config) after checking format and version.
-
-    Cheap: no dataset is read or verified, so use :func:`load_tree` before trusting the arrays.
+    """The root attributes (provenance, config) of a tree file, after the same checks of format,
+    version and every checksum as :func:`load_tree` (so every dataset is read and hashed); the
+    layout and the fingerprint are not checked.
 
     Raises:
-        TreeFileError: missing, non-HDF5 or truncated file, other format, unknown schema version.
+        TreeFileError: missing, non-HDF5 or truncated file, other format, unknown schema version,
+            an attribute or dataset that fails the checksum table.
     """
     with _open(path) as f:
-        return _read_meta(f, path)
+        meta, _ = _read_verified(f, path)
+    meta.pop("fingerprint", None)
+    return meta
 
 
 @contextlib.contextmanager
@@ -263,12 +295,20 @@ def _first_line(exc: BaseException) -> str:
 
 
 def _attr(f: h5py.File, key: str, path: str | os.PathLike) -> Any:
-    if key not in f.attrs:
+    try:
+        present = key in f.attrs
+    except (OSError, RuntimeError, KeyError, ValueError) as exc:  # HDF5's own metadata checksum
+        raise TreeFileError(
+            f"{path}: root attributes: unreadable ({_first_line(exc)}) (file is corrupt)"
+        ) from None
+    if not present:
         raise TreeFileError(f"{path}: missing root attribute {key} (not a thinkfast tree file?)")
-    return _plain(f.attrs[key])
+    return read_attr(f.attrs, key, f"/@{key}", path)
 
 
-def _read_meta(f: h5py.File, path: str | os.PathLike) -> dict[str, Any]:
+def _read_verified(f: h5py.File, path: str | os.PathLike) -> tuple[dict[str, Any], Verified]:
+    """Format and version checked, then every attribute and dataset against the checksum table:
+    the meta (``fingerprint`` still in it; JSON attributes decoded) and every dataset by path."""
     fmt = _attr(f, "format", path)
     if fmt != FORMAT:
         raise TreeFileError(f"{path}: format is {fmt!r}, expected {FORMAT!r}")
@@ -286,11 +326,11 @@ def _read_meta(f: h5py.File, path: str | os.PathLike) -> dict[str, Any]:
             f"{path}: schema_version {version} is not supported "
             f"(this thinkfast reads {SCHEMA_VERSION}){newer}"
         )
+    verified = read_verified(f, path)
     meta: dict[str, Any] = {}
-    for key in f.attrs:
-        if key in RESERVED_ATTRS:
+    for key, value in verified.attrs.items():
+        if key in ("format", "schema_version"):
             continue
-        value = _plain(f.attrs[key])
         if key.endswith(JSON_SUFFIX):
             try:
                 meta[key.removesuffix(JSON_SUFFIX)] = json.loads(value)
@@ -298,34 +338,16 @@ def _read_meta(f: h5py.File, path: str | os.PathLike) -> dict[str, Any]:
                 raise TreeFileError(f"{path}: attribute {key} is not valid JSON") from None
         else:
             meta[key] = value
-    return meta
+    return meta, verified
 
 
-def _plain(v: Any) -> Any:
-    if isinstance(v, bytes):
-        return v.decode("utf-8", errors="replace")
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    if isinstance(v, np.generic):
-        return v.item()
-    return v
-
-
-def _read_dataset(
-    f: h5py.File, p: str, dtype: np.dtype, path: str | os.PathLike
+def _dataset(
+    found: Verified, p: str, dtype: np.dtype, path: str | os.PathLike
 ) -> tuple[np.ndarray, str]:
-    """The dataset at ``p`` and its verified checksum."""
-    obj = f.get(p)
-    if obj is None:
+    """The verified dataset at ``p`` and its checksum, its dtype checked."""
+    if p not in found.arrays:
         raise TreeFileError(f"{path}: missing dataset {p}")
-    if not isinstance(obj, h5py.Dataset):
-        raise TreeFileError(f"{path}: {p} is not a dataset")
-    if obj.dtype.newbyteorder("<") != dtype.newbyteorder("<"):
-        raise TreeFileError(f"{path}: dataset {p}: dtype {obj.dtype}, expected {dtype}")
-    expected = _plain(obj.attrs.get("sha256"))
-    if not isinstance(expected, str):
-        raise TreeFileError(f"{path}: dataset {p}: missing sha256 attribute")
-    a = np.asarray(obj[()])
-    if array_sha256(a) != expected:
-        raise TreeFileError(f"{path}: dataset {p}: checksum mismatch (file is corrupt)")
-    return a, expected
+    a = found.arrays[p]
+    if a.dtype.newbyteorder("<") != dtype.newbyteorder("<"):
+        raise TreeFileError(f"{path}: dataset {p}: dtype {a.dtype}, expected {dtype}")
+    return a, found.sha256[p]

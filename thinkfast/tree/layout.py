@@ -2,8 +2,9 @@
 
 What :mod:`thinkfast.tree.file` writes and verifies, without HDF5: the dataset of every
 :class:`~thinkfast.tree.action_tree.ActionTree` array (``LAYOUT``), the groups they sit in and
-their row counts (``GROUPS``), the checksum of an array and the fingerprint of a tree, and
-:func:`layout_problem`, the invariants the runtime relies on (``docs/TREE_FORMAT.md``).
+their row counts (``GROUPS``), the checksum of an array, and :func:`layout_problem`, the
+invariants the runtime relies on (``docs/TREE_FORMAT.md``). A tree's fingerprint, over its arrays
+and its identity attributes, is :mod:`thinkfast.tree.identity`'s.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from thinkfast.tree.action_tree import DTYPES, EDGE_CUT, EDGE_REACHED, FIELDS, SHAPES, ActionTree
+from thinkfast.tree.action_tree import DTYPES, EDGE_CUT, EDGE_REACHED, FIELDS, SHAPES
 
 SHIELD_DT = "shield_dt"  # meta key (v2, required): sample spacing of the shield paths [s]
 
@@ -52,23 +53,6 @@ def array_sha256(a: np.ndarray) -> str:
     le = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
     h = hashlib.sha256(f"{le.dtype.str}:{','.join(map(str, le.shape))}\n".encode("ascii"))
     h.update(le.reshape(-1).view(np.uint8).data)
-    return h.hexdigest()
-
-
-def tree_fingerprint(tree: ActionTree) -> str:
-    """Identity of a tree's datasets: sha256 over ``"<name> <array_sha256>\\n"`` in LAYOUT order.
-
-    Two trees have the same fingerprint exactly when all their arrays are identical (``meta`` is
-    not included).
-    """
-    return fingerprint_of({name: array_sha256(a) for name, a in tree.arrays().items()})
-
-
-def fingerprint_of(checksums: Mapping[str, str]) -> str:
-    """:func:`tree_fingerprint` from the arrays' checksums by name (as :func:`array_sha256`)."""
-    h = hashlib.sha256()
-    for name, _, _ in LAYOUT:
-        h.update(f"{name} {checksums[name]}\n".encode("ascii"))
     return h.hexdigest()
 
 

@@ -3,7 +3,8 @@
 The file keeps provenance as root attributes (docs/TREE_FORMAT.md, "Provenance"); the compiler
 writes the configuration as the exact TOML text read (``config_text``, for humans and hashes) and
 as the resolved parameters (``parameters``, JSON). Code reads the parameters, through this record,
-never a key by string.
+never a key by string, and never the TOML text: the parameters are what the tree's fingerprint
+covers (:mod:`thinkfast.tree.identity`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ class Provenance:
     Attributes:
         created: ISO 8601 UTC creation time.
         versions: package versions (``thinkfast``, ``ruckig``, ``pinocchio``, ...).
+        machine: the compiling machine (:func:`thinkfast.machine.machine_info`; {} when absent).
         config_path: the compile configuration's path when compiled.
         config_text: its exact TOML text; ``config_sha256`` its hash.
         urdf_sha256, robot_toml_sha256: hashes of the robot description used.
@@ -34,6 +36,7 @@ class Provenance:
 
     created: str
     versions: dict[str, str]
+    machine: dict[str, Any]
     config_path: str
     config_text: str
     config_sha256: str
@@ -50,9 +53,11 @@ class Provenance:
             TreeFileError: a key is missing or ``parameters`` is not a JSON object (names it).
         """
         try:
-            params = json.loads(meta["parameters"])
+            params = meta["parameters"]
+            params = json.loads(params) if isinstance(params, str) else params
             if not isinstance(params, dict):
                 raise ValueError("not a JSON object")
+            machine = meta.get("machine")
             return cls(
                 created=str(meta.get("created", "")),
                 versions={
@@ -60,6 +65,7 @@ class Provenance:
                     for k, v in meta.items()
                     if k.endswith("_version")
                 },
+                machine=dict(machine) if isinstance(machine, dict) else {},
                 config_path=str(meta["config_path"]),
                 config_text=str(meta["config_text"]),
                 config_sha256=str(meta["config_sha256"]),
