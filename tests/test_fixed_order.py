@@ -96,7 +96,7 @@ COMPILE = textwrap.dedent(
     import sys
     from thinkfast.compile.build import compile_tree
     from thinkfast.compile.config import load_compile_config
-    from thinkfast.tree.layout import tree_fingerprint
+    from thinkfast.tree.identity import tree_fingerprint
     tree = compile_tree(load_compile_config(sys.argv[1]))
     print(tree_fingerprint(tree), len(tree.term_node))
     """
