@@ -23,6 +23,7 @@ import pinocchio as pin
 from thinkfast.config import from_dict, load_toml, spec
 from thinkfast.errors import ConfigError, RobotModelError
 from thinkfast.robot import fixed_order as fo
+from thinkfast.robot import toml_checks
 
 
 def frozen(a) -> np.ndarray:
@@ -62,10 +63,11 @@ class RobotToml:
     name: str = spec(doc="robot name")
     urdf: str = spec(doc="URDF path, relative to robot.toml")
     joints: tuple[str, ...] = spec(length=6, doc="controlled joints, in EGM order")
-    home: tuple[float, ...] = spec(length=6, unit="rad", doc="home configuration")
-    max_velocity: tuple[float, ...] = spec(length=6, lo=0.0, lo_open=True, unit="rad/s")
-    max_acceleration: tuple[float, ...] = spec(length=6, lo=0.0, lo_open=True, unit="rad/s^2")
-    max_jerk: tuple[float, ...] = spec(length=6, lo=0.0, lo_open=True, unit="rad/s^3")
+    # One value per joint (toml_checks.check_lengths); limits checked against the URDF there.
+    home: tuple[float, ...] = spec(unit="rad", doc="home configuration")
+    max_velocity: tuple[float, ...] = spec(lo=0.0, lo_open=True, unit="rad/s")
+    max_acceleration: tuple[float, ...] = spec(lo=0.0, lo_open=True, unit="rad/s^2")
+    max_jerk: tuple[float, ...] = spec(lo=0.0, lo_open=True, unit="rad/s^3")
     shield_link: str = spec("shield", doc="link whose single cylinder collision is the shield")
     allowed_collisions: tuple[tuple[str, ...], ...] = spec(
         (), doc="link pairs never checked against each other (envelopes that always touch)"
@@ -143,11 +145,13 @@ def load_robot(toml_path: str | Path | None = None) -> Robot:
     """Load ``robot.toml`` and its URDF.
 
     Raises:
-        ConfigError: robot.toml is missing, malformed or has an invalid key.
+        ConfigError: robot.toml is missing, malformed or has an invalid key, or a limit, the
+            home or a link name disagrees with the URDF or is implausible (:mod:`toml_checks`).
         RobotModelError: the URDF is missing, malformed or inconsistent with robot.toml.
     """
     toml_path = Path(toml_path) if toml_path is not None else default_robot_path()
     cfg = from_dict(RobotToml, load_toml(toml_path), str(toml_path))
+    toml_checks.check_lengths(cfg, str(toml_path))
     urdf_path = (toml_path.parent / cfg.urdf).resolve()
     if not urdf_path.is_file():
         raise RobotModelError(f"{urdf_path}: URDF file not found (named by {toml_path}: urdf)")
@@ -175,16 +179,11 @@ def load_robot(toml_path: str | Path | None = None) -> Robot:
             f"{list(cfg.joints)}"
         )
     q_lower, q_upper = frozen(model.lowerPositionLimit), frozen(model.upperPositionLimit)
-    home = frozen(cfg.home)
-    if np.any(home < q_lower) or np.any(home > q_upper):
-        raise RobotModelError(f"{toml_path}: home {list(cfg.home)} is outside the URDF limits")
-
-    links = set(link_parent)
-    for pair in cfg.allowed_collisions:
-        if len(pair) != 2 or not set(pair) <= links:
-            raise RobotModelError(
-                f"{toml_path}: allowed_collisions entry {list(pair)} must name two URDF links"
-            )
+    where = (str(toml_path), urdf_path.name)
+    toml_checks.check_limits(cfg, q_lower, q_upper, model.velocityLimit, *where)
+    cylinders = [s.link for s in shapes if s.shape == "cylinder"]
+    shields = [k for k in link_parent if cylinders.count(k) == 1]
+    toml_checks.check_links(cfg, link_parent, shields, *where)
     shield = [s for s in shapes if s.link == cfg.shield_link]
     if len(shield) != 1 or shield[0].shape != "cylinder":
         raise RobotModelError(
@@ -199,7 +198,7 @@ def load_robot(toml_path: str | Path | None = None) -> Robot:
         v_max=frozen(cfg.max_velocity),
         a_max=frozen(cfg.max_acceleration),
         j_max=frozen(cfg.max_jerk),
-        home=home,
+        home=frozen(cfg.home),
         shapes=tuple(shapes),
         cell=tuple(_cell_shape(c, i, toml_path) for i, c in enumerate(cfg.cell)),
         link_parent=link_parent,
