@@ -13,7 +13,7 @@ from typing import Any, NamedTuple
 
 from thinkfast.compile.config import CompileConfig
 from thinkfast.config import to_dict
-from thinkfast.tree.identity import PATH_PARAMETERS, ROBOT_KEYS, identity_changes
+from thinkfast.tree.identity import PATH_PARAMETERS, ROBOT_KEYS, identity_changes, parameters_of
 
 HASHES = ("urdf_sha256", "robot_toml_sha256")
 PROVENANCE = ("created", "robot_name", "config_path")  # shown with versions and hashes
@@ -44,12 +44,7 @@ def resolved_parameters(meta: dict[str, Any]) -> dict[str, Any] | None:
     Returns:
         None when the tree records no readable parameters.
     """
-    raw = meta.get("parameters")
-    if isinstance(raw, str):
-        try:
-            raw = json.loads(raw)
-        except ValueError:
-            return None
+    raw = parameters_of(meta)
     if not isinstance(raw, dict):
         return None
     return {**flatten(to_dict(CompileConfig())), **flatten(raw)}

@@ -65,17 +65,24 @@ def value_sha256(value: Any) -> str:
     raise TypeError(f"{type(value).__name__} is not a scalar attribute value")
 
 
-def identity_parameters(meta: Mapping[str, Any]) -> Any:
-    """The resolved parameters as the fingerprint sees them: ``meta["parameters"]`` (a JSON
-    string or the decoded value) without :data:`PATH_PARAMETERS`; None when absent.
-
-    A string that is not JSON is returned as it is (it still identifies the tree)."""
+def parameters_of(meta: Mapping[str, Any]) -> Any:
+    """``meta["parameters"]`` decoded when it is JSON text; a string that is not JSON as it is,
+    None when absent."""
     value = meta.get("parameters")
     if isinstance(value, str):
         try:
-            value = json.loads(value)
+            return json.loads(value)
         except ValueError:
             return value
+    return value
+
+
+def identity_parameters(meta: Mapping[str, Any]) -> Any:
+    """The resolved parameters as the fingerprint sees them: :func:`parameters_of` without
+    :data:`PATH_PARAMETERS`; None when absent.
+
+    A string that is not JSON is returned as it is (it still identifies the tree)."""
+    value = parameters_of(meta)
     if isinstance(value, dict):
         value = {k: v for k, v in value.items() if k not in PATH_PARAMETERS}
     return value
