@@ -37,7 +37,10 @@ def run(
         False, "--print-config", help="print every runtime config default as TOML and exit"
     ),
     check_config: Path | None = typer.Option(
-        None, "--check-config", help="load and validate this runtime config, print OK and exit"
+        None,
+        "--check-config",
+        help="load and validate this runtime config (with --tree: its robot against the "
+        "tree's), print OK and exit",
     ),
     planner: str = typer.Option("tree", "--planner", help=registry.describe(online=True)),
     egm_bind: str = typer.Option(EGM_BIND_DEFAULT, "--egm-bind", help="UDP HOST:PORT to serve EGM"),
@@ -131,12 +134,12 @@ def run(
     from thinkfast.control.config import load_run_config
     from thinkfast.daemon.egm_address import parse_controller, parse_hostport
     from thinkfast.daemon.service import Daemon, Endpoints, Modes
-    from thinkfast.errors import ConfigError, RobotModelError
-    from thinkfast.robot.model import default_robot_path, load_robot
+    from thinkfast.errors import ConfigError
     from thinkfast.tree.file import load_tree
+    from thinkfast.tree.robot_match import robot_for_tree
 
     if print_config or check_config is not None:
-        _config_tool(print_config, check_config)
+        _config_tool(print_config, check_config, tree)
         return
     if tree is None:
         raise typer.BadParameter(
@@ -190,14 +193,7 @@ def run(
             "full limits)",
         )  # fmt: skip
     t = load_tree(tree)
-    robot_path = Path(cfg.robot) if cfg.robot else _tree_robot(t) or default_robot_path()
-    robot = load_robot(robot_path)
-    if robot.urdf_sha256 != t.meta.get("urdf_sha256") or robot.toml_sha256 != t.meta.get(
-        "robot_toml_sha256"
-    ):
-        raise RobotModelError(
-            f"{tree}: compiled for another robot description than {robot.toml_path}; recompile it"
-        )
+    robot = robot_for_tree(t.meta, str(tree), cfg.robot)  # the tree's robot, or refused
     robot = scale_limits(robot, speed_scale)
     conf = session_config(
         connect=zenoh_connect or (), listen=zenoh_listen or (), config_file=zenoh_config
@@ -285,9 +281,10 @@ def setup_logging(level: str, fmt: str) -> None:
     root.setLevel(level.upper())
 
 
-def _config_tool(print_config: bool, check: Path | None) -> None:
+def _config_tool(print_config: bool, check: Path | None, tree: Path | None = None) -> None:
     """``--print-config``: the defaults as TOML on stdout; ``--check-config FILE``: load and
-    validate FILE (and the robot it names), print ``FILE: OK`` (errors raise, naming the key)."""
+    validate FILE (and the robot it names; with ``tree``, that robot, or the tree's, checked
+    against the tree's), print ``FILE: OK`` (errors raise, naming the key)."""
     from thinkfast.control.config import load_run_config, run_config_toml
 
     if print_config and check is not None:
@@ -296,22 +293,18 @@ def _config_tool(print_config: bool, check: Path | None) -> None:
         print(run_config_toml(), end="")
         return
     cfg = load_run_config(check)
+    if tree is not None:
+        from thinkfast.tree.file import load_tree
+        from thinkfast.tree.robot_match import robot_for_tree
+
+        robot = robot_for_tree(load_tree(tree).meta, str(tree), cfg.robot)
+        print(f"{check}: OK (robot {robot.name}, the one {tree} was compiled for)")
+        return
     if cfg.robot:
         from thinkfast.robot.model import load_robot
 
         load_robot(Path(cfg.robot))
     print(f"{check}: OK")
-
-
-def _tree_robot(tree) -> Path | None:
-    """robot.toml named by the tree's compile configuration, if it still exists."""
-    from thinkfast.errors import TreeFileError
-    from thinkfast.tree.provenance import Provenance
-
-    try:
-        return Provenance.of(tree.meta).robot_toml()
-    except TreeFileError:
-        return None
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -16,6 +16,7 @@ from thinkfast.sim.cli_options import (
     MIX_HELP,
     SCHEDULER_HELP,
     load_throws,
+    tree_cell,
     with_cameras,
 )
 from thinkfast.sim.planners import DEFAULT, check_planners, lockstep_planners
@@ -68,27 +69,29 @@ def bench(
     from thinkfast.errors import ConfigError
     from thinkfast.machine import library_versions, machine_info
     from thinkfast.sim.bench import format_summary, plot_summary, run_bench, summarize
-    from thinkfast.tree.file import load_tree, tree_fingerprint
+    from thinkfast.tree.file import tree_fingerprint
 
     names = [p.strip() for p in planners.split(",") if p.strip()]
     check_planners(names, "--planners", None)
     if reference is not None and reference not in names:
         raise ConfigError("--reference", None, f"{reference!r} is not one of --planners {names}")
     cfg = with_cameras(load_run_config(config), cameras)
-    fingerprint = tree_fingerprint(load_tree(tree))  # fail here, with the file's name
+    t, robot, plane = tree_cell(tree, cfg)  # fail here, with the file's name
+    fingerprint = tree_fingerprint(t)
     if feints == -1:
         feints = 0 if throw_set is not None else n // 10
     if chunk < 1:
         raise ConfigError("--chunk", None, f"must be >= 1, got {chunk}")
-    balls = load_throws(n, seed, throw_set, mix, feints)
+    balls = load_throws(n, seed, throw_set, mix, feints, plane)
     start = time.perf_counter()
     if scheduler is not None:
         from thinkfast.sim.cluster import bench_on_client, open_client
 
         with open_client(scheduler, jobs or default_jobs()) as client:
             out = bench_on_client(
-                client, tree, cfg, balls, names, seed, chunk, None if as_json else _progress
-            )
+                client, tree, cfg, balls, names, seed, chunk, None if as_json else _progress,
+                robot=robot,
+            )  # fmt: skip
     else:
         out = run_bench(
             WorldFactory(tree, cfg),
@@ -116,21 +119,22 @@ def bench(
 
 
 class WorldFactory:
-    """Picklable builder of the lockstep world (one per worker process)."""
+    """Picklable builder of the lockstep world (one per worker process), with the tree's robot
+    (:func:`~thinkfast.tree.robot_match.robot_for_tree`: the run config's must be the same)."""
 
     def __init__(self, tree: Path, cfg):
         self.tree, self.cfg = tree, cfg
 
     def __call__(self):
-        from thinkfast.robot.model import load_robot
         from thinkfast.sim.camera import CameraModelConfig
         from thinkfast.sim.controller import ServoConfig
         from thinkfast.sim.lockstep import World
         from thinkfast.tree.file import load_tree
+        from thinkfast.tree.robot_match import robot_for_tree
 
-        return World(
-            load_tree(self.tree), load_robot(), self.cfg, ServoConfig(), CameraModelConfig()
-        )
+        tree = load_tree(self.tree)
+        robot = robot_for_tree(tree.meta, str(self.tree), self.cfg.robot)
+        return World(tree, robot, self.cfg, ServoConfig(), CameraModelConfig())
 
 
 def _progress(done: int, total: int) -> None:

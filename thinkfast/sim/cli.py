@@ -19,6 +19,7 @@ from thinkfast.sim.cli_options import (
     RERUN_HELP,
     SCHEDULER_HELP,
     live_view_args,
+    tree_cell,
     with_cameras,  # noqa: F401 (bench/ scripts, tests)
 )
 from thinkfast.sim.cli_options import load_throws as _throws
@@ -42,14 +43,23 @@ def throws(
     seed: int = typer.Option(1, "--seed", help="random seed"),
     mix: str | None = typer.Option(None, "--mix", help=MIX_HELP),
     feints: int = typer.Option(0, "--feints", help=FEINTS_HELP),
+    tree: Path | None = typer.Option(
+        None, "--tree", help="aim at this tree's plane (default: the throw model's, 0.8 m)"
+    ),
 ) -> None:
     """Write a throw set (docs/THROW_SET_FORMAT.md) so any run can be repeated exactly."""
     from collections import Counter
 
     from thinkfast.sim.throwset import save_throw_set
 
-    balls = _throws(n, seed, None, mix, feints)
-    save_throw_set(output, balls, _throw_config(mix))
+    plane = None
+    if tree is not None:
+        from thinkfast.tree.file import load_tree
+        from thinkfast.tree.provenance import Provenance
+
+        plane = (Provenance.of(load_tree(tree).meta, str(tree)).plane_x, str(tree))
+    balls = _throws(n, seed, None, mix, feints, plane)
+    save_throw_set(output, balls, _throw_config(mix, plane and plane[0]))
     kinds = Counter(t.kind for t in balls)
     what = ", ".join(f"{kinds[k]} {k}" for k in ("still", "windup", "feint") if kinds[k])
     print(f"wrote {len(balls)} throws ({what}; seed {seed}) to {output}")
@@ -90,7 +100,6 @@ def run(
     from thinkfast.control.config import load_run_config
     from thinkfast.daemon.egm_address import parse_hostport
     from thinkfast.errors import ConfigError
-    from thinkfast.robot.model import load_robot
     from thinkfast.sim.realtime import run_throws, run_with_daemon
 
     view = live_view_args(rerun, foxglove)  # fail here, not in the daemon
@@ -105,8 +114,8 @@ def run(
 
     logging.getLogger("thinkfast.sim.controller").setLevel(logging.ERROR)  # overrun chatter
     cfg = load_run_config(config)
-    robot = load_robot()
-    balls = _throws(n, seed, throw_set, mix, feints)
+    _, robot, plane = tree_cell(tree, cfg)  # the tree's robot and plane, or refused
+    balls = _throws(n, seed, throw_set, mix, feints, plane)
     via = f", camera frames ({frames_resolution}) via thinkfast-detect" if frames else ""
     print(f"{len(balls)} throws at the {planner} planner (real time, seed {seed}{via})")
     if egm is not None or zenoh_endpoint is not None:

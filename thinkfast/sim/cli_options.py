@@ -74,23 +74,43 @@ def with_cameras(cfg, cameras: str | None):
     return dataclasses.replace(cfg, cameras=tuple(known[n] for n in names[1:]))
 
 
-def throw_config(mix: str | None):
-    """The throw model with the kinds of throw ``mix`` names (None: the default mix)."""
+def throw_config(mix: str | None, plane_x: float | None = None):
+    """The throw model with the kinds of throw ``mix`` names (None: the default mix), aimed at
+    the plane ``x = plane_x`` [m] (None: the model's default, 0.8 m)."""
     import dataclasses
 
     from thinkfast.sim.thrower import parse_mix
     from thinkfast.sim.throws import ThrowConfig
 
     cfg = ThrowConfig()
+    if plane_x is not None and plane_x != cfg.plane_distance:
+        cfg = dataclasses.replace(cfg, plane_distance=float(plane_x))
     if mix is None:
         return cfg
     return dataclasses.replace(cfg, thrower=dataclasses.replace(cfg.thrower, mix=parse_mix(mix)))
 
 
-def load_throws(n: int, seed: int, throw_set: Path | None, mix: str | None = None, feints: int = 0):
+def load_throws(
+    n: int,
+    seed: int,
+    throw_set: Path | None,
+    mix: str | None = None,
+    feints: int = 0,
+    plane: tuple[float, str] | None = None,
+):
     """``n`` throws of ``seed`` (and ``feints`` feints) drawn, or the first ``n`` of a throw
-    set (all with ``n`` 0)."""
-    from thinkfast.errors import ConfigError
+    set (all with ``n`` 0).
+
+    Args:
+        plane: (plane x [m], the tree's name) the throws must be aimed at: drawn there, and a
+            throw set aimed elsewhere is refused. None: the throw model's default plane.
+
+    Raises:
+        ConfigError: a bad option.
+        ThinkfastError: the throw set cannot be read, or is aimed at another plane than the
+            tree's (one line naming both).
+    """
+    from thinkfast.errors import ConfigError, ThinkfastError
     from thinkfast.sim.throws import sample_throws
     from thinkfast.sim.throwset import load_throw_set
 
@@ -100,5 +120,41 @@ def load_throws(n: int, seed: int, throw_set: Path | None, mix: str | None = Non
         if mix is not None or feints:
             raise ConfigError("--mix/--feints", None, "not with --throw-set (the set is given)")
         ts = load_throw_set(throw_set)
-        return ts.throws[:n] if n else ts.throws
-    return sample_throws(throw_config(mix), n, seed, feints)
+        throws = ts.throws[:n] if n else ts.throws
+        if plane is not None:
+            other = sorted({t.plane_x for t in throws if t.plane_x != plane[0]})
+            if other:
+                raise ThinkfastError(
+                    f"{throw_set}: throws aimed at the plane x = {other[0]:g} m, but {plane[1]} "
+                    f"was compiled for the plane x = {plane[0]:g} m: draw a throw set for it "
+                    "(thinkfast-sim throws --tree)"
+                )
+        return throws
+    return sample_throws(throw_config(mix, plane and plane[0]), n, seed, feints)
+
+
+def tree_cell(path: Path, cfg=None):
+    """The tree at ``path``, the robot it was compiled for and its plane, for a simulator.
+
+    Args:
+        path: the tree file.
+        cfg: the run config (:class:`~thinkfast.control.config.RunConfig`; None: defaults);
+            its ``robot``, when set, must be the tree's robot.
+
+    Returns:
+        (tree, robot, plane): the :class:`~thinkfast.tree.action_tree.ActionTree`, the checked
+        :class:`~thinkfast.robot.model.Robot` and ``(plane x [m], str(path))`` for
+        :func:`load_throws`.
+
+    Raises:
+        TreeFileError: the tree cannot be read.
+        ConfigError, RobotModelError: the robot cannot be loaded or is not the tree's (one line
+            naming both).
+    """
+    from thinkfast.tree.file import load_tree
+    from thinkfast.tree.provenance import Provenance
+    from thinkfast.tree.robot_match import robot_for_tree
+
+    tree = load_tree(path)
+    robot = robot_for_tree(tree.meta, str(path), cfg.robot if cfg is not None else None)
+    return tree, robot, (Provenance.of(tree.meta, str(path)).plane_x, str(path))

@@ -95,6 +95,7 @@ def _world(tree_bytes: bytes, run_cfg, robot_path: str | None, hashes):
     from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.lockstep import World
     from thinkfast.tree.file import tree_from_bytes
+    from thinkfast.tree.robot_match import check_robot
 
     digest = hashlib.sha256(tree_bytes).hexdigest()
     key = f"{digest}:{robot_path}:{hashlib.sha256(repr(to_dict(run_cfg)).encode()).hexdigest()}"
@@ -106,6 +107,7 @@ def _world(tree_bytes: bytes, run_cfg, robot_path: str | None, hashes):
     robot = _check_robot(robot_path, hashes)
     # read in memory: a worker may be killed at any moment, and a file would stay behind
     tree = tree_from_bytes(tree_bytes, f"tree {digest[:16]}")
+    check_robot(tree.meta, robot, f"tree {digest[:16]}")
     world = World(tree, robot, run_cfg, ServoConfig(), CameraModelConfig())
     with _LOCK:  # a few: a sweep's chunks arrive point by point
         worlds[key] = world
@@ -263,14 +265,19 @@ def open_client(scheduler: str, workers: int) -> Iterator[InlineClient | DaskCli
 
 def bench_on_client(
     client, tree_path: Path, run_cfg, throws, planners, seed: int, chunk: int,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None, robot=None,
 ) -> list:  # fmt: skip
     """The rows :func:`thinkfast.sim.bench.run_bench` gives, computed as chunks of ``chunk``
-    throws on ``client`` (the default robot, which every worker must have the same)."""
+    throws on ``client``; ``robot``: the tree's (checked, None: the default), which every
+    worker must have the same (the default robot's files: each worker's own default path)."""
     from thinkfast.robot.model import load_robot
 
-    robot = load_robot()
+    default = load_robot()
+    robot = default if robot is None else robot
     hashes = (robot.urdf_sha256, robot.toml_sha256)
+    robot_path = (
+        None if hashes == (default.urdf_sha256, default.toml_sha256) else str(robot.toml_path)
+    )
     data = Path(tree_path).read_bytes()
     digest = hashlib.sha256(data).hexdigest()[:16]
     tree = client.submit(given_task, data, key=f"tree-{digest}")
@@ -278,8 +285,8 @@ def bench_on_client(
     run = uuid.uuid4().hex[:12]  # this bench's tasks (another client's may differ in anything)
     for s in range(0, len(throws), chunk):
         fut = client.submit(
-            chunk_task, tree, run_cfg, None, hashes, throws[s:s + chunk], list(planners), seed,
-            s, key=f"bench-{run}-{s}",
+            chunk_task, tree, run_cfg, robot_path, hashes, throws[s:s + chunk], list(planners),
+            seed, s, key=f"bench-{run}-{s}",
         )  # fmt: skip
         futures.append(fut)
         where[fut.key] = s

@@ -33,6 +33,7 @@ from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
 from thinkfast.control.segments import WristTracker
 from thinkfast.decide.tree_view import BALL_RADIUS
+from thinkfast.errors import ThinkfastError
 from thinkfast.robot.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
@@ -48,6 +49,7 @@ from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.planners import ORACLES
 from thinkfast.sim.throws import Throw, plane_crossing
+from thinkfast.tree.robot_match import check_robot
 
 DT = 0.004
 LEAD = 0.5  # s of simulated time before the first detection
@@ -93,6 +95,7 @@ class World:
         clock: ClockJitter | None = None,
     ):
         self.clock = clock
+        check_robot(tree.meta, robot)  # the tree's limits, never another robot's
         self.parts = CoreAssembly(tree, robot, cfg)  # the daemon's assembly of the control core
         self.tree = self.parts.tree
         self.robot, self.cfg, self.servo, self.camera = robot, cfg, servo, camera
@@ -118,8 +121,17 @@ def simulate(
     """Fly one throw against one planner; ``seed`` drives the camera noise (same for all
     planners on the same throw). ``oracle_start``: when the oracle leaves, after release [s].
 
-    For a feint, "release" is the moment its ball stops; ``blocked`` is False."""
+    For a feint, "release" is the moment its ball stops; ``blocked`` is False.
+
+    Raises:
+        ThinkfastError: the throw is aimed at another plane than the tree's.
+    """
     robot, cfg = world.robot, world.cfg
+    if throw.plane_x != world.tree.plane_x:
+        raise ThinkfastError(
+            f"throw {throw.id} is aimed at the plane x = {throw.plane_x:g} m, the tree's is "
+            f"x = {world.tree.plane_x:g} m: draw the throws at the tree's plane"
+        )
     t_rel = LEAD + throw.t_release  # simulated wall time of release
     dets = observe_cameras(throw, world.cameras, seed, t_rel)
     feint = throw.kind == "feint"
