@@ -113,16 +113,16 @@ def run(
     import logging
 
     logging.getLogger("thinkfast.sim.controller").setLevel(logging.ERROR)  # overrun chatter
+    if (egm is None) != (zenoh_endpoint is None):
+        raise ConfigError("--egm/--zenoh", None, "give both to use a running daemon")
+    if egm is not None and view:
+        raise ConfigError(view[0], None, "not with --egm/--zenoh: give it to that daemon")
     cfg = load_run_config(config)
     _, robot, plane = tree_cell(tree, cfg)  # the tree's robot and plane, or refused
     balls = _throws(n, seed, throw_set, mix, feints, plane)
     via = f", camera frames ({frames_resolution}) via thinkfast-detect" if frames else ""
     print(f"{len(balls)} throws at the {planner} planner (real time, seed {seed}{via})")
     if egm is not None or zenoh_endpoint is not None:
-        if egm is None or zenoh_endpoint is None:
-            raise ConfigError("--egm/--zenoh", None, "give both to use a running daemon")
-        if view:
-            raise ConfigError(view[0], None, "not with --egm/--zenoh: give it to that daemon")
         hostport = parse_hostport(egm, "--egm")
         pipeline = None
         if frames:

@@ -42,7 +42,8 @@ def check_robot(meta: Mapping[str, Any], robot: Robot, where: str = "tree") -> N
     )
     if not same:
         raise RobotModelError(
-            f"{where} was compiled for {_ident(name or '?', urdf, toml)}; the robot loaded is "
+            f"another robot than the tree's: {where} was compiled for "
+            f"{_ident(name or '?', urdf, toml)}; the robot loaded is "
             f"{_ident(robot.name, robot.urdf_sha256, robot.toml_sha256)} from "
             f"{robot.toml_path}: pass the tree's robot or recompile"
         )
