@@ -3,6 +3,7 @@ compiled tree under every BLAS kernel."""
 
 from __future__ import annotations
 
+import math
 import os
 import platform
 import subprocess
@@ -103,8 +104,16 @@ COMPILE = textwrap.dedent(
 )
 
 
-def _compile_under(kernel: str | None, config: str) -> tuple[str, str]:
-    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+def _compile_under(
+    kernel: str | None, config: str, numpy_off: str | None = None
+) -> tuple[str, str]:
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")
+    }
+    if numpy_off:
+        env["NPY_DISABLE_CPU_FEATURES"] = numpy_off
     env["OPENBLAS_VERBOSE"] = "2"  # OpenBLAS names the kernel it loaded on stderr
     if kernel:
         env["OPENBLAS_CORETYPE"] = kernel
@@ -130,3 +139,35 @@ def test_a_small_tree_has_one_fingerprint_under_every_blas_kernel(tmp_path):
         got, other = _compile_under(kernel, str(config))
         assert _core(other) != _core(log), f"OPENBLAS_CORETYPE={kernel} changed no kernel"
         assert got == own, f"OPENBLAS_CORETYPE={kernel}: {got} against {own} ({_core(log)})"
+
+
+def _numpy_vector_paths() -> list[str]:
+    """numpy's run-time dispatched CPU features that this CPU has (X86_V3, X86_V4, ...)."""
+    from numpy._core import _multiarray_umath as um
+
+    return [f for f in um.__cpu_dispatch__ if um.__cpu_features__.get(f)]
+
+
+def test_arccos_and_arctan2_are_the_c_librarys_bit_for_bit():
+    rng = np.random.default_rng(3)
+    u, x = rng.uniform(-1.0, 1.0, 4000), rng.uniform(-3.0, 3.0, 4000)
+    acos = fo.arccos(u.reshape(40, 100))
+    assert acos.shape == (40, 100)
+    assert acos.ravel().tolist() == [math.acos(v) for v in u.tolist()]
+    atan = fo.arctan2(x, u[:1])  # broadcasts as np.arctan2
+    assert atan.shape == x.shape
+    assert atan.tolist() == [math.atan2(a, u[0]) for a in x.tolist()]
+    assert np.allclose(acos.ravel(), np.arccos(u), rtol=0, atol=1e-15)
+
+
+@pytest.mark.skipif(not _numpy_vector_paths(), reason="numpy dispatches no vector code here")
+def test_a_small_tree_has_one_fingerprint_with_numpys_vector_code_on_and_off(tmp_path):
+    """numpy's AVX-512 arccos and arctan2 (SVML) differ from the C library's in the last bit;
+    the wrist angles of the tree came out different on such a CPU before fixed_order took
+    them from the C library."""
+    config = tmp_path / "small.toml"
+    config.write_text(CONFIG.format(robot=os.path.abspath(ROBOT)))
+    own, _ = _compile_under(None, str(config))
+    off = ",".join(_numpy_vector_paths())
+    got, _ = _compile_under(None, str(config), numpy_off=off)
+    assert got == own, f"NPY_DISABLE_CPU_FEATURES={off}: {got} against {own}"

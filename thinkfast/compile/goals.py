@@ -17,6 +17,7 @@ free; the reason says which test failed.
 
 from __future__ import annotations
 
+import math
 from collections import Counter, deque
 from typing import NamedTuple
 
@@ -180,7 +181,7 @@ def solve_goal_grid(
         q[i] = best
         pose = kin.shield(best)
         pos_err[i] = fo.norm(pose.centre - target)
-        ang_err[i] = np.arctan2(fo.norm(np.cross(pose.normal, SHIELD_NORMAL)), pose.normal[0])
+        ang_err[i] = math.atan2(fo.norm(np.cross(pose.normal, SHIELD_NORMAL)), pose.normal[0])
     reachable = ~np.isnan(q[:, 0])
     for arr in (q, pos_err, ang_err, reachable, yz):
         arr.setflags(write=False)

@@ -8,9 +8,16 @@ multiplies and adds (each exactly rounded by IEEE 754, never fused by numpy) in 
 inner index 0, 1, 2, ..., and a pivoted elimination in Python floats for the small solves: the
 same inputs give the same bits whatever BLAS is loaded. Meant for 3 x 3 to 6 x 6 work; shapes
 broadcast as for ``@``. Units are the caller's.
+
+numpy's ``arccos`` and ``arctan2`` (and ``exp``, ``log``, ``power`` ...) are dispatched at run
+time too: on a CPU with AVX-512 numpy takes its own vector code, which differs from the C
+library's in the last bit (about one value in ten); elsewhere it calls the C library.
+:func:`arccos` and :func:`arctan2` call the C library (Python's ``math``) on every machine.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -90,3 +97,18 @@ def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if not np.isfinite(out).all():
         raise np.linalg.LinAlgError("Singular matrix")
     return out
+
+
+def arccos(x: np.ndarray) -> np.ndarray:
+    """``np.arccos`` of ``x`` (any shape, within [-1, 1]) by the C library's ``acos``, element by
+    element: the same bits on every CPU (numpy's AVX-512 code differs in the last bit)."""
+    x = np.asarray(x, dtype=np.float64)
+    flat = [math.acos(v) for v in x.ravel().tolist()]
+    return np.array(flat, dtype=np.float64).reshape(x.shape)
+
+
+def arctan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``np.arctan2(y, x)`` (shapes broadcast) by the C library's ``atan2``, element by element."""
+    y, x = np.broadcast_arrays(np.asarray(y, dtype=np.float64), np.asarray(x, dtype=np.float64))
+    flat = [math.atan2(a, b) for a, b in zip(y.ravel().tolist(), x.ravel().tolist())]
+    return np.array(flat, dtype=np.float64).reshape(y.shape)

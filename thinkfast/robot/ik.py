@@ -7,6 +7,7 @@ joint_6 is held at the seed's value and joints 1-5 solve the 5-dimensional task.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -89,6 +90,6 @@ def solve_shield_ik(
     pose = kin.shield(q)
     pos_err = float(fo.norm(pose.centre - centre))
     ang_err = float(
-        np.arctan2(fo.norm(np.cross(pose.normal, n_target)), fo.dot(pose.normal, n_target))
+        math.atan2(fo.norm(np.cross(pose.normal, n_target)), fo.dot(pose.normal, n_target))
     )
     return IkResult(q, pos_err, ang_err, iterations, bool(pos_err < 1e-6 and ang_err < 1e-6))

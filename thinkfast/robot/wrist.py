@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from thinkfast.errors import RobotModelError
+from thinkfast.robot import fixed_order as fo
 from thinkfast.robot.batch_fk import BatchFK, assemble
 from thinkfast.robot.model import Robot
 
@@ -69,9 +70,9 @@ class CoplanarWrist:
         q[:, :3] = q123
         R03 = self.fk.link_poses(q, until="link_3")["link_3"][:, :3, :3]
         v = np.einsum("nji,j->ni", R03, n)  # R03^T n
-        q5 = np.arccos(np.clip(v[:, 0], -1.0, 1.0))
-        theta = np.arctan2(v[:, 1], -v[:, 2])
-        jump = np.abs(np.angle(np.exp(1j * np.diff(theta))))
+        q5 = fo.arccos(np.clip(v[:, 0], -1.0, 1.0))
+        theta = fo.arctan2(v[:, 1], -v[:, 2])
+        jump = np.abs(_wrapped(np.diff(theta)))
         sign = np.where(np.cumsum(np.r_[0, jump > 0.5 * np.pi]) % 2 == 0, 1.0, -1.0)
         q4 = theta + np.where(sign < 0, np.pi, 0.0)
         q5 = sign * q5
@@ -112,12 +113,12 @@ class CoplanarWrist:
         # that depends on the strides
         R03 = assemble({"link_3": rot["link_3"]}, pos)["link_3"][:, :3, :3]
         v = np.einsum("nji,j->ni", R03, self.normal)
-        q5 = np.arccos(np.clip(v[:, 0], -1.0, 1.0))
-        theta = np.arctan2(v[:, 1], -v[:, 2])
+        q5 = fo.arccos(np.clip(v[:, 0], -1.0, 1.0))
+        theta = fo.arctan2(v[:, 1], -v[:, 2])
         inner = np.ones(len(q123), dtype=bool)  # sample k > 0 of its path
         inner[starts] = False
         dtheta = np.diff(theta)
-        jump = np.abs(np.angle(np.exp(1j * dtheta))) > 0.5 * np.pi
+        jump = np.abs(_wrapped(dtheta)) > 0.5 * np.pi
         jump &= inner[1:]
         flips = np.cumsum(np.r_[0, jump])
         flips -= np.repeat(flips[starts], counts)
@@ -160,14 +161,21 @@ class CoplanarWrist:
         v0 = R[0][0] * nx + R[1][0] * ny + R[2][0] * nz  # R03^T n, summed as einsum does
         v1 = R[0][1] * nx + R[1][1] * ny + R[2][1] * nz
         v2 = R[0][2] * nx + R[1][2] * ny + R[2][2] * nz
-        # numpy's arccos and arctan2 (not math's: they differ in the last bit) as in solve()
-        q5 = float(np.arccos(min(max(v0, -1.0), 1.0)))
-        q4 = float(np.arctan2(v1, -v2))
+        # the C library's acos and atan2, as solve() (fixed_order) takes them
+        q5 = math.acos(min(max(v0, -1.0), 1.0))
+        q4 = math.atan2(v1, -v2)
         p4, p5 = float(q_prev[0]), float(q_prev[1])
         if _ang(q4 + np.pi - p4) + abs(-q5 - p5) < _ang(q4 - p4) + abs(q5 - p5):
             q4, q5 = q4 + np.pi, -q5
         q4 += 2 * np.pi * round((p4 - q4) / (2 * np.pi))
         return np.array([q4, q5, float(q_prev[2])])
+
+
+def _wrapped(d: np.ndarray) -> np.ndarray:
+    """Angles ``d`` [rad] wrapped into [-pi, pi], as ``np.angle(np.exp(1j * d))`` (the angle by
+    the C library's atan2: :mod:`fixed_order`)."""
+    e = np.exp(1j * d)
+    return fo.arctan2(e.imag, e.real)
 
 
 def _arm_rotations(robot: Robot) -> tuple | None:
