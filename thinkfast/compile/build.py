@@ -15,7 +15,7 @@ from thinkfast.compile.shield import pad_terminals, sample_spacing
 from thinkfast.config import to_dict
 from thinkfast.machine import library_versions, machine_info
 from thinkfast.robot.batch_fk import BatchFK
-from thinkfast.robot.model import Robot, load_robot
+from thinkfast.robot.model import Robot
 from thinkfast.tree.action_tree import ActionTree
 
 
@@ -47,7 +47,7 @@ def compile_tree(
     """
     start = time.perf_counter()
     cfg = loaded.config
-    robot = load_robot(loaded.robot_path)
+    robot = loaded.robot()  # placed in the plane's frame
     grid = solve_goal_grid(robot, cfg.goals, cfg.plane.distance)
     require_reachable(grid, str(loaded.path))
     reach = grid.goal_index
@@ -81,7 +81,7 @@ def compile_tree(
         "urdf_sha256": robot.urdf_sha256,
         "robot_toml_sha256": robot.toml_sha256,
         "robot_name": robot.name,
-        "parameters": json.dumps(to_dict(cfg)),
+        "parameters": json.dumps({**to_dict(cfg), "plane": cfg.plane.parameters()}),
         "plane_distance": cfg.plane.distance,
         "shield_radius": robot.shield_radius,
         "shield_dt": shield_dt,

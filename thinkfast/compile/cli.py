@@ -54,10 +54,9 @@ def goals(
     from thinkfast.compile.goals import require_reachable, solve_goal_grid
     from thinkfast.compile.report import goal_png, goal_summary, goal_table
     from thinkfast.robot.kinematics import Kinematics
-    from thinkfast.robot.model import load_robot
 
     loaded = load_compile_config(config)
-    robot = load_robot(loaded.robot_path)
+    robot = loaded.robot()
     kin = Kinematics(robot)
     grid = solve_goal_grid(robot, loaded.config.goals, loaded.config.plane.distance, kin)
     print(goal_table(grid, robot, kin.shield(robot.home).centre))
@@ -183,7 +182,7 @@ def verify(
     config = from_dict(CompileConfig, prov.parameters, f"{path}: attribute parameters")
     if robot_path is None:
         robot_path = (Path(prov.config_path).parent / config.robot).resolve()
-    robot = load_robot(robot_path)
+    robot = load_robot(robot_path).placed(config.plane.pose())
     report = verify_tree(tree_, robot, config, factor, jobs or default_jobs(), ProgressBar())
     print(
         f"{path}: {report.edges} tree edges and {report.terminals} terminal edges recomputed, "

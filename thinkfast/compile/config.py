@@ -3,18 +3,49 @@
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from thinkfast.config import from_dict, load_toml, spec
+from thinkfast.contract.frames import PlanePose
 from thinkfast.errors import ConfigError
 
 
 @dataclass(frozen=True)
 class PlaneConfig:
-    """The intercept plane x = distance in ``base``; the shield faces +x (towards the ball)."""
+    """The intercept plane: x = distance in the ``plane`` frame, the shield facing +x (towards
+    the ball). Without a pose (yaw, offset, base_height 0) ``plane`` is ``base``; with one, the
+    plane is turned and moved in ``base`` and the goal ranges are the plane's own (y along it,
+    z above the floor): :class:`thinkfast.contract.frames.PlanePose`, docs/ROBOTS.md."""
 
     distance: float = spec(0.8, lo=0.0, lo_open=True, unit="m", doc="plane distance from base")
+    yaw: float = spec(
+        0.0,
+        lo=-math.pi / 2,
+        hi=math.pi / 2,
+        unit="rad",
+        doc="the plane's normal turned about base z, radians within a quarter turn (so that "
+        "degrees are refused)",
+    )
+    offset: float = spec(
+        0.0, lo=-5.0, hi=5.0, unit="m", doc="the plane's centre line, left of the base's axis"
+    )
+    base_height: float = spec(
+        0.0, lo=-5.0, hi=5.0, unit="m", doc="the base's origin above the floor (a pedestal)"
+    )
+
+    def pose(self) -> PlanePose:
+        """The plane as a pose in ``base`` (the frame transform of the whole run)."""
+        return PlanePose(self.distance, self.yaw, self.offset, self.base_height)
+
+    def parameters(self) -> dict:
+        """The plane as a tree records it: the pose keys only where the plane has a pose, so
+        that a plane without one is the same tree as before poses existed."""
+        out = {"distance": self.distance}
+        if not self.pose().identity:
+            out.update(yaw=self.yaw, offset=self.offset, base_height=self.base_height)
+        return out
 
 
 @dataclass(frozen=True)
@@ -101,6 +132,13 @@ class LoadedConfig:
     sha256: str
     robot_path: Path
 
+    def robot(self):
+        """The robot of this config, placed in its plane (``Robot.placed``): every pose the
+        compiler computes is in the plane's frame."""
+        from thinkfast.robot.model import load_robot
+
+        return load_robot(self.robot_path).placed(self.config.plane.pose())
+
 
 def check_compile_config(cfg: CompileConfig, source: str, prefix: str = "") -> CompileConfig:
     """``cfg`` when its values agree with each other (the goal ranges are not empty).
@@ -109,6 +147,10 @@ def check_compile_config(cfg: CompileConfig, source: str, prefix: str = "") -> C
         ConfigError: naming ``source`` and the key (under ``prefix``, e.g. ``compile``).
     """
     g, pre = cfg.goals, f"{prefix}." if prefix else ""
+    if cfg.plane.base_height < 0.0:
+        raise ConfigError(
+            source, f"{pre}plane.base_height", "must be >= 0: the base stands on or above the floor"
+        )
     if g.y_max < g.y_min:
         raise ConfigError(source, f"{pre}goals.y_max", f"must be >= goals.y_min ({g.y_min:g})")
     if g.z_max < g.z_min:

@@ -93,3 +93,71 @@ def to_base(det: Detection, R_base_camera: np.ndarray, p_base_camera: np.ndarray
     if det.covariance is not None:
         cov = _frozen(R_base_camera @ det.covariance @ R_base_camera.T)
     return det._replace(position=pos, frame="base", covariance=cov)
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanePose:
+    """Where the intercept plane stands in ``base``, and the ``plane`` frame it defines.
+
+    The ``plane`` frame (REP-103 too): x along the plane's normal towards the thrower, y along
+    the plane, z up, origin on the floor; the plane is ``x = distance``. A point ``p`` of
+    ``base`` is, in ``plane``, ``Rz(-yaw) p + (0, -offset, base_height)``: the plane's normal
+    is ``(cos yaw, sin yaw, 0)`` in ``base``, its centre line ``y = 0`` passes ``offset`` to the
+    left of the base's axis, and heights are above the floor. With no pose (yaw, offset and
+    base height zero) ``plane`` is ``base`` and ``distance`` means what the contract says
+    (docs/INTERFACES.md, "Frames"). Inside a run every position is in ``plane``: the belief,
+    the crossing (Y, Z), the protected region, the thrower and the judge; the robot's forward
+    kinematics is placed there (``Robot.placed``), the cameras' extrinsics stay in ``base``.
+    """
+
+    distance: float = 0.8  # m: the plane is x = distance in ``plane``
+    yaw: float = 0.0  # rad: the plane's normal turned about base z
+    offset: float = 0.0  # m: the plane's centre line, to the left of the base's axis
+    base_height: float = 0.0  # m: the base's origin above the floor
+
+    @property
+    def identity(self) -> bool:
+        """True where ``plane`` is ``base`` (no pose): nothing is transformed, bit for bit."""
+        return self.yaw == 0.0 and self.offset == 0.0 and self.base_height == 0.0
+
+    def rotation(self) -> np.ndarray:
+        """``R_plane_base`` (3, 3): ``Rz(-yaw)``, read-only."""
+        return rotation_from_rpy((0.0, 0.0, -self.yaw))
+
+    def translation(self) -> np.ndarray:
+        """``p_plane_base`` [m] (3,): the base's origin in ``plane``, read-only."""
+        return _frozen(np.array([0.0, -self.offset, self.base_height]))
+
+    def matrix(self) -> np.ndarray:
+        """``T_plane_base`` (4, 4), read-only."""
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.rotation(), self.translation()
+        return _frozen(T)
+
+    def to_plane(self, p_base: np.ndarray) -> np.ndarray:
+        """Points [m] (..., 3) of ``base`` in ``plane`` (returned as given when no pose)."""
+        p = np.asarray(p_base, dtype=float)
+        if self.identity:
+            return p
+        R, t = self.rotation(), self.translation()
+        return p @ R.T + t
+
+    def to_base(self, p_plane: np.ndarray) -> np.ndarray:
+        """Points [m] (..., 3) of ``plane`` in ``base`` (returned as given when no pose)."""
+        p = np.asarray(p_plane, dtype=float)
+        if self.identity:
+            return p
+        R, t = self.rotation(), self.translation()
+        return (p - t) @ R
+
+    def camera(self, extrinsic: CameraExtrinsic) -> CameraExtrinsic:
+        """A camera's pose in ``plane`` from its extrinsic in ``base`` (the same one when no
+        pose): ``T_plane_camera = T_plane_base T_base_camera``."""
+        if self.identity:
+            return extrinsic
+        roll, pitch, yaw = extrinsic.rpy
+        turned = math.remainder(yaw - self.yaw, math.tau)  # Rz(-a) Rz(y) Ry Rx = Rz(y - a) Ry Rx
+        xyz = self.to_plane(np.array(extrinsic.xyz, dtype=float))
+        return dataclasses.replace(
+            extrinsic, xyz=tuple(float(v) for v in xyz), rpy=(roll, pitch, turned)
+        )

@@ -64,7 +64,7 @@ class CoreAssembly:
                 (None: dropped).
             shadow: plan a virtual arm, command the position measured at the start.
         """
-        intake = Intake(self.cfg.camera, self.cfg.detections, self.cfg.cameras)
+        intake = Intake(self.cfg.camera, self.cfg.detections, self.cfg.cameras, self.tree.plane)
         events = {} if on_event is None else {"on_event": on_event}
         return ControlCore(
             executor, self.supervisor(), self.cfg.safety, shadow=shadow, intake=intake, **events

@@ -77,7 +77,8 @@ class ThrowGate:
         if kind not in (CONFIRM, FIRST):
             raise ValueError(f"throw gate {kind!r} is not one of {CONFIRM}, {FIRST}")
         self.tree, self.cfg, self.first = tree, cfg, kind == FIRST
-        self.sensor = np.array(cfg.camera.xyz, dtype=float)  # camera origin in base
+        # camera origins where the belief lives: the plane's frame (base without a pose)
+        self.sensor = tree.plane.to_plane(np.array(cfg.camera.xyz, dtype=float))
         n_cam = 1 + len(cfg.cameras)
         window = cfg.fusion.launch_window if cfg.cameras else launch_window(cfg)
         own = default_camera_filter(cfg)  # the stereo noise model of [camera]'s mode
@@ -90,7 +91,8 @@ class ThrowGate:
         self.reference: str | None = None
         if cfg.cameras:
             for c in cfg.cameras:
-                self.sensors[c.id] = (np.array(c.xyz, dtype=float), camera_filter(cfg.filter, c))
+                origin = tree.plane.to_plane(np.array(c.xyz, dtype=float))
+                self.sensors[c.id] = (origin, camera_filter(cfg.filter, c))
             ref = None if cfg.fusion.reference == DEFAULT_CAMERA else cfg.fusion.reference
             self.reference = ref
             origin, fcfg = self.sensors[ref]

@@ -16,14 +16,15 @@ from thinkfast.contract.detection import (
     Rejection,
     parse_detection,
 )
-from thinkfast.contract.frames import CameraExtrinsic, to_base
+from thinkfast.contract.frames import CameraExtrinsic, PlanePose, to_base
 from thinkfast.estimate.fusion import DEFAULT_CAMERA
 
 ORDER_CLASSES = ("new", "duplicate", "out_of_order", "stale", "future")
 
 
 class Accepted(NamedTuple):
-    """A detection ready for the filter: capture stamp [s], ball centre in base [m] (3,), the
+    """A detection ready for the filter: capture stamp [s], ball centre [m] (3,) in the plane's
+    frame (``base`` when the plane has no pose), the
     sender's seq, and the id of the camera that took it (None: the default camera)."""
 
     stamp: float
@@ -46,9 +47,18 @@ class Intake:
         camera: pose of the default camera (``camera`` key absent, or ``base``) in ``base``.
         limits: payload and clock limits.
         cameras: the other cameras (``[[cameras]]`` of the run config).
+        plane: the tree's plane: accepted positions are moved from ``base`` into its frame
+            (None or a plane without a pose: they stay in ``base``).
     """
 
-    def __init__(self, camera: CameraExtrinsic, limits: DetectionLimits, cameras=()):
+    def __init__(
+        self,
+        camera: CameraExtrinsic,
+        limits: DetectionLimits,
+        cameras=(),
+        plane: PlanePose | None = None,
+    ):
+        self.plane = PlanePose() if plane is None else plane
         self.R = camera.rotation()
         self.p = camera.translation()
         poses = {c.id: c.extrinsic() for c in cameras}
@@ -90,7 +100,8 @@ class Intake:
             base = to_base(det, self.R, self.p)
         else:
             base = to_base(det, *self.poses[cam])
-        return Accepted(det.stamp, np.asarray(base.position, dtype=float), det.seq, cam)
+        position = self.plane.to_plane(np.asarray(base.position, dtype=float))
+        return Accepted(det.stamp, position, det.seq, cam)
 
     def reject_accepted(self, reason: str) -> None:
         """Count a detection :meth:`take` accepted as rejected for ``reason`` after all (the

@@ -57,7 +57,8 @@ class RuntimeTree:
         prov = Provenance.of(tree.meta)
         self.eps = prov.eps
         self.plane_distance = prov.plane_x
-        self.plane_x = self.plane_distance  # the plane is x = distance in ``base``
+        self.plane_x = self.plane_distance  # the plane is x = distance in the plane's frame
+        self.plane = prov.plane  # its pose in base (PlanePose): the run's frame
         self.ball_radius = BALL_RADIUS
         self.goal_q = tree.goal_q
         self.goal_yz = tree.goal_yz

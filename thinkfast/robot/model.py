@@ -21,6 +21,7 @@ import numpy as np
 import pinocchio as pin
 
 from thinkfast.config import from_dict, load_toml, spec
+from thinkfast.contract.frames import PlanePose
 from thinkfast.errors import ConfigError, RobotModelError
 from thinkfast.robot import fixed_order as fo
 from thinkfast.robot import toml_checks
@@ -111,6 +112,9 @@ class Robot:
         cell: static collision objects in ``base``.
         link_parent: parent link of every link (root maps to "").
         shield_radius, shield_thickness: shield disk [m].
+        placement: where the forward kinematics is expressed: None in ``base`` (as loaded);
+            a :class:`PlanePose` in that plane's frame (:meth:`placed`), where the
+            intercept plane is ``x = distance`` and the cell objects stand where they are.
     """
 
     name: str
@@ -134,6 +138,67 @@ class Robot:
     toml_path: Path
     urdf_sha256: str
     toml_sha256: str
+    placement: PlanePose | None = None
+
+    @property
+    def root_link(self) -> str:
+        """The link every pose is expressed in (``base_link``, or ``plane`` when placed)."""
+        return next(link for link, parent in self.link_parent.items() if not parent)
+
+    def placed(self, plane: PlanePose) -> Robot:
+        """This robot with its forward kinematics in ``plane``'s frame.
+
+        Every pose of every kinematics built on the result (Pinocchio, the batched FK, the
+        shield sampler, the wrist rule, collision) is then in the plane's frame: the URDF's
+        root hangs from a fixed joint ``plane_placement`` (``T_plane_base``) and the cell
+        objects (robot.toml, in ``base``) are moved with it. A plane without a pose
+        (``plane.identity``) changes no number: the same model and chain, bit for bit.
+
+        Raises:
+            RobotModelError: the robot is placed already.
+        """
+        if self.placement is not None:
+            raise RobotModelError(f"{self.toml_path}: the robot is placed in a plane already")
+        if plane.identity:
+            return dataclasses.replace(self, placement=plane)
+        T = plane.matrix()
+        M = pin.SE3(np.array(T[:3, :3]), np.array(T[:3, 3]))
+        model = self.model.copy()
+        for j in range(1, model.njoints):
+            if model.parents[j] == 0:
+                model.jointPlacements[j] = M * model.jointPlacements[j]
+        for i in range(1, len(model.frames)):  # frame 0 is the universe: now the plane
+            f = model.frames[i]
+            if f.parentJoint == 0:
+                f.placement = M * f.placement
+                model.frames[i] = f
+        root = self.root_link
+        T_joint = np.array(T)
+        T_joint.setflags(write=False)
+        axis = np.zeros(3)
+        axis.setflags(write=False)
+        mount = UrdfJoint("plane_placement", PLANE_LINK, root, T_joint, axis, -1)
+        parents = {PLANE_LINK: "", **{k: v or PLANE_LINK for k, v in self.link_parent.items()}}
+        cell = tuple(
+            dataclasses.replace(c, T_link_shape=_placed(T, c.T_link_shape)) for c in self.cell
+        )
+        return dataclasses.replace(
+            self,
+            model=model,
+            chain=(mount, *self.chain),
+            link_parent=parents,
+            cell=cell,
+            placement=plane,
+        )
+
+
+PLANE_LINK = "plane"  # the root link of a placed robot (docs/INTERFACES.md, "Frames")
+
+
+def _placed(T: np.ndarray, T_shape: np.ndarray) -> np.ndarray:
+    out = fo.matmul(T, T_shape)
+    out.setflags(write=False)
+    return out
 
 
 def default_robot_path() -> Path:

@@ -54,6 +54,7 @@ class ShieldSampler:
                 "shield path: the shield centre must lie on link_5's x axis, normal along it"
             )
         self.offset = float(local[0])  # L [m]
+        self._mount: tuple | None = None  # (R0, t0) of a turned root, after the chain
         self._wrist_point, self._chain = self._wrist_chain()
         self._plan = self._row_plan()
         self._offsets: dict[tuple, np.ndarray] = {}
@@ -75,9 +76,14 @@ class ShieldSampler:
             rot = axis
             if abs(abs(axis[k]) - 1.0) < 1e-12:  # about a frame axis: mix two components
                 rot = (k, (k + 1) % 3, (k + 2) % 3, float(np.sign(axis[k])))
+            if index < 0 and not axis.any():
+                rot = (0, 1, 2, 1.0)  # a fixed joint turns nothing: any frame axis will do
             steps.append((None if np.array_equal(R0, np.eye(3)) else R0,
                           None if not t0.any() else t0, rot, index))  # fmt: skip
             link = j.parent
+        if steps and steps[-1][0] is not None and steps[-1][3] < 0:
+            # the root's own turn (a placed robot's plane_placement): applied after the rows
+            self._mount = steps.pop()[:2]
         p = np.zeros((1, 3))
         while steps and steps[0][3] < 0:  # the same arithmetic on one point
             R0, t0, _, _ = steps.pop(0)
@@ -111,6 +117,8 @@ class ShieldSampler:
                                              axis[0] * p[:, 1] - axis[1] * p[:, 0]])  # fmt: skip
                     p = c * p + s * cross + (1.0 - c) * fo.dot(p, axis)[:, None] * axis
             p = _place(p, R0, t0)
+        if self._mount is not None:
+            p = _place(p, *self._mount)
         return np.array(p)
 
     def centres(self, q123: np.ndarray, normal=(1.0, 0.0, 0.0)) -> np.ndarray:
@@ -146,11 +154,27 @@ class ShieldSampler:
             for k in joints:  # numpy's cos and sin of the same columns, as the numpy rows
                 np.cos(q123[:, k], out=trig[0, k])
                 np.sin(q123[:, k], out=trig[1, k])
-            chain_rows(point, rot_i, rot_j, rot_q, neg, has_t0, t0, trig, off, out)
-            return out
-        rows = self._wrist_rows(q123)
+            if self._mount is None:
+                chain_rows(point, rot_i, rot_j, rot_q, neg, has_t0, t0, trig, off, out)
+                return out
+            chain_rows(point, rot_i, rot_j, rot_q, neg, has_t0, t0, trig, np.zeros(3), out)
+            rows = self._mounted(list(out))
+        else:
+            rows = self._mounted(self._wrist_rows(q123))
         for c in range(3):
             np.add(rows[c], off[c], out=out[c])
+        return out
+
+    def _mounted(self, rows: list) -> list:
+        """Rows x, y, z of wrist centres in the robot's root frame, turned by the mount (a
+        placed robot's ``plane_placement``; as given when there is none)."""
+        if self._mount is None:
+            return rows
+        R0, t0 = self._mount
+        out = []
+        for i in range(3):
+            r = R0[i, 0] * rows[0] + R0[i, 1] * rows[1] + R0[i, 2] * rows[2]  # _place's order
+            out.append(r if t0 is None else r + t0[i])
         return out
 
     def _row_plan(self) -> tuple | None:

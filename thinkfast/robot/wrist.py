@@ -179,11 +179,17 @@ def _wrapped(d: np.ndarray) -> np.ndarray:
 
 
 def _arm_rotations(robot: Robot) -> tuple | None:
-    """Joints up to ``link_3`` as ``(index, i, j, sign)`` column mixes (see BatchFK), or None
-    when one of them has an origin rotation or a joint axis off the frame axes."""
+    """Joints up to ``link_3`` as the root's rotation (3 rows: a placed robot's
+    ``plane_placement``, else the identity) and ``(index, i, j, sign)`` column mixes (see
+    BatchFK), or None when another joint has an origin rotation or an axis off the frame axes."""
     steps = []
-    for jt in robot.chain:
-        if not np.allclose(jt.T_parent_joint[:3, :3], np.eye(3)):
+    start = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    for n, jt in enumerate(robot.chain):
+        turned = not np.allclose(jt.T_parent_joint[:3, :3], np.eye(3))
+        if turned and n == 0 and jt.index < 0 and not jt.axis.any():
+            start = [[float(v) for v in row] for row in jt.T_parent_joint[:3, :3]]
+            continue
+        if turned:
             return None
         if jt.index >= 0:
             k = int(np.argmax(np.abs(jt.axis)))
@@ -191,16 +197,18 @@ def _arm_rotations(robot: Robot) -> tuple | None:
                 return None
             steps.append((jt.index, (k + 1) % 3, (k + 2) % 3, float(np.sign(jt.axis[k]))))
         if jt.child == "link_3":
-            return tuple(steps)
+            return start, tuple(steps)
     return None
 
 
-def _rotation_03(steps: tuple, q) -> list[list[float]]:
-    """Rotation of ``link_3`` in ``base`` (3 rows of 3 floats) for joints ``q`` [rad].
+def _rotation_03(arm: tuple, q) -> list[list[float]]:
+    """Rotation of ``link_3`` in the robot's root frame (3 rows of 3 floats) for joints ``q``
+    [rad].
 
     The same float operations as ``BatchFK.link_poses`` (columns i, j mixed by cos and sin).
     """
-    R = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    start, steps = arm
+    R = [list(row) for row in start]
     for index, i, j, sign in steps:
         angle = float(q[index])
         c, s = math.cos(angle), sign * math.sin(angle)

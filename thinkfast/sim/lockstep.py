@@ -29,6 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from thinkfast.contract.frames import PlanePose
 from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
 from thinkfast.control.segments import WristTracker
@@ -49,7 +50,7 @@ from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.planners import ORACLES
 from thinkfast.sim.throws import Throw, plane_crossing
-from thinkfast.tree.robot_match import check_robot
+from thinkfast.tree.robot_match import check_robot, place_for_tree
 
 DT = 0.004
 LEAD = 0.5  # s of simulated time before the first detection
@@ -96,23 +97,32 @@ class World:
     ):
         self.clock = clock
         check_robot(tree.meta, robot)  # the tree's limits, never another robot's
+        robot = place_for_tree(tree.meta, robot)  # every pose in the tree's plane's frame
         self.parts = CoreAssembly(tree, robot, cfg)  # the daemon's assembly of the control core
         self.tree = self.parts.tree
         self.robot, self.cfg, self.servo, self.camera = robot, cfg, servo, camera
-        self.cameras = sim_cameras(cfg, camera) if cameras is None else tuple(cameras)
+        self.cameras = (
+            sim_cameras(cfg, camera, self.tree.plane) if cameras is None else tuple(cameras)
+        )
         self.kin = Kinematics(robot)
         self.limits = self.parts.limits
 
 
-def sim_cameras(cfg: RunConfig, model: CameraModelConfig) -> tuple[SimCamera, ...]:
+def sim_cameras(
+    cfg: RunConfig, model: CameraModelConfig, plane: PlanePose | None = None
+) -> tuple[SimCamera, ...]:
     """The simulated cameras of a run config: the default camera (``model`` in ``[camera]``'s
     mode and frame rate, :func:`~thinkfast.sim.camera.mode_model`), then every ``[[cameras]]``
-    one (``model`` with its latency and frame rate), each where the config says."""
+    one (``model`` with its latency and frame rate), each where the config says, posed in
+    ``plane``'s frame, where the throws fly (None: ``base``)."""
+    at = (lambda e: e) if plane is None else plane.camera
     others = tuple(
-        SimCamera(c.id, dataclasses.replace(model, latency=c.latency, rate=c.fps), c.extrinsic())
+        SimCamera(
+            c.id, dataclasses.replace(model, latency=c.latency, rate=c.fps), at(c.extrinsic())
+        )
         for c in cfg.cameras
     )
-    return (SimCamera(None, mode_model(cfg.camera, model), cfg.camera), *others)
+    return (SimCamera(None, mode_model(cfg.camera, model), at(cfg.camera)), *others)
 
 
 def simulate(

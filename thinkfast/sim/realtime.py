@@ -170,6 +170,8 @@ def run_throws(
     if camera is None:
         setup = extrinsic if isinstance(extrinsic, CameraSetup) else CameraSetup()
         camera = mode_model(setup)
+    if robot.placement is not None:  # the throws fly in the plane's frame: so does the camera
+        extrinsic = robot.placement.camera(extrinsic)
     kin = Kinematics(robot)
     if controller is None:
         sim = WallClockSim(ServoConfig(), q0=robot.home)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from thinkfast.contract.frames import PlanePose
 from thinkfast.errors import TreeFileError
 
 DEFAULT_ROBOT = "../robots/irb1600/robot.toml"  # the compile config's default, relative to it
@@ -86,8 +87,20 @@ class Provenance:
 
     @property
     def plane_x(self) -> float:
-        """The intercept plane ``x = plane_x`` in ``base`` [m]."""
+        """The intercept plane ``x = plane_x`` in the ``plane`` frame [m] (``base`` when the
+        plane has no pose)."""
         return float(self.parameters["plane"]["distance"])
+
+    @property
+    def plane(self) -> PlanePose:
+        """The plane's pose in ``base`` (a tree without pose keys: the contract's plane)."""
+        p = self.parameters["plane"]
+        return PlanePose(
+            float(p["distance"]),
+            float(p.get("yaw", 0.0)),
+            float(p.get("offset", 0.0)),
+            float(p.get("base_height", 0.0)),
+        )
 
     def robot_toml(self) -> Path | None:
         """robot.toml the tree was compiled for, if it still exists where the config said."""

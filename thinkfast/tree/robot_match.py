@@ -75,4 +75,26 @@ def robot_for_tree(
     path = Path(given) if given else tree_robot_path(meta) or default_robot_path()
     robot = load_robot(path)
     check_robot(meta, robot, str(where))
-    return robot
+    return place_for_tree(meta, robot, where)
+
+
+def place_for_tree(meta: Mapping[str, Any], robot: Robot, where: str = "tree") -> Robot:
+    """``robot`` (checked to be the tree's) in the tree's cell: placed in the tree's plane
+    (``Robot.placed``), so that every pose of the run is in the plane's frame. A robot placed
+    already must be in the same plane.
+
+    Raises:
+        TreeFileError: the tree's provenance is unreadable.
+        RobotModelError: ``robot`` is placed in another plane.
+    """
+    plane = Provenance.of(meta, str(where)).plane
+    if robot.placement is not None:
+        if robot.placement.identity != plane.identity or (
+            not plane.identity and robot.placement != plane
+        ):
+            raise RobotModelError(
+                f"another plane than the tree's: {where} was compiled for {plane}; the robot "
+                f"is placed in {robot.placement}"
+            )
+        return robot
+    return robot.placed(plane)
