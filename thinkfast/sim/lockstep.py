@@ -38,6 +38,7 @@ from thinkfast.errors import ThinkfastError
 from thinkfast.robot.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
+from thinkfast.robot.shield_path import ShieldSampler
 from thinkfast.robot.steering import Steering
 from thinkfast.sim.camera import (
     CameraModelConfig,
@@ -105,6 +106,7 @@ class World:
             sim_cameras(cfg, camera, self.tree.plane) if cameras is None else tuple(cameras)
         )
         self.kin = Kinematics(robot)
+        self.shield = ShieldSampler(robot)  # the oracle's shield centres along its moves
         self.limits = self.parts.limits
 
 
@@ -160,7 +162,7 @@ def simulate(
         if planner == "oracle_seen":
             seen = [d.delivery_time for d in dets if d.capture_stamp > t_rel]
             t_go = min(seen) if seen else math.inf
-        step_fn = _stay(robot.home) if feint else _oracle(world, throw, cross, t_go)
+        step_fn = _stay(robot.home) if feint else _oracle(world, throw, cross, t_go, t_rel)
         ex = None
     else:
         ex = world.parts.executor(planner)  # the registry's planner
@@ -223,16 +225,12 @@ def simulate(
     )
 
 
-def _oracle(world: World, throw: Throw, cross, t_go: float):
+def _oracle(world: World, throw: Throw, cross, t_go: float, t_rel: float):
     """Setpoint function of the oracle: from ``t_go`` on, a minimum-time move to the exact
     crossing."""
     robot = world.robot
-    goal = int(np.argmin(np.sum(np.square(world.tree.goal_yz - [cross.y, cross.z]), axis=1)))
-    seed = world.tree.goal_q[goal]
-    target = np.array([throw.plane_x, cross.y, cross.z])
-    ik = solve_shield_ik(world.kin, target, (1.0, 0.0, 0.0), seed)
-    q_goal = ik.q if ik.converged and _inside(robot, ik.q) else seed
     steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
+    q_goal = _oracle_goal(world, throw.plane_x, cross, steer, t_rel + cross.t - t_go)
     traj = steer.to_rest(np.r_[robot.home[:3], np.zeros(6)], q_goal[:3])
     wrist = WristTracker(robot, 0.0, world.cfg.safety.position_margin)
     wrist.reset(robot.home[3:], 0.0)
@@ -248,6 +246,55 @@ def _oracle(world: World, throw: Throw, cross, t_go: float):
         return np.r_[p, w[:3]], np.r_[v, w[3:6]]
 
     return setpoint
+
+
+COVER_STEPS = (1.0 / 3.0, 2.0 / 3.0, 0.95)  # of the shield radius: rings of covering targets
+COVER_DIRECTIONS = 8
+
+
+def _oracle_goal(
+    world: World, plane_x: float, cross, steer: Steering, time_left: float
+) -> np.ndarray:
+    """Where the oracle sends the arm (6,) [rad], leaving ``time_left`` [s] before the crossing.
+
+    The shield centred on the exact crossing, when the IK reaches it inside the limits and a
+    minimum-time move gets there in time. Else (out of reach, or too late) the target of the
+    minimum-time move whose shield, at the crossing time, is nearest the crossing: among the
+    exact point, every goal of the tree and IK targets on rings within the shield's radius
+    around the crossing. A move that passes through the crossing on its way further out gets
+    there sooner than one that stops on it, and a covering point nearer home sooner still: the
+    oracle is not beaten by a planner's terminal edge that does either."""
+    robot, tree = world.robot, world.tree
+    normal = (1.0, 0.0, 0.0)
+    start = np.r_[robot.home[:3], np.zeros(6)]
+    d2 = np.sum(np.square(tree.goal_yz - [cross.y, cross.z]), axis=1)
+    seed = tree.goal_q[int(np.argmin(d2))]
+    ik = solve_shield_ik(world.kin, np.array([plane_x, cross.y, cross.z]), normal, seed)
+    found = []
+    if ik.converged and _inside(robot, ik.q):
+        traj = steer.to_rest(start, ik.q[:3])
+        if traj is not None and traj.duration <= time_left:
+            return ik.q
+        found.append(ik.q)
+    cover = robot.shield_radius
+    for step in COVER_STEPS:
+        for k in range(COVER_DIRECTIONS):
+            a = 2.0 * math.pi * k / COVER_DIRECTIONS
+            y, z = cross.y + step * cover * math.cos(a), cross.z + step * cover * math.sin(a)
+            near = tree.goal_q[int(np.argmin(np.sum(np.square(tree.goal_yz - [y, z]), axis=1)))]
+            ik = solve_shield_ik(world.kin, np.array([plane_x, y, z]), normal, near)
+            if ik.converged and _inside(robot, ik.q):
+                found.append(ik.q)
+    found.extend(tree.goal_q)
+    trajs = steer.to_rest_each(start, [q[:3] for q in found])
+    at = max(time_left - world.cfg.execution.controller_lag, 0.0)  # where the arm is, not the command
+    q123 = np.array(
+        [start[:3] if t is None else t.at_time(min(at, t.duration))[0] for t in trajs]
+    )
+    centres = world.shield.centres(q123)
+    miss = np.hypot(centres[:, 1] - cross.y, centres[:, 2] - cross.z)
+    miss[[t is None for t in trajs]] = np.inf
+    return found[int(np.argmin(miss))]
 
 
 def _stay(home: np.ndarray):
