@@ -110,7 +110,9 @@ def test_a_turned_plane_compiles_and_flies_the_lockstep_bench_in_its_frame(tmp_p
     tree = compile_tree(load_compile_config(config))
     assert Provenance.of(tree.meta).plane == TURNED
     kin = Kinematics(load_robot(default_robot_path()).placed(TURNED))
-    for q, yz in zip(tree.goal_q, tree.goal_yz):  # goals on the turned plane, facing the ball
+    for q, yz in zip(
+        tree.goal_q, tree.goal_yz, strict=True
+    ):  # goals on the turned plane, facing the ball
         s = kin.shield(q)
         assert np.allclose(s.centre, [0.8, *yz], atol=1e-6)
         assert np.allclose(s.normal, [1.0, 0.0, 0.0], atol=1e-6)

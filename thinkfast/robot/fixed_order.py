@@ -110,5 +110,5 @@ def arccos(x: np.ndarray) -> np.ndarray:
 def arctan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``np.arctan2(y, x)`` (shapes broadcast) by the C library's ``atan2``, element by element."""
     y, x = np.broadcast_arrays(np.asarray(y, dtype=np.float64), np.asarray(x, dtype=np.float64))
-    flat = [math.atan2(a, b) for a, b in zip(y.ravel().tolist(), x.ravel().tolist())]
+    flat = [math.atan2(a, b) for a, b in zip(y.ravel().tolist(), x.ravel().tolist(), strict=True)]
     return np.array(flat, dtype=np.float64).reshape(y.shape)

@@ -287,10 +287,8 @@ def _oracle_goal(
                 found.append(ik.q)
     found.extend(tree.goal_q)
     trajs = steer.to_rest_each(start, [q[:3] for q in found])
-    at = max(time_left - world.cfg.execution.controller_lag, 0.0)  # where the arm is, not the command
-    q123 = np.array(
-        [start[:3] if t is None else t.at_time(min(at, t.duration))[0] for t in trajs]
-    )
+    at = max(time_left - world.cfg.execution.controller_lag, 0.0)  # the arm lags the command
+    q123 = np.array([start[:3] if t is None else t.at_time(min(at, t.duration))[0] for t in trajs])
     centres = world.shield.centres(q123)
     miss = np.hypot(centres[:, 1] - cross.y, centres[:, 2] - cross.z)
     miss[[t is None for t in trajs]] = np.inf
