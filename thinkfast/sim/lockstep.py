@@ -45,7 +45,7 @@ from thinkfast.sim.camera import (
     mode_model,
     observe_cameras,
 )
-from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController
+from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController, servo_for
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.planners import ORACLES
 from thinkfast.sim.throws import Throw, plane_crossing
@@ -98,7 +98,8 @@ class World:
         check_robot(tree.meta, robot)  # the tree's limits, never another robot's
         self.parts = CoreAssembly(tree, robot, cfg)  # the daemon's assembly of the control core
         self.tree = self.parts.tree
-        self.robot, self.cfg, self.servo, self.camera = robot, cfg, servo, camera
+        self.robot, self.cfg, self.camera = robot, cfg, camera
+        self.servo = servo_for(robot, servo)  # the simulated arm is the tree's robot
         self.cameras = sim_cameras(cfg, camera) if cameras is None else tuple(cameras)
         self.kin = Kinematics(robot)
         self.limits = self.parts.limits
