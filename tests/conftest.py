@@ -238,6 +238,7 @@ def _no_daemon_outlives_its_test():
 
 
 HOME_J1 = 0.1  # joint_1 at home [rad] of the robot of other_home_tree (the default's is 0)
+TURNED_NAME = "abb_turned"  # its name
 
 
 def other_home_tree(directory: Path) -> tuple[Path, Path]:
@@ -249,6 +250,7 @@ def other_home_tree(directory: Path) -> tuple[Path, Path]:
     toml = rdir / "robot.toml"
     text = toml.read_text()
     assert text.count("\nhome = [0.0, ") == 1
-    toml.write_text(text.replace("\nhome = [0.0, ", f"\nhome = [{HOME_J1!r}, "))
+    text = text.replace("\nhome = [0.0, ", f"\nhome = [{HOME_J1!r}, ")
+    toml.write_text(text.replace('name = "abb_irb1600_10_145"', f'name = "{TURNED_NAME}"'))
     config = small_tree_config(directory, robot=toml, spacing=0.3, depth=1)
     return compile_cached(config, directory / "turned.h5"), toml
