@@ -70,7 +70,7 @@ from thinkfast.control.safety_limits import make_limits
 from thinkfast.daemon.egm_server import EgmServer, parse_hostport
 from thinkfast.daemon.rt_thread import pin_thread
 from thinkfast.errors import ThinkfastError
-from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller import SimController, servo_for
 from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.realtime import log_text
 
@@ -90,7 +90,9 @@ def serve(bind: str, realtime: bool, busy: bool, cpu: int) -> None:
     """Server side: reply to every EgmRobot until stdin closes, then print counters as JSON.
     ``busy``: spin on the socket instead of sleeping in ``select`` (as ``thinkfast-run
     --busy-poll``); ``cpu`` >= 0: run on that CPU."""
-    servo = ServoConfig()
+    from thinkfast.robot.model import load_robot
+
+    servo = servo_for(load_robot())  # no tree here: the default robot's limits
     cfg = SafetyConfig()
     limits = make_limits(
         servo.q_min, servo.q_max, servo.v_max, servo.a_max, [10 * a for a in servo.a_max],
@@ -233,12 +235,13 @@ def measure(
 def run_daemon(args) -> dict:
     """``--daemon``: the real ``thinkfast-run`` with a stream of throws (see the module doc)."""
     from thinkfast.contract.zenoh_session import loopback_endpoint
-    from thinkfast.robot.model import default_robot_path, load_robot
+    from thinkfast.tree.file import load_tree
+    from thinkfast.tree.robot_match import robot_for_tree
 
     tree = Path(args.tree)
-    home = load_robot(default_robot_path()).home  # the simulated arm starts there
     if not tree.is_file():
         raise ThinkfastError(f"{tree}: no tree file; build it with `make demo`")
+    home = robot_for_tree(load_tree(tree).meta, str(tree)).home  # the simulated arm starts there
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         egm_port = s.getsockname()[1]

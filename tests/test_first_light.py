@@ -11,6 +11,7 @@ import json
 import shutil
 import time
 
+import h5py
 import numpy as np
 import pytest
 
@@ -44,11 +45,17 @@ def test_shadow_plans_the_throw_and_commands_the_measured_position(tree_file, tm
         code, err = run.stop()
     assert code == 0, err
     rows = run.egm_rows()
+    wire = run.sim.commands()  # as the controller decoded them from the datagrams
     # every reply is the position measured when the stream started, at rest
-    np.testing.assert_allclose(rows[:, 8:14], np.broadcast_to(robot.home, rows[:, 8:14].shape))
-    assert np.all(rows[:, 14:20] == 0.0)
-    assert np.max(np.abs(rows[:, 2:8] - rows[:, 8:14])) < 1e-9
+    np.testing.assert_allclose(wire.q, np.broadcast_to(robot.home, wire.q.shape), atol=1e-6)
+    assert np.all(np.abs(wire.qd) < 1e-9)
     assert np.max(np.abs(hist.q - robot.home)) < 1e-9  # the arm never moved
+    assert np.max(np.abs(rows[:, 2:8] - robot.home)) < 1e-9  # measured: home throughout
+    # ... while the record holds the motion the arm would have followed
+    assert np.max(np.abs(rows[:, 8:14] - robot.home)) > 0.05
+    assert np.max(np.abs(rows[:, 14:20])) > 0.1
+    with h5py.File(run.record) as f:
+        assert f.attrs["shadow"] == 1
     # ... while the status showed the motion the planner would have commanded
     shadows = [s["shadow"] for s in statuses if s.get("shadow")]
     assert shadows, "no shadow block in the status"

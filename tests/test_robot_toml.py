@@ -183,3 +183,20 @@ def test_check_config_refuses_a_deg_s_robot_in_one_line(robot_dir, tmp_path):
     assert_one_line_error(
         proc, "thinkfast-run: error:", f"{path}: max_velocity[0]: 180 rad/s", "3.14 for 180 deg/s"
     )
+
+
+def test_the_robots_sizes_come_from_robot_toml(robot_dir):
+    robot = load_robot(ROBOT_TOML)
+    assert (robot.n_joints, robot.n_arm) == (6, 3)
+    toml = robot_dir / "robot.toml"
+    toml.write_text(f"positioning_joints = 3\n{toml.read_text()}")  # before the tables
+    assert load_robot(toml).n_arm == 3
+
+
+@pytest.mark.parametrize("value", ["2", "6", "0"])
+def test_an_unsupported_positioning_split_is_refused_naming_the_key(robot_dir, value):
+    toml = robot_dir / "robot.toml"
+    toml.write_text(f"positioning_joints = {value}\n{toml.read_text()}")
+    with pytest.raises(ConfigError, match="positioning_joints") as err:
+        load_robot(toml)
+    assert str(toml) in str(err.value) and "\n" not in str(err.value)

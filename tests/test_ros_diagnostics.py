@@ -49,3 +49,13 @@ def test_status_level_says_why_a_daemon_is_not_ok(status, level, message):
 def test_a_payload_that_is_no_diagnostic_array_is_refused():
     with pytest.raises(RosDecodeError, match="DiagnosticArray"):
         ros_diagnostics.decode_diagnostics(b"\x00\x01\x00\x00garbage")
+
+
+def test_the_hardware_id_is_the_robot_the_daemon_runs():
+    status = {"stamp": 1.0, "state": "idle", "robot": {"name": "abb_turned", "robot_toml": "x"}}
+    (d,) = ros_diagnostics.decode_diagnostics(ros_diagnostics.encode_diagnostics(status))
+    assert d.hardware_id == "abb_turned"
+    (d,) = ros_diagnostics.decode_diagnostics(
+        ros_diagnostics.encode_diagnostics({"stamp": 1.0, "state": "idle"})
+    )
+    assert d.hardware_id == ""  # a status naming no robot claims none

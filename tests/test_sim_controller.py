@@ -6,11 +6,13 @@ import warnings
 
 import numpy as np
 
+from tests.conftest import ROBOT_TOML
 from thinkfast.config import from_dict
 from thinkfast.contract import egm
-from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.robot.model import load_robot
+from thinkfast.sim.controller import ServoConfig, SimController, servo_for
 
-CFG = ServoConfig()
+CFG = servo_for(load_robot(ROBOT_TOML))  # the default robot's limits
 DT = CFG.dt
 V_MAX, A_MAX = np.array(CFG.v_max), np.array(CFG.a_max)
 
@@ -81,7 +83,36 @@ def test_messages_round_trip_through_the_protocol_core():
 
 def test_servo_config_loads_from_a_toml_table():
     cfg = from_dict(ServoConfig, {"delay": 0.03, "kp": 10.0}, "sim.toml", "servo")
-    assert cfg.delay == 0.03 and cfg.v_max == CFG.v_max
+    assert cfg.delay == 0.03 and cfg.v_max == ()  # the robot's (servo_for)
+    assert servo_for(load_robot(ROBOT_TOML), cfg).v_max == CFG.v_max
+
+
+def test_the_servo_limits_are_the_robots_unless_given(tmp_path):
+    """servo_for: the URDF's position limits and robot.toml's velocity and acceleration limits
+    of the robot simulated; a limit the servo file gives wins; one of another length is refused
+    naming the key. A bare SimController has the default robot's (the numbers it always had)."""
+    import shutil
+
+    import pytest
+
+    from thinkfast.errors import ConfigError
+
+    d = tmp_path / "robot"
+    shutil.copytree(ROBOT_TOML.parent, d)
+    toml = d / "robot.toml"
+    toml.write_text(
+        toml.read_text().replace("max_acceleration = [12.0,", "max_acceleration = [6.0,")
+    )
+    robot = load_robot(toml)
+    servo = servo_for(robot)
+    assert servo.a_max[0] == 6.0 and servo.q_max == tuple(robot.q_upper)
+    assert servo.v_max == tuple(robot.v_max) and servo.q_min == tuple(robot.q_lower)
+    assert servo_for(robot, ServoConfig(a_max=(1.0,) * 6)).a_max == (1.0,) * 6
+    with pytest.raises(ConfigError, match="servo.toml: a_max: expected 6 values"):
+        servo_for(robot, ServoConfig(a_max=(1.0,) * 5), "servo.toml")
+    deg = math.pi / 180.0  # the numbers ServoConfig held before it took the robot's
+    assert SimController().config.q_max == tuple(d * deg for d in (180, 120, 65, 200, 115, 400))
+    assert SimController().config.a_max == (12.0, 12.0, 15.0, 30.0, 30.0, 40.0)
 
 
 def _reference_step(sim, dt):

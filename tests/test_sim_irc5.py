@@ -13,11 +13,12 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import HOME_J1, ROBOT_TOML, assert_one_line_error, other_home_tree, run_cli
 from tests.daemon_harness import free_port, until
 from thinkfast.contract.zenoh_session import free_tcp_port
 
 BIN = Path(sys.executable).parent
-pytestmark = pytest.mark.realtime
+START = 180.0  # s for a process to start serving (imports, tree, zenoh) on a slow host
 
 
 def _run(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
@@ -84,6 +85,7 @@ def _session_after(robot, monkeypatch, runner: type) -> str:
         irc5.close()
 
 
+@pytest.mark.realtime
 def test_a_session_answered_late_is_kept_not_lost(robot, monkeypatch):
     """A sensor whose every answer comes after the controller stopped waiting for it (a daemon
     on a loaded host: the controller reads it at its next cycle, ``late``) is alive: the
@@ -93,6 +95,7 @@ def test_a_session_answered_late_is_kept_not_lost(robot, monkeypatch):
     assert _session_after(robot, monkeypatch, _Runner) == "session"
 
 
+@pytest.mark.realtime
 def test_a_controller_starved_by_its_host_keeps_its_session(robot, monkeypatch):
     """A simulated controller that sent nothing (its thread starved: the rehearsal at load
     15-18 lost its session 5 s in, before any throw, and the test waited 12 min for throws)
@@ -103,6 +106,7 @@ def test_a_controller_starved_by_its_host_keeps_its_session(robot, monkeypatch):
     assert _session_after(robot, monkeypatch, silent) == "lost"
 
 
+@pytest.mark.realtime
 def test_with_motors_off_the_simulated_controller_refuses_the_start_over_http():
     """docs/CELL.md section 0: ``thinkfast-sim controller --motors-off``, then ``thinkfast-cell
     start`` refuses (one line, exit 1) and the RAPID program stays stopped (real processes)."""
@@ -124,3 +128,66 @@ def test_with_motors_off_the_simulated_controller_refuses_the_start_over_http():
     err = started.stderr.strip().splitlines()
     assert len(err) == 1 and "cannot start" in err[0] and "motors are off" in err[0], err
     assert state["rapid_execution"] == "stopped" and state["kit"]["tf_status"] != "session"
+
+
+@pytest.fixture(scope="module")
+def turned(tmp_path_factory):
+    """(tree, robot.toml) of a robot whose home is not the default robot's."""
+    return other_home_tree(tmp_path_factory.mktemp("turned"))
+
+
+@pytest.mark.realtime
+def test_the_simulated_controller_starts_at_the_trees_home(turned):
+    """``thinkfast-sim controller --tree`` (its :func:`controller_cell`): the arm is the tree's
+    robot, at that robot's home with its servo limits, so the daemon of that tree finds it at
+    home (no ``away_from_home``) once the session runs (a real daemon, EGM over UDP)."""
+    import threading
+
+    import numpy as np
+
+    from thinkfast.sim.irc5 import SimIrc5
+    from thinkfast.sim.irc5_cli import controller_cell
+    from thinkfast.sim.realtime import daemon_log, daemon_says, start_daemon, stop_daemon, wait_port
+
+    tree, toml = turned
+    robot, servo, plane = controller_cell(tree, None, None)
+    assert robot.toml_path == toml.resolve() and robot.home[0] == HOME_J1
+    assert servo.q_max == tuple(robot.q_upper) and servo.a_max == tuple(robot.a_max)
+    assert plane == (0.8, str(tree))
+    egm, zport = free_port(), free_tcp_port()
+    proc = start_daemon(tree, "tree", egm, zport, "thinkfast", None, None)
+    irc5, stop, status = None, [], None
+    try:
+        wait_port(proc, zport, START)
+        assert daemon_says(proc, "serving EGM on", START), "the daemon's loop did not start"
+        irc5 = SimIrc5(("127.0.0.1", egm), servo=servo, q0=robot.home).start()
+        np.testing.assert_array_equal(irc5.joints(), robot.home)
+        loop = threading.Thread(target=irc5.run, args=(lambda: bool(stop),), daemon=True)
+        loop.start()
+        with irc5.rws.lock:
+            irc5.rws.execstate = "running"
+        assert until(lambda: irc5.rws.status() == "waiting", START, poll=0.05)
+        with irc5.rws.lock:
+            irc5.rws.variables["T_ROB1/tf_start_request"] = "TRUE"
+        answered = lambda: irc5.runner is not None and irc5.runner.stats.answered >= 250  # noqa: E731
+        assert until(answered, START, poll=0.05), "the daemon did not answer the session"
+        status = _status(zport)
+    finally:
+        stop.append(1)
+        if irc5 is not None:
+            irc5.close()
+        code = stop_daemon(proc)
+    log = daemon_log(proc)
+    assert code == 0, log
+    assert "away_from_home" not in log, log
+    assert status["away_from_home"] is False and status["state"] == "idle", status
+
+
+def test_the_simulated_controller_refuses_a_run_config_naming_another_robot(turned, tmp_path):
+    tree, _ = turned
+    config = tmp_path / "run.toml"
+    config.write_text(f'robot = "{ROBOT_TOML}"\n')
+    egm = f"127.0.0.1:{free_port()}"
+    out = run_cli("thinkfast-sim", "controller", "--tree", str(tree), "--config", str(config),
+                  "--egm", egm, "--rws", "127.0.0.1:0", timeout=120)  # fmt: skip
+    assert_one_line_error(out, f"{tree} was compiled for", str(ROBOT_TOML))

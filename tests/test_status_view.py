@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
+from tests.conftest import TURNED_NAME, other_home_tree
 from tests.daemon_harness import DaemonRun, free_port, until
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.daemon.status_cli import Listener
@@ -147,3 +148,40 @@ def test_throws_supervisor_last_throw_and_cameras_are_shown():
     first = {"ticks": 9, "intervened": 0, "last_throw": None}  # before a throw has ended
     before = dict(panel_rows({**status, "interventions": first}, {}, 0.1))
     assert before["supervisor"] == "intervened 0 of 9 ticks; last throw -"
+
+
+@pytest.mark.realtime
+def test_status_start_log_and_record_name_the_trees_robot_and_plane(tmp_path):
+    """A tree compiled for another robot folder: ``thinkfast-run status``, the start log and the
+    record name that robot (name, robot.toml), the tree's fingerprint and the plane."""
+    from thinkfast.record.format import read_record
+    from thinkfast.robot.model import load_robot
+    from thinkfast.tree.file import load_tree, tree_fingerprint
+
+    tree, toml = other_home_tree(tmp_path)
+    robot, fp = load_robot(toml), tree_fingerprint(load_tree(tree))[:16]
+    run = DaemonRun(tree, tmp_path / "rec.h5", q0=robot.home, prefix="lab_t")
+    try:
+        assert until(lambda: run.status[-1].get("egm_connected"), 60.0, poll=0.05)
+        out = subprocess.run(
+            [EXE, "status", "--json", "--key-prefix", "lab_t", "--zenoh-connect",
+             f"tcp/127.0.0.1:{run.zport}", "--timeout", "10"],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+    finally:
+        code, err = run.stop()
+    assert code == 0, err
+    assert out.returncode == 0, out.stderr
+    s = json.loads(out.stdout)["lab_t"]["status"]
+    named = {"name": TURNED_NAME, "robot_toml": str(toml.resolve()),
+             "robot_toml_sha256": robot.toml_sha256[:16]}  # fmt: skip
+    assert s["robot"] == named and s["tree_fingerprint"] == fp and s["plane_x"] == 0.8
+    cell = dict(panel_rows(s, {}, 0.0))["cell"]
+    assert f"robot {TURNED_NAME} ({toml.resolve()})" in cell and "plane x 0.8 m" in cell
+    start = next(ln for ln in err.splitlines() if " start {" in ln)
+    detail = json.loads(start.split(" start ", 1)[1])
+    assert detail["robot"] == named and detail["tree_fingerprint"] == fp
+    assert detail["plane_x"] == 0.8
+    assert "away_from_home" not in err  # the arm starts at the tree's robot's home
+    attrs = read_record(tmp_path / "rec.h5").attrs
+    assert attrs["robot_name"] == TURNED_NAME and attrs["robot_toml"] == str(toml.resolve())

@@ -27,7 +27,7 @@ from ruckig import InputParameter, OutputParameter, Result, Ruckig, Synchronizat
 from thinkfast.errors import RecorderError
 from thinkfast.record.recorder import Recorder
 from thinkfast.robot.model import Robot
-from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller import ServoConfig, SimController, servo_for
 
 AMPLITUDE = np.array([0.6, 0.5, 0.5, 1.0, 0.8, 1.0])  # rad, excursion about home per joint
 # each: out and back. Hard moves last: the servo model may not settle after them (a sustained
@@ -93,7 +93,7 @@ def simulate_dynamics_record(
     Args:
         path: flight record to write (HDF5, created or truncated).
         robot: the arm (home and the limits the excitation scales).
-        servo: the simulated controller (the known lag and acceleration limits).
+        servo: the simulated controller (the known lag; limits left empty: the robot's).
         seed: randomness of the feedback noise.
         hard: hard moves command this times the robot's acceleration and jerk.
         feedback_noise: std of the measured joints' noise [rad] (ASSUMED encoder-grade).
@@ -111,6 +111,7 @@ def simulate_dynamics_record(
         RecorderError: the record cannot be written, or rows were dropped.
     """
     rng = np.random.default_rng(seed)
+    servo = servo_for(robot, servo)  # the arm's own limits where the servo gives none
     if speed_scale != 1.0:
         robot = dataclasses.replace(
             robot,

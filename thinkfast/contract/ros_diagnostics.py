@@ -15,7 +15,14 @@ from thinkfast.contract.ros import DIAGNOSTIC_ARRAY, decode_cdr, header, seconds
 # DiagnosticStatus levels (diagnostic_msgs/msg/DiagnosticStatus: OK 0, WARN 1, ERROR 2, STALE 3)
 LEVEL_OK, LEVEL_WARN, LEVEL_ERROR, LEVEL_STALE = 0, 1, 2, 3
 DIAG_NAME = "thinkfast: daemon"
-DIAG_HARDWARE = "abb_irb1600"
+
+
+def hardware_id(status: dict) -> str:
+    """The DiagnosticStatus ``hardware_id`` of a daemon status: the name of the robot it runs
+    (its ``robot.name``; empty in a status that names none)."""
+    robot = status.get("robot")
+    name = robot.get("name") if isinstance(robot, dict) else None
+    return name if isinstance(name, str) else ""
 
 
 def status_level(status: dict) -> tuple[int, str]:
@@ -43,8 +50,9 @@ def _value_text(v: Any) -> str:
 def encode_diagnostics(status: dict) -> bytes:
     """``diagnostic_msgs/msg/DiagnosticArray`` in CDR of one daemon status (stamp from
     ``status['stamp']``): one DiagnosticStatus named ``thinkfast: daemon`` whose level and
-    message come from :func:`status_level` and whose values are the status's keys (strings as
-    they are, everything else as compact JSON)."""
+    message come from :func:`status_level`, whose ``hardware_id`` is the robot's name
+    (:func:`hardware_id`) and whose values are the status's keys (strings as they are,
+    everything else as compact JSON)."""
     ts = typestore()
     T = ts.types
     level, message = status_level(status)
@@ -53,7 +61,11 @@ def encode_diagnostics(status: dict) -> bytes:
         for k, v in status.items()
     ]
     st = T["diagnostic_msgs/msg/DiagnosticStatus"](
-        level=level, name=DIAG_NAME, message=message, hardware_id=DIAG_HARDWARE, values=values
+        level=level,
+        name=DIAG_NAME,
+        message=message,
+        hardware_id=hardware_id(status),
+        values=values,
     )
     msg = T[DIAGNOSTIC_ARRAY](header=header(float(status["stamp"]), ""), status=[st])
     return bytes(ts.serialize_cdr(msg, DIAGNOSTIC_ARRAY))

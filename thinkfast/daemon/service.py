@@ -88,6 +88,11 @@ class Daemon:
                 "planner": planner,
                 "tree_config_sha256": tree.meta.get("config_sha256", ""),
                 "tree_fingerprint": self.tree_fingerprint,
+                "robot_name": robot.name,
+                "robot_toml": str(robot.toml_path),
+                "robot_toml_sha256": robot.toml_sha256,
+                "urdf_sha256": robot.urdf_sha256,
+                "shadow": int(modes.shadow),
                 "run_config": json.dumps(to_dict(cfg)),
                 "started": time.time(),
             },
@@ -153,11 +158,12 @@ class Daemon:
         self._watch_throw(r.tick.t)
         self._watch_stage(r.tick.t)
         q, qd, mode = r.q, r.qd, r.mode
+        q_rec, qd_rec = q, qd  # the record keeps the commanded motion (in shadow: the plan)
         if self.modes.shadow:  # the plan is shown, the arm holds (egm_control)
             self.planned = (q, qd, mode)
-            q, qd, mode = self.control.hold_q, np.zeros(6), "shadow"
+            q, qd, mode = self.control.hold_q, np.zeros(self.robot.n_joints), "shadow"
         self.outbox.append((r.tick.t, q, qd, mode, fb.q_rad))
-        self.recorder.egm(now, fb.seqno, fb.q_rad, q, qd, self.supervisor.braking)
+        self.recorder.egm(now, fb.seqno, fb.q_rad, q_rec, qd_rec, self.supervisor.braking)
         return q, qd
 
     def _brake_on_signal(self) -> None:

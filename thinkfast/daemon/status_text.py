@@ -69,6 +69,22 @@ def status_message(d: Daemon, now: float) -> dict:
         "way_home": None if d.home.way_home is None else way_text(d.home.way_home.result),
         "shadow": None if not d.modes.shadow else planned_text(d.planned),
         "speed_scale": d.modes.speed_scale,
+        **cell_text(d),
+    }
+
+
+def cell_text(d: Daemon) -> dict:
+    """The cell the daemon runs (in the status and the start-up summary): its robot (name,
+    robot.toml, its sha256), the tree's fingerprint and the plane's distance x [m]."""
+    robot = d.robot
+    return {
+        "robot": {
+            "name": robot.name,
+            "robot_toml": str(robot.toml_path),
+            "robot_toml_sha256": robot.toml_sha256[:16],
+        },
+        "tree_fingerprint": d.tree_fingerprint[:16],
+        "plane_x": float(d.executor.tree.plane_x),
     }
 
 
@@ -76,6 +92,7 @@ def summary(d: Daemon) -> dict:
     """What the daemon runs with (logged at start-up)."""
     cfg, robot, meta = d.cfg, d.robot, d.tree_meta
     return {
+        "robot": cell_text(d)["robot"],
         "tree_fingerprint": d.tree_fingerprint[:16],
         "tree_config_sha256": str(meta.get("config_sha256", ""))[:16],
         "tree_urdf_sha256": str(meta.get("urdf_sha256", ""))[:16],

@@ -109,8 +109,14 @@ def panel_rows(status: dict, rates: dict, age: float) -> list[tuple[str, str]]:
     cams = s.get("cameras") or {}
     det = s.get("detections") or {}
     dropped = det.get("dropped") or {}
+    robot = s.get("robot") if isinstance(s.get("robot"), dict) else {}
     rows = [
         ("state", state),
+        (
+            "cell",
+            f"robot {_text(robot.get('name'))} ({_text(robot.get('robot_toml'))}), tree "
+            f"{_text(s.get('tree_fingerprint'))}, plane x {_text(s.get('plane_x'))} m",
+        ),
         (
             "planner",
             f"{_text(s.get('planner'))}, speed scale {_text(s.get('speed_scale'))}"

@@ -74,6 +74,9 @@ class RobotToml:
         (), doc="link pairs never checked against each other (envelopes that always touch)"
     )
     cell: tuple[CellObject, ...] = spec((), doc="static collision objects of the cell")
+    positioning_joints: int = spec(
+        3, lo=1, doc="joints that place the shield (joints 1..n), the wrist's are the rest"
+    )
 
 
 @dataclass(frozen=True)
@@ -139,6 +142,18 @@ class Robot:
     urdf_sha256: str
     toml_sha256: str
     placement: PlanePose | None = None
+    positioning_joints: int = 3  # robot.toml positioning_joints; see n_arm
+
+    # ---- sizes (every ABB arm here: 6 joints, 3 positioning and a 3-joint wrist)
+    @property
+    def n_joints(self) -> int:
+        """Controlled joints (EGM order): the length of every joint vector."""
+        return len(self.joint_names)
+
+    @property
+    def n_arm(self) -> int:
+        """Positioning joints, ``q[:n_arm]`` (the tree's joints); the wrist is ``q[n_arm:]``."""
+        return self.positioning_joints
 
     @property
     def root_link(self) -> str:
@@ -276,7 +291,22 @@ def load_robot(toml_path: str | Path | None = None) -> Robot:
         toml_path=toml_path.resolve(),
         urdf_sha256=hashlib.sha256(urdf_text).hexdigest(),
         toml_sha256=hashlib.sha256(toml_path.read_bytes()).hexdigest(),
+        positioning_joints=_positioning_joints(cfg, str(toml_path)),
     )
+
+
+SUPPORTED_POSITIONING = 3  # the tree's joints (node_state: position, velocity, acceleration)
+
+
+def _positioning_joints(cfg: RobotToml, source: str) -> int:
+    """robot.toml ``positioning_joints``, checked: the split the tree format holds (its
+    ``node_state`` is joints 1-3: docs/TREE_FORMAT.md), with joints left for the wrist."""
+    n, k = len(cfg.joints), cfg.positioning_joints
+    if k != SUPPORTED_POSITIONING or k >= n:
+        raise ConfigError(source, "positioning_joints", f"{k} is not supported: the action "
+                          f"tree holds joints 1-{SUPPORTED_POSITIONING} of {n} (give "
+                          f"{SUPPORTED_POSITIONING} or leave the key out)")  # fmt: skip
+    return k
 
 
 def pose(xyz, rpy) -> np.ndarray:

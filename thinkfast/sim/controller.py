@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import math
 import threading
 from typing import NamedTuple
@@ -39,12 +40,16 @@ import numpy as np
 from thinkfast.config import spec
 from thinkfast.contract.egm import EgmDecodeError, decode_sensor, encode_robot
 
-_DEG = math.pi / 180.0
+LIMITS = ("q_min", "q_max", "v_max", "a_max")  # the arm's limits: the robot's unless given
 
 
 @dataclasses.dataclass(frozen=True)
 class ServoConfig:
-    """Simulated controller: cycle, lag model and the arm's limits (IRB 1600-10/1.45)."""
+    """Simulated controller: cycle, lag model and the arm's limits.
+
+    The limits (:data:`LIMITS`) left empty are the robot's (:func:`servo_for`: URDF position
+    limits, robot.toml's velocity and acceleration limits); one given holds a value per joint.
+    """
 
     dt: float = spec(0.004, doc="EGM cycle", unit="s", lo=0.0, lo_open=True)
     delay: float = spec(0.008, doc="transport + input processing delay", unit="s", lo=0.0)
@@ -56,15 +61,58 @@ class ServoConfig:
     tau_v: float = spec(0.01, doc="velocity loop time constant", unit="s", lo=0.0, lo_open=True)
     substep: float = spec(0.001, doc="integration step", unit="s", lo=0.0, lo_open=True)
     q_min: tuple[float, ...] = spec(
-        tuple(d * _DEG for d in (-180, -90, -245, -200, -115, -400)), unit="rad", length=6
+        (), unit="rad", doc="lower position limits (empty: the robot's)"
     )
     q_max: tuple[float, ...] = spec(
-        tuple(d * _DEG for d in (180, 120, 65, 200, 115, 400)), unit="rad", length=6
+        (), unit="rad", doc="upper position limits (empty: the robot's)"
     )
     v_max: tuple[float, ...] = spec(
-        tuple(d * _DEG for d in (180, 180, 185, 385, 400, 460)), unit="rad/s", length=6, lo=0.0
+        (), unit="rad/s", lo=0.0, doc="velocity limits (empty: the robot's)"
     )
-    a_max: tuple[float, ...] = spec((12.0, 12.0, 15.0, 30.0, 30.0, 40.0), unit="rad/s^2", length=6)
+    a_max: tuple[float, ...] = spec(
+        (), unit="rad/s^2", doc="acceleration limits (empty: the robot's)"
+    )
+
+
+def servo_for(robot, servo: ServoConfig | None = None, source: str = "servo") -> ServoConfig:
+    """``servo`` (default :class:`ServoConfig`) with the limits it leaves empty taken from
+    ``robot`` (:class:`~thinkfast.robot.model.Robot`: URDF position limits, robot.toml's
+    ``max_velocity`` and ``max_acceleration``): the simulated arm is the robot's.
+
+    Raises:
+        ConfigError: a limit given with another length than the robot's joints (names
+            ``source`` and the key).
+    """
+    from thinkfast.errors import ConfigError
+
+    servo = ServoConfig() if servo is None else servo
+    own = dict(zip(LIMITS, (robot.q_lower, robot.q_upper, robot.v_max, robot.a_max), strict=True))
+    out = {}
+    for key in LIMITS:
+        given = getattr(servo, key)
+        if given and len(given) != robot.n_joints:
+            raise ConfigError(source, key, f"expected {robot.n_joints} values, one per joint of "
+                              f"{robot.name}, got {len(given)}")  # fmt: skip
+        out[key] = tuple(given) if given else tuple(float(x) for x in own[key])
+    return dataclasses.replace(servo, **out)
+
+
+@functools.cache
+def _default_robot_servo() -> dict:
+    """The default robot's limits, for a :class:`SimController` built without a robot (a bare
+    servo model in tests and benchmarks; every simulator of the package passes
+    :func:`servo_for` of its robot)."""
+    from thinkfast.robot.model import load_robot
+
+    servo = servo_for(load_robot())
+    return {k: getattr(servo, k) for k in LIMITS}
+
+
+def _resolved(config: ServoConfig) -> ServoConfig:
+    if all(getattr(config, k) for k in LIMITS):
+        return config
+    fill = _default_robot_servo()
+    return dataclasses.replace(config, **{k: getattr(config, k) or fill[k] for k in LIMITS})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,7 +163,8 @@ class SimController:
     """Deterministic simulated controller (servo model + EGM message handling).
 
     Args:
-        config: servo model and limits.
+        config: servo model and limits (limits left empty: the default robot's; a simulator
+            of a robot passes :func:`servo_for` of it).
         q0: initial joint angles [rad], shape (6,); zeros by default.
         max_history: keep only this many recent history samples and commands (None: all; a
             long run at 250 Hz would otherwise grow without bound).
@@ -130,7 +179,7 @@ class SimController:
         max_history: int | None = None,
         clock: ClockJitter | None = None,
     ):
-        self.config = config
+        self.config = config = _resolved(config)
         self._stamps = None if clock is None else Stamps(clock)
         self.q = np.zeros(6) if q0 is None else np.array(q0, dtype=float).reshape(6)
         self.qd = np.zeros(6)

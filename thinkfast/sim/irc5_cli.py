@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import typer
 
 
@@ -21,7 +23,16 @@ def controller(
     key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
     seed: int = typer.Option(1, "--seed", help="with --throws: throw and camera-noise seed"),
     config: str | None = typer.Option(
-        None, "--config", help="with --throws: the daemon's run config (its camera pose)"
+        None,
+        "--config",
+        help="the daemon's run config: its camera pose (with --throws) and "
+        "its robot, which must be the tree's",
+    ),
+    tree: Path | None = typer.Option(
+        None,
+        "--tree",
+        help="the daemon's tree: the arm is its robot (home, servo limits) and "
+        "throws aim at its plane (default: the run config's robot, else the default robot)",
     ),
 ) -> None:
     """A simulated IRC5 on this machine: RWS over HTTP (thinkfast-cell) and EGM over UDP to the
@@ -32,21 +43,17 @@ def controller(
     import signal
     import threading
 
-    from thinkfast.config import from_dict, load_toml
     from thinkfast.daemon.egm_address import parse_hostport
     from thinkfast.errors import ConfigError
-    from thinkfast.robot.model import load_robot
-    from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.irc5 import SimIrc5
 
     target = parse_hostport(egm, "--egm")
     host, port = parse_hostport(rws, "--rws")
-    cfg = ServoConfig() if servo is None else from_dict(ServoConfig, load_toml(servo), servo)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    logging.getLogger("thinkfast.sim.controller").setLevel(logging.ERROR)  # overrun chatter
     if throws < 0 or (throws > 0 and zenoh is None):
         raise ConfigError("--throws", None, "a count >= 0; with throws, give --zenoh")
-    robot = load_robot()
+    robot, cfg, plane = controller_cell(tree, config, servo)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    logging.getLogger("thinkfast.sim.controller").setLevel(logging.ERROR)  # overrun chatter
     irc5 = SimIrc5(target, host, port, cfg, q0=robot.home)
     if motors_off:
         irc5.rws.ctrlstate = "motoroff"
@@ -56,10 +63,15 @@ def controller(
     irc5.start()
     print(f"simulated IRC5: RWS on {irc5.url} (user 'Default User', password 'robotics'), "
           f"EGM to {target[0]}:{target[1]} in a session; Ctrl-C ends", flush=True)  # fmt: skip
+    print(f"simulated arm: {robot.name} ({robot.toml_path}), at home "
+          f"{[round(float(x), 4) for x in robot.home]} rad"
+          + (f", throws at the plane x = {plane[0]:g} m of {plane[1]}" if plane else ""),
+          flush=True)  # fmt: skip
     thrower = None
     if throws > 0:
         thrower = threading.Thread(
-            target=_throw, args=(irc5, robot, throws, zenoh, key_prefix, seed, config, stopping),
+            target=_throw,
+            args=(irc5, robot, throws, zenoh, key_prefix, seed, config, plane, stopping),
             daemon=True,
         )  # fmt: skip
         thrower.start()
@@ -70,12 +82,48 @@ def controller(
     print("simulated IRC5 stopped", flush=True)
 
 
-def _throw(irc5, robot, n: int, zenoh: str, prefix: str, seed: int, config, stopping) -> None:
+def controller_cell(tree: Path | None, config: str | None, servo: str | None):
+    """The simulated arm of ``thinkfast-sim controller``: (robot, servo model, plane).
+
+    Args:
+        tree: the daemon's tree (None: the run config's robot, else the default robot).
+        config: the daemon's run config (its ``robot``, when set, must be the tree's).
+        servo: TOML of :class:`~thinkfast.sim.controller.ServoConfig` keys (None: defaults);
+            limits it leaves out are the robot's.
+
+    Returns:
+        The :class:`~thinkfast.robot.model.Robot` (its ``home`` is where the arm starts), the
+        :class:`~thinkfast.sim.controller.ServoConfig` with that robot's limits, and (plane x
+        [m], the tree's name) for the throws (None without a tree: the throw model's plane).
+
+    Raises:
+        ConfigError, RobotModelError, TreeFileError: a bad file, or a robot that is not the
+            tree's (one line naming both).
+    """
+    from thinkfast.config import from_dict, load_toml
+    from thinkfast.control.config import load_run_config
+    from thinkfast.sim.controller import ServoConfig, servo_for
+
+    cfg = load_run_config(config)
+    if tree is not None:
+        from thinkfast.sim.cli_options import tree_cell
+
+        _, robot, plane = tree_cell(tree, cfg)
+    else:
+        from thinkfast.robot.model import load_robot
+
+        robot, plane = load_robot(Path(cfg.robot) if cfg.robot else None), None
+    model = ServoConfig() if servo is None else from_dict(ServoConfig, load_toml(servo), servo)
+    return robot, servo_for(robot, model, str(servo or "servo")), plane
+
+
+def _throw(irc5, robot, n, zenoh: str, prefix: str, seed: int, config, plane, stopping) -> None:
     """The thrower beside the controller's loop: waits for a session, throws, prints."""
     from thinkfast.control.config import load_run_config
-    from thinkfast.sim.throws import ThrowConfig, sample_throws
+    from thinkfast.sim.cli_options import throw_config
+    from thinkfast.sim.throws import sample_throws
 
-    balls = sample_throws(ThrowConfig(), n, seed=seed)
+    balls = sample_throws(throw_config(None, plane and plane[0]), n, seed=seed)
     cam = load_run_config(config).camera
     report = lambda line: print(line, flush=True)  # noqa: E731
     try:

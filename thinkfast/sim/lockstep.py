@@ -47,7 +47,7 @@ from thinkfast.sim.camera import (
     mode_model,
     observe_cameras,
 )
-from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController
+from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController, servo_for
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.planners import ORACLES
 from thinkfast.sim.throws import Throw, plane_crossing
@@ -101,7 +101,8 @@ class World:
         robot = place_for_tree(tree.meta, robot)  # every pose in the tree's plane's frame
         self.parts = CoreAssembly(tree, robot, cfg)  # the daemon's assembly of the control core
         self.tree = self.parts.tree
-        self.robot, self.cfg, self.servo, self.camera = robot, cfg, servo, camera
+        self.robot, self.cfg, self.camera = robot, cfg, camera
+        self.servo = servo_for(robot, servo)  # the simulated arm is the tree's robot
         self.cameras = (
             sim_cameras(cfg, camera, self.tree.plane) if cameras is None else tuple(cameras)
         )

@@ -29,7 +29,7 @@ from thinkfast.decide.tree_view import BALL_RADIUS
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.sim.camera import CameraModelConfig, mode_model, observe
-from thinkfast.sim.controller import ServoConfig, SimController
+from thinkfast.sim.controller import SimController, servo_for
 from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
 from thinkfast.sim.publisher import publish_detections
@@ -174,7 +174,7 @@ def run_throws(
         extrinsic = robot.placement.camera(extrinsic)
     kin = Kinematics(robot)
     if controller is None:
-        sim = WallClockSim(ServoConfig(), q0=robot.home)
+        sim = WallClockSim(servo_for(robot), q0=robot.home)
         runner = ControllerRunner(sim, egm).start()
     else:
         sim, runner = controller
