@@ -275,16 +275,15 @@ def test_lockstep_checks_the_arm_it_measures_like_the_daemon(tree_path):
     """The core is checked against the simulated controller's joints: an arm that cannot
     follow (a quarter of the planned acceleration) trips the supervisor's deviation brake in
     lockstep as on the wire; the arm the planner assumed never does."""
-    import dataclasses
 
-    from thinkfast.sim.controller import ServoConfig
+    from thinkfast.sim.controller import ServoConfig, servo_for
 
     world = _Factory(tree_path)()
     throw = _central_slow_throw()
     normal = simulate(world, throw, "naive", seed=3)
     assert normal.blocked and normal.intervened == 0 and normal.faults == 0
-    weak = ServoConfig(a_max=tuple(0.25 * a for a in ServoConfig().a_max))
-    world.servo = dataclasses.replace(weak)
+    weak = ServoConfig(a_max=tuple(0.25 * a for a in world.robot.a_max))
+    world.servo = servo_for(world.robot, weak)
     lame = simulate(world, throw, "naive", seed=3)
     assert lame.moved and lame.intervened > 0, lame  # braked: the arm left its commands
 
