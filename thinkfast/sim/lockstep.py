@@ -231,8 +231,7 @@ def _oracle(world: World, throw: Throw, cross, t_go: float, t_rel: float):
     crossing."""
     robot = world.robot
     steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
-    q_goal = _oracle_goal(world, throw.plane_x, cross, steer, t_rel + cross.t - t_go)
-    traj = steer.to_rest(np.r_[robot.home[:3], np.zeros(6)], q_goal[:3])
+    traj = _oracle_move(world, throw.plane_x, cross, steer, t_rel + cross.t - t_go)
     wrist = WristTracker(robot, 0.0, world.cfg.safety.position_margin)
     wrist.reset(robot.home[3:], 0.0)
     normal = np.array([1.0, 0.0, 0.0])
@@ -253,10 +252,14 @@ COVER_STEPS = (1.0 / 3.0, 2.0 / 3.0, 0.95)  # of the shield radius: rings of cov
 COVER_DIRECTIONS = 8
 
 
-def _oracle_goal(
-    world: World, plane_x: float, cross, steer: Steering, time_left: float
-) -> np.ndarray:
-    """Where the oracle sends the arm (6,) [rad], leaving ``time_left`` [s] before the crossing.
+def _nearest_goal(tree, y: float, z: float) -> np.ndarray:
+    """Joint angles (6,) [rad] of the tree's goal nearest ``(y, z)`` on the plane [m]."""
+    return tree.goal_q[int(np.argmin(np.sum(np.square(tree.goal_yz - [y, z]), axis=1)))]
+
+
+def _oracle_move(world: World, plane_x: float, cross, steer: Steering, time_left: float):
+    """The oracle's minimum-time move of joints 1-3 from home (a Ruckig trajectory; None when
+    Ruckig finds none), leaving ``time_left`` [s] before the crossing. Its target:
 
     The shield centred on the exact crossing, when the IK reaches it inside the limits and a
     minimum-time move gets there in time. Else (out of reach, or too late) the target of the
@@ -268,22 +271,22 @@ def _oracle_goal(
     robot, tree = world.robot, world.tree
     normal = (1.0, 0.0, 0.0)
     start = np.r_[robot.home[:3], np.zeros(6)]
-    d2 = np.sum(np.square(tree.goal_yz - [cross.y, cross.z]), axis=1)
-    seed = tree.goal_q[int(np.argmin(d2))]
+    seed = _nearest_goal(tree, cross.y, cross.z)
     ik = solve_shield_ik(world.kin, np.array([plane_x, cross.y, cross.z]), normal, seed)
     found = []
     if ik.converged and _inside(robot, ik.q):
         traj = steer.to_rest(start, ik.q[:3])
         if traj is not None and traj.duration <= time_left:
-            return ik.q
+            return traj
         found.append(ik.q)
     cover = robot.shield_radius
     for step in COVER_STEPS:
         for k in range(COVER_DIRECTIONS):
             a = 2.0 * math.pi * k / COVER_DIRECTIONS
             y, z = cross.y + step * cover * math.cos(a), cross.z + step * cover * math.sin(a)
-            near = tree.goal_q[int(np.argmin(np.sum(np.square(tree.goal_yz - [y, z]), axis=1)))]
-            ik = solve_shield_ik(world.kin, np.array([plane_x, y, z]), normal, near)
+            ik = solve_shield_ik(
+                world.kin, np.array([plane_x, y, z]), normal, _nearest_goal(tree, y, z)
+            )
             if ik.converged and _inside(robot, ik.q):
                 found.append(ik.q)
     found.extend(tree.goal_q)
@@ -293,7 +296,7 @@ def _oracle_goal(
     centres = world.shield.centres(q123)
     miss = np.hypot(centres[:, 1] - cross.y, centres[:, 2] - cross.z)
     miss[[t is None for t in trajs]] = np.inf
-    return found[int(np.argmin(miss))]
+    return trajs[int(np.argmin(miss))]
 
 
 def _stay(home: np.ndarray):
