@@ -106,6 +106,7 @@ def test_a_turned_plane_compiles_and_flies_the_lockstep_bench_in_its_frame(tmp_p
     config.write_text(
         f'robot = "{default_robot_path()}"\n[plane]\ndistance = 0.8\nyaw = {TURNED.yaw!r}\n'
         f"offset = {TURNED.offset!r}\n[goals]\nspacing = 0.3\n[tree]\nmax_depth = 1\n"
+        'home = "solve"\n'
     )
     tree = compile_tree(load_compile_config(config))
     assert Provenance.of(tree.meta).plane == TURNED

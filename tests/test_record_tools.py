@@ -153,6 +153,28 @@ def test_replay_converts_to_rrd_with_the_goal_grid(recorded, tmp_path, capsys):
     assert mcap.stat().st_size > 1000
 
 
+def test_a_record_is_drawn_with_the_robot_it_was_flown_with(recorded, tmp_path):
+    """The record names its robot and plane; a view finds that robot, and refuses another."""
+    import dataclasses
+
+    from thinkfast.errors import RobotModelError
+    from thinkfast.record.format import read_record
+    from thinkfast.record.replay import record_robot
+    from thinkfast.record.tables import record_plane, run_config
+
+    tree, path = recorded
+    rec = read_record(path)
+    assert rec.attrs["robot_name"] == "abb_irb1600_10_145"
+    assert json.loads(rec.attrs["plane"])["distance"] == 0.8
+    assert record_plane(rec) is None  # the contract's plane: estimates in base
+    cfg = run_config(rec)
+    assert record_robot(rec, cfg).toml_sha256 == rec.attrs["robot_toml_sha256"]
+    assert record_robot(rec, cfg, tree).placement is not None  # the tree's, placed
+    other = dataclasses.replace(rec, attrs={**rec.attrs, "robot_toml_sha256": "f" * 64})
+    with pytest.raises(RobotModelError, match="flown with abb_irb1600_10_145 .robot.toml ffff"):
+        record_robot(other, cfg)
+
+
 def test_a_bad_record_is_one_error_naming_the_file(tmp_path):
     bad = tmp_path / "nope.h5"
     bad.write_bytes(b"not hdf5")

@@ -325,6 +325,8 @@ def test_sweep_files_are_checked_key_by_key(tmp_path):
         "tree.eps = [0.1, -1.0]": "compile.tree.eps",
         "tree.eps = 0.1": "compile.tree.eps",  # not an array of values
         "tree.eps = [0.1, 0.15, 0.2]\n[sweep2]": "sweep2",
+        "plane.distance = [0.8, 1.0]": "compile.plane.distance",  # one cell per sweep (paired)
+        "goals.y_max = [0.9, 0.6]": "compile.goals.y_max",
     }
     for new, key in cases.items():
         path.write_text(text.replace("tree.eps = [0.1, 0.15]", new))

@@ -32,7 +32,7 @@ def tree_10(tmp_path_factory):
     d = tmp_path_factory.mktemp("cell10")
     text = SMALL_TREE.format(robot=ROBOT_TOML, spacing=0.3, depth=2, subgoal=0.6, radius=0.3)
     config = d / "plane10.toml"
-    config.write_text(f"{text}[plane]\ndistance = {PLANE}\n")
+    config.write_text(f'{text}home = "solve"\n[plane]\ndistance = {PLANE}\n')
     return compile_cached(config, d / "plane10.h5")
 
 
@@ -112,7 +112,7 @@ def test_a_tree_for_a_1m_plane_is_benched_with_throws_judged_at_1m(tree_10):
     from thinkfast.sim.throws import ball_state, plane_crossing
 
     _, _, plane = tree_cell(tree_10, RunConfig())
-    assert plane == (PLANE, str(tree_10))
+    assert plane[:2] == (PLANE, str(tree_10))
     throws = load_throws(6, 1, None, None, 0, plane)
     assert [t.plane_x for t in throws] == [PLANE] * 6
     for t in throws:

@@ -12,7 +12,6 @@ from thinkfast.compile.config import LoadedConfig
 from thinkfast.compile.goals import require_reachable, solve_goal_grid
 from thinkfast.compile.grow import GrowInputs, Progress, grow, subgoals
 from thinkfast.compile.shield import pad_terminals, sample_spacing
-from thinkfast.config import to_dict
 from thinkfast.machine import library_versions, machine_info
 from thinkfast.robot.batch_fk import BatchFK
 from thinkfast.robot.model import Robot
@@ -81,7 +80,7 @@ def compile_tree(
         "urdf_sha256": robot.urdf_sha256,
         "robot_toml_sha256": robot.toml_sha256,
         "robot_name": robot.name,
-        "parameters": json.dumps({**to_dict(cfg), "plane": cfg.plane.parameters()}),
+        "parameters": json.dumps(loaded.parameters(robot)),
         "plane_distance": cfg.plane.distance,
         "shield_radius": robot.shield_radius,
         "shield_dt": shield_dt,

@@ -176,13 +176,15 @@ def verify(
     from thinkfast.robot.model import load_robot
     from thinkfast.tree.file import load_tree
     from thinkfast.tree.provenance import Provenance
+    from thinkfast.tree.robot_match import place_for_tree
 
     tree_ = load_tree(path)
     prov = Provenance.of(tree_.meta, str(path))
-    config = from_dict(CompileConfig, prov.parameters, f"{path}: attribute parameters")
+    params = {k: v for k, v in prov.parameters.items() if k != "home"}  # solved: the tree's own
+    config = from_dict(CompileConfig, params, f"{path}: attribute parameters")
     if robot_path is None:
         robot_path = (Path(prov.config_path).parent / config.robot).resolve()
-    robot = load_robot(robot_path).placed(config.plane.pose())
+    robot = place_for_tree(tree_.meta, load_robot(robot_path), str(path))  # plane and home
     report = verify_tree(tree_, robot, config, factor, jobs or default_jobs(), ProgressBar())
     print(
         f"{path}: {report.edges} tree edges and {report.terminals} terminal edges recomputed, "

@@ -103,6 +103,12 @@ class TreeConfig:
     sample_dt: float = spec(
         0.002, lo=0.0, lo_open=True, hi=0.01, unit="s", doc="sampling step along a primitive"
     )
+    home: str = spec(
+        "auto",
+        choices=("auto", "solve"),
+        doc="home: robot.toml's when it gives one, checked on the plane (auto), else solved by IK "
+        "for the shield at the region's centre (solve); thinkfast.compile.home",
+    )
     shield_dt: float = spec(
         0.02,
         lo=0.001,
@@ -133,11 +139,32 @@ class LoadedConfig:
     robot_path: Path
 
     def robot(self):
-        """The robot of this config, placed in its plane (``Robot.placed``): every pose the
-        compiler computes is in the plane's frame."""
+        """The robot of this config, placed in its plane (``Robot.placed``), with the tree's
+        home (:func:`thinkfast.compile.home.resolve_home`): every pose the compiler computes
+        is in the plane's frame.
+
+        Raises:
+            ConfigError: robot.toml's home is off the plane, or no home can be solved.
+        """
+        from thinkfast.compile.home import resolve_home
         from thinkfast.robot.model import load_robot
 
-        return load_robot(self.robot_path).placed(self.config.plane.pose())
+        placed = load_robot(self.robot_path).placed(self.config.plane.pose())
+        return resolve_home(placed, self.config, str(self.path))
+
+    def parameters(self, robot) -> dict:
+        """The resolved configuration as a tree records it (``parameters``): every key, except
+        the plane's pose keys where it has none and ``tree.home`` where it is ``"auto"``, so that
+        a config without them is the same tree as before they existed; ``home`` holds a solved
+        home [rad] (``robot``'s, from :meth:`robot`)."""
+        from thinkfast.config import to_dict
+
+        out = {**to_dict(self.config), "plane": self.config.plane.parameters()}
+        if out["tree"].get("home") == "auto":
+            out["tree"] = {k: v for k, v in out["tree"].items() if k != "home"}
+        if robot.home_solved:
+            out["home"] = [float(x) for x in robot.home]
+        return out
 
 
 def check_compile_config(cfg: CompileConfig, source: str, prefix: str = "") -> CompileConfig:

@@ -300,11 +300,13 @@ def _config_tool(print_config: bool, check: Path | None, tree: Path | None = Non
         robot = robot_for_tree(load_tree(tree).meta, str(tree), cfg.robot)
         print(f"{check}: OK (robot {robot.name}, the one {tree} was compiled for)")
         return
-    if cfg.robot:
-        from thinkfast.robot.model import load_robot
+    from thinkfast.robot.model import load_robot
 
-        load_robot(Path(cfg.robot))
-    print(f"{check}: OK")
+    robot = load_robot(Path(cfg.robot) if cfg.robot else None)
+    print(
+        f"{check}: OK (robot {robot.name} from {robot.toml_path}; pass --tree to check it is "
+        "the tree's: the daemon refuses another)"
+    )
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -28,11 +28,10 @@ def drawing_inputs(record: Record, tree: Path | None):
         ConfigError: the record's run configuration does not validate.
         TreeFileError: ``tree`` cannot be read.
     """
-    from thinkfast.robot.model import load_robot
+    from thinkfast.record.replay import record_robot
 
     cfg = run_config(record)
-    robot = load_robot(Path(cfg.robot) if cfg.robot else None)
-    return (cfg, robot, *plane_and_goals(record, tree))
+    return (cfg, record_robot(record, cfg, tree), *plane_and_goals(record, tree))
 
 
 def record_to_rerun(

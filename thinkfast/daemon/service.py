@@ -52,6 +52,7 @@ from thinkfast.daemon.rt_thread import pin_thread, set_fifo
 from thinkfast.daemon.status_text import episode_text, peer_text, status_message, summary
 from thinkfast.daemon.zenoh_edge import ZenohIO
 from thinkfast.record.recorder import Recorder
+from thinkfast.record.tables import plane_json
 from thinkfast.robot.model import Robot
 from thinkfast.tree.action_tree import ActionTree
 from thinkfast.tree.file import tree_fingerprint
@@ -92,6 +93,7 @@ class Daemon:
                 "robot_toml": str(robot.toml_path),
                 "robot_toml_sha256": robot.toml_sha256,
                 "urdf_sha256": robot.urdf_sha256,
+                "plane": plane_json(robot.placement),  # estimates are in this plane's frame
                 "shadow": int(modes.shadow),
                 "run_config": json.dumps(to_dict(cfg)),
                 "started": time.time(),

@@ -38,6 +38,45 @@ def plane_and_goals(record: Record, tree: Path | None) -> tuple[float | None, np
     return Provenance.of(t.meta).plane_x, t.goal_yz
 
 
+def record_robot(record: Record, cfg, tree: Path | None = None):
+    """The robot ``record`` was flown with, in the frame of its estimates, to draw it with.
+
+    With ``tree``: the tree's robot (:func:`~thinkfast.tree.robot_match.robot_for_tree`),
+    refused when the record was made with another. Without: robot.toml at the path the record
+    names (``robot_toml``), else the run config's ``robot``, else the default, refused unless
+    its hash is the one recorded; placed in the record's plane
+    (:func:`~thinkfast.record.tables.record_plane`).
+
+    Raises:
+        RobotModelError: the robot found is not the record's (names both), or cannot be loaded.
+        TreeFileError: ``tree`` cannot be read.
+    """
+    from thinkfast.errors import RobotModelError
+    from thinkfast.record.tables import record_plane
+    from thinkfast.robot.model import load_robot
+
+    want = record.attrs.get("robot_toml_sha256")
+    name = record.attrs.get("robot_name", "?")
+    if tree is not None:
+        from thinkfast.tree.file import load_tree
+        from thinkfast.tree.robot_match import robot_for_tree
+
+        robot = robot_for_tree(load_tree(tree).meta, str(tree), cfg.robot or None)
+    else:
+        named = record.attrs.get("robot_toml")
+        path = Path(named) if named and Path(named).is_file() else None
+        robot = load_robot(path or (Path(cfg.robot) if cfg.robot else None))
+        plane = record_plane(record)
+        robot = robot if plane is None else robot.placed(plane)
+    if want and want != robot.toml_sha256:
+        raise RobotModelError(
+            f"{record.path}: flown with {name} (robot.toml {str(want)[:12]}), but the robot found "
+            f"is {robot.name} (robot.toml {robot.toml_sha256[:12]}) from {robot.toml_path}: pass "
+            "--tree with the record's tree"
+        )
+    return robot
+
+
 def decimate(t: np.ndarray, rate: float) -> np.ndarray:
     """Indices of the rows of times ``t`` [s] (non-decreasing) at most ``rate`` per second."""
     keep, next_t = [], -np.inf

@@ -61,18 +61,49 @@ class RawPoints(NamedTuple):
     position: np.ndarray
 
 
+def plane_json(plane) -> str:
+    """A :class:`~thinkfast.contract.frames.PlanePose` (or None: ``base``) as a record's
+    ``plane`` attribute: JSON ``{"distance", "yaw", "offset", "base_height"}``, or ``""``."""
+    if plane is None:
+        return ""
+    keys = ("distance", "yaw", "offset", "base_height")
+    return json.dumps({k: float(getattr(plane, k)) for k in keys})
+
+
+def record_plane(record: Record):
+    """The plane whose frame the record's estimates are in (its ``plane`` attribute), or None
+    for ``base`` (a record without one, or of a plane without a pose).
+
+    Raises:
+        ValueError: the attribute is not the JSON :func:`plane_json` writes.
+    """
+    from thinkfast.contract.frames import PlanePose
+
+    text = record.attrs.get("plane") or ""
+    if not text:
+        return None
+    d = json.loads(text)
+    plane = PlanePose(float(d["distance"]), float(d["yaw"]), float(d["offset"]),
+                      float(d["base_height"]))  # fmt: skip
+    return None if plane.identity else plane
+
+
 def raw_positions(record: Record, cfg) -> RawPoints:
-    """Every raw payload that parses as a detection, moved into ``base`` with ``cfg.camera``."""
+    """Every raw payload that parses as a detection, moved into ``base`` with ``cfg.camera``,
+    then into the plane's frame where the record's plane has a pose (:func:`record_plane`:
+    the frame of its estimates)."""
     from thinkfast.contract.detection import parse_detection
     from thinkfast.contract.frames import to_base
 
     R, p = cfg.camera.rotation(), cfg.camera.translation()
+    plane = record_plane(record)
     t, pos = [], []
     for ti, payload in zip(record.raw_t, record.raw_payloads, strict=True):
         det = parse_detection(payload, cfg.detections)
         if hasattr(det, "position"):
             t.append(ti)
-            pos.append(to_base(det, R, p).position)
+            x = to_base(det, R, p).position
+            pos.append(x if plane is None else plane.to_plane(np.asarray(x, dtype=float)))
     return RawPoints(np.array(t, dtype=float), np.array(pos, dtype=float).reshape(-1, 3))
 
 

@@ -136,7 +136,7 @@ class CollisionChecker:
         ]
         if not rigid:
             return
-        self._pose(self.robot.home)
+        self._pose(self.robot.any_q)
         for i, j in rigid:
             if fcl.collide(self.objects[i], self.objects[j], self._request, fcl.CollisionResult()):
                 raise RobotModelError(

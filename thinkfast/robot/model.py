@@ -65,10 +65,12 @@ class RobotToml:
     urdf: str = spec(doc="URDF path, relative to robot.toml")
     joints: tuple[str, ...] = spec(length=6, doc="controlled joints, in EGM order")
     # One value per joint (toml_checks.check_lengths); limits checked against the URDF there.
-    home: tuple[float, ...] = spec(unit="rad", doc="home configuration")
     max_velocity: tuple[float, ...] = spec(lo=0.0, lo_open=True, unit="rad/s")
     max_acceleration: tuple[float, ...] = spec(lo=0.0, lo_open=True, unit="rad/s^2")
     max_jerk: tuple[float, ...] = spec(lo=0.0, lo_open=True, unit="rad/s^3")
+    home: tuple[float, ...] = spec(
+        (), unit="rad", doc="home configuration (optional: the compile config solves it)"
+    )
     shield_link: str = spec("shield", doc="link whose single cylinder collision is the shield")
     allowed_collisions: tuple[tuple[str, ...], ...] = spec(
         (), doc="link pairs never checked against each other (envelopes that always touch)"
@@ -110,7 +112,9 @@ class Robot:
         model: Pinocchio model (joint order = ``joint_names``).
         q_lower, q_upper: position limits from the URDF [rad], shape (6,).
         v_max, a_max, j_max: velocity [rad/s], acceleration [rad/s^2], jerk [rad/s^3], shape (6,).
-        home: home configuration [rad], shape (6,).
+        home: home configuration [rad], shape (6,): robot.toml's, or the tree's
+            (:meth:`with_home`); None when robot.toml gives none and no tree set it.
+        home_solved: the home was solved for a cell (``thinkfast.compile.home``), not read.
         shapes: link collision primitives parsed from the URDF.
         cell: static collision objects in ``base``.
         link_parent: parent link of every link (root maps to "").
@@ -128,7 +132,7 @@ class Robot:
     v_max: np.ndarray
     a_max: np.ndarray
     j_max: np.ndarray
-    home: np.ndarray
+    home: np.ndarray | None
     shapes: tuple[CollisionShape, ...]
     cell: tuple[CollisionShape, ...]
     link_parent: dict[str, str]
@@ -143,6 +147,7 @@ class Robot:
     toml_sha256: str
     placement: PlanePose | None = None
     positioning_joints: int = 3  # robot.toml positioning_joints; see n_arm
+    home_solved: bool = False
 
     # ---- sizes (every ABB arm here: 6 joints, 3 positioning and a 3-joint wrist)
     @property
@@ -159,6 +164,44 @@ class Robot:
     def root_link(self) -> str:
         """The link every pose is expressed in (``base_link``, or ``plane`` when placed)."""
         return next(link for link, parent in self.link_parent.items() if not parent)
+
+    def with_home(self, q, solved: bool = True) -> Robot:
+        """This robot with another home (a tree's, a solved one), checked against the limits.
+
+        Raises:
+            RobotModelError: ``q`` is not one finite value per joint inside the position limits.
+        """
+        h = np.array(q, dtype=np.float64).reshape(-1)
+        if h.shape != (self.n_joints,) or not np.all(np.isfinite(h)):
+            raise RobotModelError(
+                f"{self.toml_path}: a home needs {self.n_joints} finite values, got {list(h)}"
+            )
+        outside = np.flatnonzero((h < self.q_lower) | (h > self.q_upper))
+        if outside.size:
+            j = int(outside[0])
+            raise RobotModelError(
+                f"{self.toml_path}: home {self.joint_names[j]} = {h[j]:+.4f} rad is outside "
+                f"[{self.q_lower[j]:+.4f}, {self.q_upper[j]:+.4f}]"
+            )
+        return dataclasses.replace(self, home=frozen(h), home_solved=solved)
+
+    @property
+    def any_q(self) -> np.ndarray:
+        """A valid configuration for checks that hold in every one (rigid links, the wrist's
+        geometry): the home, or zero clipped into the limits where there is none yet."""
+        if self.home is not None:
+            return self.home
+        return np.clip(np.zeros(self.n_joints), self.q_lower, self.q_upper)
+
+    def require_home(self, hint: str = "pass the tree (--tree) whose home it is") -> np.ndarray:
+        """The home, or a clear refusal where robot.toml gives none and no tree set it.
+
+        Raises:
+            RobotModelError: naming robot.toml and ``hint``.
+        """
+        if self.home is None:
+            raise RobotModelError(f"{self.toml_path} gives no home (its trees solve one): {hint}")
+        return self.home
 
     def placed(self, plane: PlanePose) -> Robot:
         """This robot with its forward kinematics in ``plane``'s frame.
@@ -278,7 +321,7 @@ def load_robot(toml_path: str | Path | None = None) -> Robot:
         v_max=frozen(cfg.max_velocity),
         a_max=frozen(cfg.max_acceleration),
         j_max=frozen(cfg.max_jerk),
-        home=frozen(cfg.home),
+        home=frozen(cfg.home) if cfg.home else None,
         shapes=tuple(shapes),
         cell=tuple(_cell_shape(c, i, toml_path) for i, c in enumerate(cfg.cell)),
         link_parent=link_parent,

@@ -45,7 +45,7 @@ class ShieldSampler:
         self.robot = robot
         self.fk = BatchFK(robot)
         self.wrist_link = j5.child
-        q = np.array(robot.home, dtype=float)[None]
+        q = np.array(robot.any_q, dtype=float)[None]
         poses = self.fk.link_poses(q, until=robot.shield_link)
         w, s = poses[self.wrist_link][0], poses[robot.shield_link][0]
         local = fo.matvec(w[:3, :3].T, s[:3, 3] - w[:3, 3])  # in link_5: along x only

@@ -54,12 +54,12 @@ def throws(
 
     plane = None
     if tree is not None:
+        from thinkfast.sim.cli_options import tree_plane
         from thinkfast.tree.file import load_tree
-        from thinkfast.tree.provenance import Provenance
 
-        plane = (Provenance.of(load_tree(tree).meta, str(tree)).plane_x, str(tree))
+        plane = tree_plane(load_tree(tree).meta, str(tree))
     balls = _throws(n, seed, None, mix, feints, plane)
-    save_throw_set(output, balls, _throw_config(mix, plane and plane[0]))
+    save_throw_set(output, balls, _throw_config(mix, plane))
     kinds = Counter(t.kind for t in balls)
     what = ", ".join(f"{kinds[k]} {k}" for k in ("still", "windup", "feint") if kinds[k])
     print(f"wrote {len(balls)} throws ({what}; seed {seed}) to {output}")

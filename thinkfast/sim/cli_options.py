@@ -4,6 +4,7 @@ sees with, and the throws it flies."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 MIX_HELP = (
     "kinds of throw drawn, KIND=WEIGHT,... of still, windup, feint (default: "
@@ -74,20 +75,64 @@ def with_cameras(cfg, cameras: str | None):
     return dataclasses.replace(cfg, cameras=tuple(known[n] for n in names[1:]))
 
 
-def throw_config(mix: str | None, plane_x: float | None = None):
+class TreePlane(NamedTuple):
+    """Where a tree's throws are aimed: its plane ``x = plane_x`` [m] (the plane's frame) and
+    its protected region (``aim_y``, ``aim_z``: (low, high) [m]; None: the throw model's);
+    ``name`` is the tree's, for messages."""
+
+    plane_x: float
+    name: str
+    aim_y: tuple[float, float] | None = None
+    aim_z: tuple[float, float] | None = None
+
+
+def tree_plane(meta, name: str) -> TreePlane:
+    """The :class:`TreePlane` of the tree of ``meta`` (its provenance's plane and region).
+
+    Raises:
+        TreeFileError: the provenance is unreadable.
+    """
+    from thinkfast.tree.provenance import Provenance
+
+    prov = Provenance.of(meta, name)
+    aim_y, aim_z = prov.region
+    return TreePlane(prov.plane_x, name, aim_y, aim_z)
+
+
+def throw_config(mix: str | None, plane: float | TreePlane | None = None):
     """The throw model with the kinds of throw ``mix`` names (None: the default mix), aimed at
-    the plane ``x = plane_x`` [m] (None: the model's default, 0.8 m)."""
+    ``plane``: a :class:`TreePlane` or its tuple (its plane and region), a plane x [m], or None (the
+    model's default, 0.8 m and its region)."""
     import dataclasses
 
     from thinkfast.sim.thrower import parse_mix
     from thinkfast.sim.throws import ThrowConfig
 
     cfg = ThrowConfig()
-    if plane_x is not None and plane_x != cfg.plane_distance:
-        cfg = dataclasses.replace(cfg, plane_distance=float(plane_x))
+    if isinstance(plane, tuple):
+        plane = TreePlane(*plane)  # (plane x, name[, aim_y, aim_z])
+    if isinstance(plane, TreePlane):
+        cfg = aimed_at(cfg, plane.plane_x, plane.aim_y, plane.aim_z)
+    elif plane is not None:
+        cfg = aimed_at(cfg, plane)
     if mix is None:
         return cfg
     return dataclasses.replace(cfg, thrower=dataclasses.replace(cfg.thrower, mix=parse_mix(mix)))
+
+
+def aimed_at(cfg, plane_x: float, aim_y=None, aim_z=None):
+    """``cfg`` (a :class:`~thinkfast.sim.throws.ThrowConfig`) aimed at the plane ``x =
+    plane_x`` [m] and the region ``aim_y`` x ``aim_z`` ((low, high) [m]; None: unchanged). Values
+    equal to ``cfg``'s leave it as it is (the same throws, bit for bit)."""
+    import dataclasses
+
+    out = {}
+    if float(plane_x) != cfg.plane_distance:
+        out["plane_distance"] = float(plane_x)
+    for key, value in (("aim_y", aim_y), ("aim_z", aim_z)):
+        if value is not None and tuple(map(float, value)) != tuple(getattr(cfg, key)):
+            out[key] = tuple(map(float, value))
+    return dataclasses.replace(cfg, **out) if out else cfg
 
 
 def load_throws(
@@ -130,7 +175,7 @@ def load_throws(
                     "(thinkfast-sim throws --tree)"
                 )
         return throws
-    return sample_throws(throw_config(mix, plane and plane[0]), n, seed, feints)
+    return sample_throws(throw_config(mix, plane), n, seed, feints)
 
 
 def tree_cell(path: Path, cfg=None):
@@ -143,7 +188,7 @@ def tree_cell(path: Path, cfg=None):
 
     Returns:
         (tree, robot, plane): the :class:`~thinkfast.tree.action_tree.ActionTree`, the checked
-        :class:`~thinkfast.robot.model.Robot` and ``(plane x [m], str(path))`` for
+        :class:`~thinkfast.robot.model.Robot` and its :class:`TreePlane` for
         :func:`load_throws`.
 
     Raises:
@@ -152,9 +197,8 @@ def tree_cell(path: Path, cfg=None):
             naming both).
     """
     from thinkfast.tree.file import load_tree
-    from thinkfast.tree.provenance import Provenance
     from thinkfast.tree.robot_match import robot_for_tree
 
     tree = load_tree(path)
     robot = robot_for_tree(tree.meta, str(path), cfg.robot if cfg is not None else None)
-    return tree, robot, (Provenance.of(tree.meta, str(path)).plane_x, str(path))
+    return tree, robot, tree_plane(tree.meta, str(path))

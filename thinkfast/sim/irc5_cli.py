@@ -113,6 +113,7 @@ def controller_cell(tree: Path | None, config: str | None, servo: str | None):
         from thinkfast.robot.model import load_robot
 
         robot, plane = load_robot(Path(cfg.robot) if cfg.robot else None), None
+        robot.require_home("pass --tree: the tree names the home the arm starts at")
     model = ServoConfig() if servo is None else from_dict(ServoConfig, load_toml(servo), servo)
     return robot, servo_for(robot, model, str(servo or "servo")), plane
 
@@ -123,7 +124,7 @@ def _throw(irc5, robot, n, zenoh: str, prefix: str, seed: int, config, plane, st
     from thinkfast.sim.cli_options import throw_config
     from thinkfast.sim.throws import sample_throws
 
-    balls = sample_throws(throw_config(None, plane and plane[0]), n, seed=seed)
+    balls = sample_throws(throw_config(None, plane), n, seed=seed)
     cam = load_run_config(config).camera
     report = lambda line: print(line, flush=True)  # noqa: E731
     try:

@@ -35,11 +35,11 @@ def convert(
     rec = read_record(record)
     if mcap is not None:
         from thinkfast.record.mcap import write_mcap
+        from thinkfast.record.replay import record_robot
         from thinkfast.record.tables import run_config
-        from thinkfast.robot.model import load_robot
 
         cfg = run_config(rec)
-        robot = load_robot(Path(cfg.robot) if cfg.robot else None)
+        robot = record_robot(rec, cfg, tree)
         extra = _scene(rec, robot, tree) if scene else None
         counts = write_mcap(rec, mcap, robot.joint_names, extra)
         print(f"wrote {sum(counts.values())} messages on {len(counts)} topics to {mcap}")

@@ -33,6 +33,7 @@ from thinkfast.config import from_dict, include_table, load_toml, spec, to_dict,
 from thinkfast.contract.camera_mode import CameraSetup
 from thinkfast.control.config import RunConfig
 from thinkfast.errors import ConfigError
+from thinkfast.sim.cli_options import aimed_at
 from thinkfast.sim.planners import DEFAULT, check_planners
 
 
@@ -167,6 +168,10 @@ def compile_text(cfg: CompileConfig, robot_path: Path) -> str:
     )
 
 
+# compile keys that change the cell the throws are aimed at (a sweep keeps one)
+CELL_KEYS = ("compile.plane.", "compile.robot", "compile.goals.y_", "compile.goals.z_")
+
+
 def _axes(table: Any, section: str, source: str) -> dict[str, list[Any]]:
     """``[compile]`` or ``[run]`` as ``section.key -> values`` (each a non-empty array)."""
     if table is None:
@@ -242,6 +247,11 @@ def load_sweep(path: str | Path) -> Sweep:
         base_run = {}
 
     axes = {**_axes(data.get("compile"), "compile", src), **_axes(data.get("run"), "run", src)}
+    for key in axes:  # the points share their throws (paired): one cell per sweep
+        if key.startswith(CELL_KEYS):
+            raise ConfigError(src, key, "the plane, the region and the robot are the cell: every "
+                              "point flies the same throws at it, so a sweep keeps one cell "
+                              "(sweep each cell's compile config apart)")  # fmt: skip
     for key, values in axes.items():  # one value at a time: the error names the key
         for v in values:
             if key.startswith("compile."):
@@ -262,7 +272,9 @@ def load_sweep(path: str | Path) -> Sweep:
         tk = tree_key(ccfg, hashes)
         points.append(Point(i, values, ccfg, rcfg, tk, point_key(tk, rcfg, settings, reference)))
 
-    throw_cfg = ThrowConfig()
+    g = base_cfg.goals  # the throws aim at the cell's plane and region, as bench --tree does
+    throw_cfg = aimed_at(ThrowConfig(), base_cfg.plane.distance, (g.y_min, g.y_max),
+                         (g.z_min, g.z_max))  # fmt: skip
     if settings.mix:
         from thinkfast.sim.thrower import parse_mix
 

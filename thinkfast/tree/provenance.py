@@ -102,6 +102,29 @@ class Provenance:
             float(p.get("base_height", 0.0)),
         )
 
+    @property
+    def region(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The protected region on the plane, ``((y_min, y_max), (z_min, z_max))`` [m] in the
+        plane's frame: the goal grid's ranges, where the simulated thrower aims."""
+        g = self.parameters["goals"]
+        return (float(g["y_min"]), float(g["y_max"])), (float(g["z_min"]), float(g["z_max"]))
+
+    @property
+    def home(self) -> tuple[float, ...] | None:
+        """The home the tree was compiled from when the compiler solved it (``parameters.home``,
+        [rad]); None: robot.toml's home (covered by ``robot_toml_sha256``).
+
+        Raises:
+            TreeFileError: ``parameters.home`` is not a list of numbers.
+        """
+        h = self.parameters.get("home")
+        if h is None:
+            return None
+        try:
+            return tuple(float(x) for x in h)
+        except (TypeError, ValueError):
+            raise TreeFileError(f"provenance 'parameters.home' is no joint list: {h!r}") from None
+
     def robot_toml(self) -> Path | None:
         """robot.toml the tree was compiled for, if it still exists where the config said."""
         rel = self.parameters.get("robot") or DEFAULT_ROBOT

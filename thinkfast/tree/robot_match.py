@@ -80,14 +80,22 @@ def robot_for_tree(
 
 def place_for_tree(meta: Mapping[str, Any], robot: Robot, where: str = "tree") -> Robot:
     """``robot`` (checked to be the tree's) in the tree's cell: placed in the tree's plane
-    (``Robot.placed``), so that every pose of the run is in the plane's frame. A robot placed
-    already must be in the same plane.
+    (``Robot.placed``), so that every pose of the run is in the plane's frame, with the tree's
+    home (a solved one, ``parameters.home``; else robot.toml's). A robot placed already must be
+    in the same plane.
 
     Raises:
         TreeFileError: the tree's provenance is unreadable.
-        RobotModelError: ``robot`` is placed in another plane.
+        RobotModelError: ``robot`` is placed in another plane, or has no home the tree names.
     """
-    plane = Provenance.of(meta, str(where)).plane
+    prov = Provenance.of(meta, str(where))
+    if prov.home is not None:
+        robot = robot.with_home(prov.home, solved=True)
+    elif robot.home is None:
+        raise RobotModelError(
+            f"{where} names no home and {robot.toml_path} gives none: recompile the tree"
+        )
+    plane = prov.plane
     if robot.placement is not None:
         if robot.placement.identity != plane.identity or (
             not plane.identity and robot.placement != plane

@@ -1,0 +1,132 @@
+"""The tree's home: robot.toml's, checked to be on the plane, or solved by IK for the region.
+
+Home is where every throw starts: the arm at rest with the shield coplanar with the intercept
+plane, best at the centre of the protected region (every goal is then as near as the region
+allows, and a ball aimed at the middle is blocked before the arm moves). It belongs to the cell,
+not to the arm alone: a home typed into robot.toml for one plane is off another. So the compile
+config chooses (``[tree] home``):
+
+- ``"auto"`` (default): robot.toml's ``home`` when it gives one, refused when its shield is off
+  the plane (:data:`PLANE_TOLERANCE`, :data:`NORMAL_TOLERANCE`) with the distance; solved when
+  robot.toml gives none;
+- ``"solve"``: solved, whatever robot.toml says.
+
+A solved home is written into the tree (``parameters.home``, so it is part of the fingerprint);
+every command that runs the tree takes it from there
+(:func:`thinkfast.tree.robot_match.place_for_tree`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from thinkfast.compile.config import CompileConfig
+from thinkfast.compile.goals import SHIELD_NORMAL, _limit_violation, _variants
+from thinkfast.errors import ConfigError
+from thinkfast.robot import fixed_order as fo
+from thinkfast.robot.collision import CollisionChecker
+from thinkfast.robot.ik import solve_shield_ik
+from thinkfast.robot.kinematics import Kinematics
+from thinkfast.robot.model import Robot
+
+PLANE_TOLERANCE = 0.005  # m: a given home's shield centre within this of the plane
+NORMAL_TOLERANCE = math.radians(2.0)  # rad: and its normal within this of the plane's normal
+HOME_MODES = ("auto", "solve")
+
+# Seeds of the home solve, in the positioning joints (joint_1 is aimed at the target, the wrist
+# starts straight): elbow-up configurations of a 6-axis ABB arm, from upright to leaning forward.
+_SEEDS_23 = ((0.0, 0.0), (-0.3, 0.3), (0.3, -0.3), (0.5, 0.3), (-0.5, 0.6), (0.2, 0.6))
+
+
+def home_error(robot: Robot, q: np.ndarray, distance: float) -> tuple[float, float]:
+    """How far ``q``'s shield is from coplanar with the plane ``x = distance``: the centre's
+    distance from the plane [m] and the angle of its normal from the plane's [rad] (both in the
+    robot's frame: the plane's when placed)."""
+    pose = Kinematics(robot).shield(np.asarray(q, dtype=np.float64))
+    ang = math.atan2(fo.norm(np.cross(pose.normal, SHIELD_NORMAL)), pose.normal[0])
+    return abs(float(pose.centre[0]) - distance), float(ang)
+
+
+def region_centre(cfg: CompileConfig) -> np.ndarray:
+    """The protected region's centre on the plane, in the plane's frame [m] (3,)."""
+    g = cfg.goals
+    return np.array([cfg.plane.distance, 0.5 * (g.y_min + g.y_max), 0.5 * (g.z_min + g.z_max)])
+
+
+def solve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config") -> np.ndarray:
+    """Home by IK: the shield centre at the region's centre, normal facing the ball, at rest.
+
+    Among converged candidates (every seed, both wrist branches) within the joint limits and free
+    of collisions, the one nearest the zero configuration in time at top speed wins; joint_6 is 0
+    (it turns the disk about its own axis). Deterministic: fixed seeds, fixed order.
+
+    Args:
+        robot: the robot placed in the config's plane (``LoadedConfig.robot``'s frame).
+        cfg: the compile configuration (plane and goal region).
+        source: the config's path, for the message.
+
+    Raises:
+        ConfigError: no seed reaches the centre (names ``goals`` and the closest miss).
+    """
+    kin = Kinematics(robot)
+    checker = CollisionChecker(robot, kin)
+    target = region_centre(cfg)
+    base = cfg.plane.pose().to_base(target)
+    q1 = math.atan2(float(base[1]), float(base[0]))
+    scale = 1.0 / np.asarray(robot.v_max)
+    n = robot.n_joints
+    best, best_cost, miss, why = None, math.inf, math.inf, ""
+    for q2, q3 in _SEEDS_23:
+        seed = np.zeros(n)
+        seed[:3] = (q1, q2, q3)
+        res = solve_shield_ik(kin, target, SHIELD_NORMAL, seed)
+        if not res.converged:
+            miss = min(miss, res.position_error)
+            continue
+        for cand in _variants(robot, res.q):
+            problem = _limit_violation(robot, cand)
+            if not problem:
+                hits = checker.collisions(cand)
+                problem = f"collision: {hits[0][0]} / {hits[0][1]}" if hits else ""
+            if problem:
+                why = why or problem
+                continue
+            cost = float(fo.norm(cand * scale))
+            if cost < best_cost:
+                best, best_cost = cand, cost
+    if best is None:
+        detail = why or f"out of reach: closest IK iterate misses by {miss * 1e3:.0f} mm"
+        y, z = target[1:]
+        raise ConfigError(
+            source,
+            "goals",
+            f"no home: the shield cannot stand at the region's centre (y {y:.3f}, z {z:.3f} m "
+            f"on the plane at {cfg.plane.distance:g} m): {detail}; move the region or the plane",
+        )
+    return best
+
+
+def resolve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config") -> Robot:
+    """``robot`` with the home the tree is compiled from (see the module doc).
+
+    Raises:
+        ConfigError: robot.toml's home is off the plane under ``"auto"`` (names ``tree.home``,
+            the distance and the fix), or no home can be solved.
+    """
+    mode = cfg.tree.home
+    if mode == "auto" and robot.home is not None:
+        off, ang = home_error(robot, robot.home, cfg.plane.distance)
+        if off > PLANE_TOLERANCE or ang > NORMAL_TOLERANCE:
+            raise ConfigError(
+                source,
+                "tree.home",
+                f"robot.toml's home ({robot.toml_path}) puts the shield {off * 1e3:.1f} mm off "
+                f"the plane at {cfg.plane.distance:g} m and its normal {math.degrees(ang):.1f} deg "
+                f"off the plane's (allowed {PLANE_TOLERANCE * 1e3:g} mm, "
+                f'{math.degrees(NORMAL_TOLERANCE):g} deg): set [tree] home = "solve" to solve '
+                "it for this plane's region, or fix robot.toml's home",
+            )
+        return robot
+    return robot.with_home(solve_home(robot, cfg, source), solved=True)
