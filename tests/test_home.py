@@ -145,3 +145,18 @@ def test_the_small_tree_template_still_reads_home_from_robot_toml(tmp_path):
     text = SMALL_TREE.format(robot=ROBOT_TOML, spacing=0.3, depth=1, subgoal=0.6, radius=0.3)
     robot = load_compile_config(_config(tmp_path, ROBOT_TOML, text.split("\n", 1)[1])).robot()
     assert not robot.home_solved
+
+
+def test_calibration_takes_the_trees_robot_and_home_in_base(solved_tree, tmp_path):
+    """``thinkfast-calib --tree``: the tree's robot with its solved home, in ``base`` (the
+    camera is calibrated in the robot's frame); another robot beside the tree is refused."""
+    from thinkfast.calib.cli import _robot
+    from thinkfast.errors import RobotModelError
+    from thinkfast.tree.file import load_meta
+    from thinkfast.tree.provenance import Provenance
+
+    robot = _robot(None, solved_tree)
+    assert robot.placement is None
+    assert np.array_equal(robot.home, Provenance.of(load_meta(solved_tree)).home)
+    with pytest.raises(RobotModelError, match="another robot than the tree's"):
+        _robot(ROBOT_TOML, solved_tree)

@@ -13,7 +13,31 @@ from thinkfast.cli_util import make_app, run_app
 
 app = make_app("Calibrate a cell: camera pose in base, controller lag and the arm's limits.")
 
-ROBOT = typer.Option(None, "--robot", help="robot.toml (default: robots/irb1600/robot.toml)")
+ROBOT = typer.Option(
+    None, "--robot", help="robot.toml (default: the --tree's robot, else the package's default)"
+)
+TREE = typer.Option(
+    None, "--tree", help="the cell's tree: its robot (and home); --robot must then be the same"
+)
+
+
+def _robot(robot: Path | None, tree: Path | None):
+    """The robot to calibrate, in ``base`` (calibration works in the robot's own frame): the
+    tree's (checked, with its home) when ``tree`` is given, else robot.toml at ``robot``.
+
+    Raises:
+        ConfigError, RobotModelError, TreeFileError: a bad file, or a robot not the tree's.
+    """
+    if tree is not None:
+        from thinkfast.tree.file import load_meta
+        from thinkfast.tree.robot_match import robot_for_tree
+
+        return robot_for_tree(load_meta(tree), str(tree), robot, placed=False)
+    from thinkfast.robot.model import load_robot
+
+    return load_robot(robot)
+
+
 CAMERA_CONFIG = typer.Option(
     None, "--camera-config", help="run or detect config whose [camera] is the assumed pose"
 )
@@ -42,16 +66,16 @@ def poses(
     seed: int = typer.Option(1, "--seed", help="seed of the random configurations"),
     samples: int = typer.Option(200_000, "--samples", help="random configurations drawn"),
     robot: Path | None = ROBOT,
+    tree: Path | None = TREE,
     camera_config: Path | None = CAMERA_CONFIG,
 ) -> None:
     """Pick well-spread, collision-free poses whose shield-mounted ball the camera sees."""
     from thinkfast.calib.camera_sim import pick_poses
     from thinkfast.errors import ConfigError
-    from thinkfast.robot.model import load_robot
 
     if count < 3:
         raise ConfigError("--count", None, f"must be >= 3, got {count}")
-    rob = load_robot(robot)
+    rob = _robot(robot, tree)
     ps = pick_poses(rob, _assumed_camera(camera_config), count, seed, samples)
     doc = {
         "format": "thinkfast-calib-poses",
@@ -96,16 +120,16 @@ def simulate_camera(
     seed: int = typer.Option(1, "--seed", help="seed of the camera noise"),
     frames: int = typer.Option(25, "--frames", help="frames per pose (50 Hz)"),
     robot: Path | None = ROBOT,
+    tree: Path | None = TREE,
 ) -> None:
     """Simulate a calibration record: the ZED noise model at a known camera pose."""
     from thinkfast.calib.camera_record import write_camera_record
     from thinkfast.calib.camera_sim import simulate_camera_record
     from thinkfast.config import from_dict
     from thinkfast.contract.frames import CameraExtrinsic
-    from thinkfast.robot.model import load_robot
 
     truth = from_dict(CameraExtrinsic, {"xyz": list(xyz), "rpy": list(rpy)}, "--xyz/--rpy")
-    rob = load_robot(robot)
+    rob = _robot(robot, tree)
     rec = simulate_camera_record(
         rob, _read_poses(pose_file), truth, np.random.default_rng(seed), frames=frames
     )
@@ -123,6 +147,7 @@ def camera(
         False, "--fit-ball-offset", help="fit the ball's mount offset on the shield too"
     ),
     robot: Path | None = ROBOT,
+    tree: Path | None = TREE,
     camera_id: str | None = typer.Option(
         None,
         "--camera",
@@ -136,12 +161,11 @@ def camera(
     from thinkfast.calib.camera_record import read_camera_record
     from thinkfast.contract.detection import CAMERA_ID
     from thinkfast.errors import ConfigError
-    from thinkfast.robot.model import load_robot
 
     if camera_id is not None and (camera_id == "base" or not CAMERA_ID.fullmatch(camera_id)):
         raise ConfigError("--camera", None, f"{camera_id!r}: not base; 1-64 of A-Z a-z 0-9 _ . -")
     rec = read_camera_record(record)
-    fit = fit_camera(rec.poses, load_robot(robot), fit_offset=fit_ball_offset)
+    fit = fit_camera(rec.poses, _robot(robot, tree), fit_offset=fit_ball_offset)
     print(fit_report(fit, str(record)))
     truth = rec.header.get("truth")
     if isinstance(truth, dict):
@@ -177,19 +201,19 @@ def simulate_dynamics(
         0.0, "--stalls", help="mean receive delay of a loaded host [s] (0: none)"
     ),
     robot: Path | None = ROBOT,
+    tree: Path | None = TREE,
 ) -> None:
     """Simulate a dynamics record: an excitation through the simulated controller."""
     from thinkfast.calib.dynamics_sim import servo_lag, simulate_dynamics_record
     from thinkfast.config import from_dict, load_toml
     from thinkfast.errors import ConfigError
-    from thinkfast.robot.model import load_robot
     from thinkfast.sim.controller import ServoConfig
 
     cfg = ServoConfig() if servo is None else from_dict(ServoConfig, load_toml(servo), str(servo))
     if not 0.0 < speed_scale <= 1.0 or stalls < 0.0:
         raise ConfigError("--speed-scale/--stalls", None, "speed scale in (0, 1], stalls >= 0")
     n = simulate_dynamics_record(
-        output, load_robot(robot), cfg, seed, hard=hard, speed_scale=speed_scale, stalls=stalls
+        output, _robot(robot, tree), cfg, seed, hard=hard, speed_scale=speed_scale, stalls=stalls
     )
     print(
         f"wrote {output} ({n} egm rows); servo lag {1e3 * servo_lag(cfg):.1f} ms, "
@@ -202,6 +226,7 @@ def dynamics(
     record: Path = typer.Argument(..., help="flight record (thinkfast-run --record)"),
     output: Path = typer.Option(..., "-o", "--output", help="run config patch to write (TOML)"),
     robot: Path | None = ROBOT,
+    tree: Path | None = TREE,
     cycle: float | None = typer.Option(
         None, "--cycle", help="controller cycle [s] (default: the record's safety.dt, 4 ms)"
     ),
@@ -210,9 +235,8 @@ def dynamics(
     controller's clock; only limits the record approached are measured."""
     from thinkfast.calib.dynamics import estimate_from_record
     from thinkfast.calib.dynamics_report import dynamics_patch, dynamics_report, limit_verdicts
-    from thinkfast.robot.model import load_robot
 
-    rob = load_robot(robot)
+    rob = _robot(robot, tree)
     est = estimate_from_record(str(record), cycle=cycle)
     verdicts = limit_verdicts(est, rob.a_max, rob.j_max)
     print(dynamics_report(est, str(record), verdicts))

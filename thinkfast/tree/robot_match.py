@@ -59,7 +59,11 @@ def tree_robot_path(meta: Mapping[str, Any]) -> Path | None:
 
 
 def robot_for_tree(
-    meta: Mapping[str, Any], where: str = "tree", given: str | Path | None = None
+    meta: Mapping[str, Any],
+    where: str = "tree",
+    given: str | Path | None = None,
+    *,
+    placed: bool = True,
 ) -> Robot:
     """The robot to run the tree of ``meta`` with, checked by :func:`check_robot`.
 
@@ -68,6 +72,8 @@ def robot_for_tree(
         where: the tree's name in messages (its path).
         given: robot.toml asked for (a run config's ``robot``, a flag); None or "": the tree's
             robot.toml where it still exists, else the default robot.
+        placed: in the tree's plane (:func:`place_for_tree`, every run); False: in ``base``
+            with the tree's home (calibration, which works in the robot's own frame).
 
     Raises:
         ConfigError, RobotModelError: the robot cannot be loaded, or is not the tree's.
@@ -75,7 +81,25 @@ def robot_for_tree(
     path = Path(given) if given else tree_robot_path(meta) or default_robot_path()
     robot = load_robot(path)
     check_robot(meta, robot, str(where))
-    return place_for_tree(meta, robot, where)
+    return place_for_tree(meta, robot, where) if placed else home_for_tree(meta, robot, where)
+
+
+def home_for_tree(meta: Mapping[str, Any], robot: Robot, where: str = "tree") -> Robot:
+    """``robot`` with the tree's home: the solved one it holds (``parameters.home``), else
+    robot.toml's.
+
+    Raises:
+        TreeFileError: the tree's provenance is unreadable.
+        RobotModelError: neither the tree nor robot.toml gives a home.
+    """
+    home = Provenance.of(meta, str(where)).home
+    if home is not None:
+        return robot.with_home(home, solved=True)
+    if robot.home is None:
+        raise RobotModelError(
+            f"{where} names no home and {robot.toml_path} gives none: recompile the tree"
+        )
+    return robot
 
 
 def place_for_tree(meta: Mapping[str, Any], robot: Robot, where: str = "tree") -> Robot:
@@ -88,14 +112,8 @@ def place_for_tree(meta: Mapping[str, Any], robot: Robot, where: str = "tree") -
         TreeFileError: the tree's provenance is unreadable.
         RobotModelError: ``robot`` is placed in another plane, or has no home the tree names.
     """
-    prov = Provenance.of(meta, str(where))
-    if prov.home is not None:
-        robot = robot.with_home(prov.home, solved=True)
-    elif robot.home is None:
-        raise RobotModelError(
-            f"{where} names no home and {robot.toml_path} gives none: recompile the tree"
-        )
-    plane = prov.plane
+    robot = home_for_tree(meta, robot, where)
+    plane = Provenance.of(meta, str(where)).plane
     if robot.placement is not None:
         if robot.placement.identity != plane.identity or (
             not plane.identity and robot.placement != plane
