@@ -185,16 +185,16 @@ def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) 
     change of machine load hits them alike). Garbage is collected as the daemon does it:
     never inside a decision, after it when the interpreter's thresholds say so (untimed)."""
     from thinkfast.control.config import RunConfig
-    from thinkfast.robot.model import load_robot
     from thinkfast.sim.camera import CameraModelConfig
+    from thinkfast.sim.cli_options import throw_config, tree_cell
     from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.lockstep import World
-    from thinkfast.sim.throws import ThrowConfig, sample_throws
-    from thinkfast.tree.file import load_tree
+    from thinkfast.sim.throws import sample_throws
 
     cfg = RunConfig()
-    world = World(load_tree(tree_path), load_robot(), cfg, ServoConfig(), CameraModelConfig())
-    balls = sample_throws(ThrowConfig(), n_throws, seed=seed)
+    tree, robot, plane = tree_cell(tree_path, cfg)  # the tree's robot and cell
+    world = World(tree, robot, cfg, ServoConfig(), CameraModelConfig())
+    balls = sample_throws(throw_config(None, plane), n_throws, seed=seed)
     names = [*planners, *(f"{p} hedge stage" for p in planners)]
     out: dict[str, list[float]] = {p: [] for p in names}
     warm: dict[str, list[float]] = {p: [] for p in names}

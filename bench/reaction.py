@@ -30,13 +30,12 @@ import numpy as np
 
 from thinkfast.control.config import RunConfig
 from thinkfast.machine import machine_info
-from thinkfast.robot.model import load_robot
 from thinkfast.sim import lockstep as ls
 from thinkfast.sim.camera import CameraModelConfig, observe_cameras
 from thinkfast.sim.cli import with_cameras
+from thinkfast.sim.cli_options import tree_cell
 from thinkfast.sim.controller import ServoConfig
 from thinkfast.sim.throws import ThrowConfig, sample_throws
-from thinkfast.tree.file import load_tree
 
 DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"
 PLANNERS = ("tree", "tree-hedge-none", "naive")  # the default tree hedges; the gated one beside
@@ -46,7 +45,8 @@ _W: dict = {}
 def _init(tree: str, cameras: str | None = None, planners: tuple = PLANNERS) -> None:
     _W["planners"] = planners
     cfg = with_cameras(RunConfig(), cameras)
-    _W["world"] = ls.World(load_tree(tree), load_robot(), cfg, ServoConfig(), CameraModelConfig())
+    t, robot, _ = tree_cell(Path(tree), cfg)  # the tree's robot, placed in its plane
+    _W["world"] = ls.World(t, robot, cfg, ServoConfig(), CameraModelConfig())
 
 
 def _one(job) -> dict:
