@@ -196,15 +196,20 @@ def compile_cached(config: Path, path: Path) -> Path:
 
     The same config always gives the same tree, so each one is compiled once per machine and
     source state: test processes (parallel workers, the real-time step) share a cache keyed by
-    the config text and :func:`_compiler_sources_digest`, filled under a file lock; every caller
+    the config text, :func:`_compiler_sources_digest` and the files of the config's robot folder,
+    filled under a file lock; every caller
     gets its own copy (tests may damage theirs).
     """
     from thinkfast.compile.build import compile_tree
     from thinkfast.compile.config import load_compile_config
     from thinkfast.tree.file import save_tree
 
-    key = hashlib.sha256((config.read_text() + _compiler_sources_digest()).encode()).hexdigest()
-    key = key[:24]
+    h = hashlib.sha256((config.read_text() + _compiler_sources_digest()).encode())
+    robot_dir = load_compile_config(config).robot_path.parent  # a robot folder outside robots/
+    for f in sorted(robot_dir.glob("*")) if robot_dir.is_dir() else ():
+        if f.is_file():
+            h.update(f.name.encode() + f.read_bytes())
+    key = h.hexdigest()[:24]
     TREE_CACHE.mkdir(exist_ok=True)
     cached = TREE_CACHE / f"{key}.h5"
     with open(TREE_CACHE / f"{key}.lock", "w") as lock:

@@ -107,11 +107,13 @@ def bench(
     if cameras is not None:
         summary["cameras"] = ["base", *(c.id for c in cfg.cameras)]
     summary["tree_fingerprint"] = fingerprint  # PROVENANCE: where the numbers came from
+    summary["cell"] = cell_summary(robot, plane)  # the robot and plane that judged them
     summary["machine"] = machine_info()
     summary["versions"] = library_versions()
     if as_json:
         print(json.dumps(summary))
     else:
+        print(cell_line(summary["cell"]))
         print(format_summary(summary))
         print(f"({summary['seconds']} s)")
     if png is not None:
@@ -140,3 +142,29 @@ class WorldFactory:
 def _progress(done: int, total: int) -> None:
     if done == total or done % 25 == 0:
         print(f"  {done}/{total} throws", file=sys.stderr, flush=True)
+
+
+def cell_summary(robot, plane) -> dict:
+    """The cell a bench was flown and judged in, for its JSON: the robot (name, robot.toml and
+    URDF hashes, the home), the plane's pose in ``base`` and the region the throws aimed at."""
+    pose = robot.placement
+    return {
+        "robot": robot.name,
+        "robot_toml_sha256": robot.toml_sha256,
+        "urdf_sha256": robot.urdf_sha256,
+        "home": [float(x) for x in robot.home],
+        "plane": {k: float(getattr(pose, k)) for k in ("distance", "yaw", "offset", "base_height")}
+        if pose is not None
+        else {"distance": float(plane.plane_x)},
+        "region": {"y": list(plane.aim_y or ()), "z": list(plane.aim_z or ())},
+    }
+
+
+def cell_line(cell: dict) -> str:
+    """One line naming the bench's cell (:func:`cell_summary`)."""
+    p, r = cell["plane"], cell["region"]
+    pose = "".join(
+        f", {k} {p[k]:g}" for k in ("yaw", "offset", "base_height") if p.get(k, 0.0) != 0.0
+    )
+    region = f"y {r['y'][0]:g}..{r['y'][1]:g}, z {r['z'][0]:g}..{r['z'][1]:g} m" if r["y"] else ""
+    return f"cell: {cell['robot']}, plane x {p['distance']:g} m{pose}; region {region}"
