@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -163,8 +164,7 @@ def cell_summary(robot, plane) -> dict:
 def cell_line(cell: dict) -> str:
     """One line naming the bench's cell (:func:`cell_summary`)."""
     p, r = cell["plane"], cell["region"]
-    pose = "".join(
-        f", {k} {p[k]:g}" for k in ("yaw", "offset", "base_height") if p.get(k, 0.0) != 0.0
-    )
+    pose = f", yaw {p['yaw']:g} rad ({math.degrees(p['yaw']):.1f} deg)" if p.get("yaw") else ""
+    pose += "".join(f", {k} {p[k]:g} m" for k in ("offset", "base_height") if p.get(k))
     region = f"y {r['y'][0]:g}..{r['y'][1]:g}, z {r['z'][0]:g}..{r['z'][1]:g} m" if r["y"] else ""
     return f"cell: {cell['robot']}, plane x {p['distance']:g} m{pose}; region {region}"
