@@ -128,7 +128,7 @@ class FoxgloveView(DaemonView):
 
         self.sink = FoxgloveSink(host, port)
         painter = ChannelPainter(self.sink.emit, robot, tree_view.plane_x, tree_view.goal_yz)
-        super().__init__(painter, cfg, tree_view, joint_rate)
+        super().__init__(painter, cfg, tree_view, joint_rate, plane=robot.placement)
 
     @property
     def port(self) -> int:

@@ -117,9 +117,12 @@ class DaemonView:
         tree_view: the runtime tree (goal joints for the chosen goal).
         joint_rate: joint samples logged per second at most [Hz].
         queue: jobs kept at most; older ones are dropped (counted) when the view falls behind.
+        plane: the robot's plane (``Robot.placement``): raw detections are drawn in its frame.
     """
 
-    def __init__(self, painter: Painter, cfg, tree_view, joint_rate: float = 50.0, queue=512):
+    def __init__(
+        self, painter: Painter, cfg, tree_view, joint_rate: float = 50.0, queue=512, plane=None
+    ):
         from thinkfast.contract.detection import parse_detection
         from thinkfast.contract.frames import to_base
 
@@ -135,6 +138,8 @@ class DaemonView:
         self.next_joints = -math.inf
         self._parse, self._to_base = parse_detection, to_base
         self._R, self._p = cfg.camera.rotation(), cfg.camera.translation()
+        # raw detections are in base on the wire; the view draws in the frame of the estimates
+        self._plane = None if plane is None or plane.identity else plane
         self._last_motion: tuple | None = None
         self.status_msg: dict | None = None  # the daemon's last status message, not yet drawn
         self.next_status = -math.inf
@@ -220,7 +225,8 @@ class DaemonView:
         p = self.painter
         det = self._parse(s.payload, self.cfg.detections)
         if hasattr(det, "position"):
-            p.raw(s.t, self._to_base(det, self._R, self._p).position)
+            x = self._to_base(det, self._R, self._p).position
+            p.raw(s.t, x if self._plane is None else self._plane.to_plane(np.asarray(x, float)))
         if s.accepted is not None:
             p.accepted(s.t, s.accepted.position)
 
@@ -279,4 +285,4 @@ def daemon_view(text: str, robot, tree_view, cfg, joint_rate: float = 50.0) -> D
     sink = parse_sink(text)
     rec = open_stream(sink, f"thinkfast-run {time.strftime('%Y-%m-%d %H:%M:%S')}")
     painter = Painter(rec, robot, tree_view.plane_x, tree_view.goal_yz)
-    return DaemonView(painter, cfg, tree_view, joint_rate)
+    return DaemonView(painter, cfg, tree_view, joint_rate, plane=robot.placement)
