@@ -157,7 +157,9 @@ def test_limits_are_the_readme_table(toml):
     robot, _, _ = loaded(toml)
     rows = limits_table(toml)
     assert sorted(rows) == [1, 2, 3, 4, 5, 6], "README limits table: one row per joint"
-    lo, hi, vel, acc, jerk = (np.array(c) for c in zip(*(rows[j] for j in range(1, 7)), strict=True))
+    lo, hi, vel, acc, jerk = (
+        np.array(c) for c in zip(*(rows[j] for j in range(1, 7)), strict=True)
+    )
     assert np.allclose(robot.q_lower, np.radians(lo), atol=1e-9, rtol=0)
     assert np.allclose(robot.q_upper, np.radians(hi), atol=1e-9, rtol=0)
     assert np.allclose(robot.v_max, np.radians(vel), atol=1e-9, rtol=0)
