@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import numpy as np
 import pytest
 
 from tests.conftest import (
@@ -177,3 +178,27 @@ def test_the_daemon_refuses_a_run_config_naming_another_robot(tree_08, other_con
     ok = run_cli("thinkfast-run", "--check-config", str(own), "--tree", str(tree_08))
     assert ok.returncode == 0, ok.stderr
     assert ok.stdout.startswith(f"{own}: OK")
+
+
+def test_the_short_arm_misses_a_crossing_only_the_long_arm_reaches(tmp_path_factory):
+    """The newcomer's case: a ball crossing high in the middle (z 1.75 m on the plane at 0.8 m)
+    is blocked by the IRB 1600-10/1.45's oracle and missed by the IRB 1600-6/1.2's, tree and
+    oracle alike: the lockstep core, the oracle and the judge use the tree's arm, not the
+    default one (before, the 1.2 m arm's tree was flown and judged on the 1.45 m arm)."""
+    from thinkfast.control.config import RunConfig
+    from thinkfast.sim.bench import run_bench
+    from thinkfast.sim.bench_cli import WorldFactory
+    from thinkfast.sim.throws import ThrowConfig, make_throw
+
+    short = ROBOT_TOML.parents[1] / "irb1600_6_120" / "robot.toml"
+    trees = {
+        "1.45": compile_small_tree(tmp_path_factory.mktemp("long"), depth=1),
+        "1.2": compile_small_tree(tmp_path_factory.mktemp("short"), robot=short, depth=1),
+    }
+    throw = make_throw(ThrowConfig(), np.array([7.5, 0.0, 1.6]), (0.0, 1.75), 0.7, 0.5, "high")
+    got = {}
+    for arm, tree in trees.items():
+        rows = run_bench(WorldFactory(tree, RunConfig()), [throw], ["tree", "oracle"], 1, 1)
+        got[arm] = {o.planner: o.blocked for o in rows}
+    assert got["1.45"]["oracle"], got
+    assert not got["1.2"]["oracle"] and not got["1.2"]["tree"], got
