@@ -1,4 +1,5 @@
-"""``thinkfast-compile``: offline products (goal grid, action tree) and their inspection."""
+"""``thinkfast-compile``: offline products (goal grid, action tree, controller kit) and their
+inspection."""
 
 from __future__ import annotations
 
@@ -196,6 +197,41 @@ def verify(
         print(f"  ... and {len(report.problems) - 20} more")
     print("verify: OK" if report.ok else f"verify: FAILED ({len(report.problems)} problems)")
     raise typer.Exit(0 if report.ok else 1)
+
+
+@app.command()
+def kit(
+    robot_toml: Path = typer.Argument(..., help="the robot's robot.toml"),
+    output: Path | None = typer.Option(
+        None, "-o", "--output", help="directory to write (default: the robot folder's controller/)"
+    ),
+    check: bool = typer.Option(
+        False, "--check", help="write nothing; exit 1 naming each file that differs"
+    ),
+) -> None:
+    """Generate the controller kit (RAPID module, UDP device, Motion config, README) from
+    robot.toml: its home in degrees and EGM_MAX_SPEED_DEV (docs/EGM_CONTROLLER.md)."""
+    from thinkfast.compile.kit import controller_kit, kit_differences, robot_dir_label, write_kit
+    from thinkfast.robot.model import load_robot
+
+    robot = load_robot(robot_toml)
+    files = controller_kit(robot, robot_dir_label(robot_toml))
+    directory = output if output is not None else robot_toml.parent / "controller"
+    if check:
+        problems = kit_differences(files, directory)
+        for p in problems:
+            print(p)
+        if problems:
+            print(
+                f"thinkfast-compile: error: {len(problems)} of {len(files)} kit files differ: run "
+                f"thinkfast-compile kit {robot_toml}" + (f" -o {output}" if output else ""),
+                file=sys.stderr,
+            )
+            raise typer.Exit(1)
+        print(f"{directory}: up to date ({len(files)} files, {robot.name})")
+        return
+    for path in write_kit(files, directory):
+        print(f"wrote {path}")
 
 
 def main(argv: list[str] | None = None) -> None:
