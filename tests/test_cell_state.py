@@ -69,3 +69,14 @@ def test_json_turns_the_kit_requests_into_booleans():
     }  # fmt: skip
     assert out["motors_on"] and out["auto"] and out["tasks"][0]["name"] == "T_ROB1"
     assert json.loads(json.dumps(_state(ctrlstate="motoroff").to_json()))["motors_on"] is False
+
+
+def test_the_kit_module_is_named_for_its_robot_or_generically():
+    from thinkfast.cell.state import kit_module
+
+    assert "irb1600" not in KIT_MODULE and "thinkfast-compile kit" in KIT_MODULE
+    assert kit_module() == kit_module("") == KIT_MODULE
+    here = "ThinkfastEGM.mod from robots/irb2600_12_165/controller/"
+    assert kit_module("robots/irb2600_12_165") == kit_module("robots/irb2600_12_165/") == here
+    state = _state(kit=dict.fromkeys(KIT), kit_module=kit_module("robots/irb2600_12_165"))
+    assert start_blockers(state) == [f"T_ROB1 has no tf_status: load {here} into T_ROB1"]

@@ -3,12 +3,13 @@
 Speaks RWS 1.0 (RobotWare 6, IRC5) through ``abb_robot_client.rws.RWS`` (abb-robot-client 0.4.0,
 the ``cell`` extra); that library does not speak RobotWare 7's RWS 2.0 (docs/CELL_RWS.md).
 
-The kit's program (``robots/irb1600/controller/ThinkfastEGM.mod``) runs in one task
-(``T_ROB1``): started from main it moves home, clears ``tf_start_request`` and shows
-``tf_status`` "waiting"; ``tf_start_request`` TRUE opens one EGM session ("session");
-``tf_stop_request`` TRUE ends it with the module's ramp-out. :class:`Cell` follows that:
-``start`` waits for "waiting" before it requests (a request set while the program is still
-homing would be cleared and lost), ``stop`` waits for the session to end before an optional halt.
+The kit's program (``ThinkfastEGM.mod``, generated into each robot folder's ``controller/`` by
+``thinkfast-compile kit``) runs in one task (``T_ROB1``): started from main it moves home,
+clears ``tf_start_request`` and shows ``tf_status`` "waiting"; ``tf_start_request`` TRUE opens
+one EGM session ("session"); ``tf_stop_request`` TRUE ends it with the module's ramp-out.
+:class:`Cell` follows that: ``start`` waits for "waiting" before it requests (a request set
+while the program is still homing would be cleared and lost), ``stop`` waits for the session to
+end before an optional halt.
 
 Every failure is a :class:`~thinkfast.errors.CellError` with one line for a person: the
 controller unreachable or silent (:class:`~thinkfast.errors.CellUnreachable`), the password
@@ -25,7 +26,7 @@ from collections.abc import Callable
 from typing import Any
 from urllib.parse import urlsplit
 
-from thinkfast.cell.state import KIT_MODULE, KIT_VARIABLES, CellState, TaskInfo, start_blockers
+from thinkfast.cell.state import KIT_VARIABLES, CellState, TaskInfo, kit_module, start_blockers
 from thinkfast.errors import CellAuthError, CellError, CellRefused, CellUnreachable
 
 DEFAULT_URL = "http://127.0.0.1:80"  # RobotStudio virtual controller (RW6); real: the WAN IP
@@ -65,6 +66,8 @@ class Cell:
         task: RAPID task holding ThinkfastEGM.mod.
         timeout: per HTTP request [s].
         poll: interval of the reads while waiting for the program [s].
+        robot_dir: the robot folder whose kit the controller should hold (``robots/irb1600``),
+            for the messages; None: the kit named generically.
     """
 
     def __init__(
@@ -75,6 +78,7 @@ class Cell:
         task: str = DEFAULT_TASK,
         timeout: float = HTTP_TIMEOUT,
         poll: float = POLL,
+        robot_dir: str | None = None,
     ):
         try:
             from abb_robot_client.rws import RWS, ABBException
@@ -88,6 +92,7 @@ class Cell:
         self.task = task
         self.timeout = timeout
         self.poll = poll
+        self.kit_module = kit_module(robot_dir)
         self._abb_exception = ABBException
         self.rws = RWS(self.url, user, password)
 
@@ -181,6 +186,7 @@ class Cell:
             tasks=infos,
             kit_task=self.task,
             kit=kit,
+            kit_module=self.kit_module,
         )
 
     def _progress(self) -> tuple[str, str | None]:
@@ -296,7 +302,9 @@ class Cell:
         """
         state = self.read_state()
         if state.status is None:
-            raise CellRefused(f"{self.task} has no tf_status: load {KIT_MODULE} into {self.task}")
+            raise CellRefused(
+                f"{self.task} has no tf_status: load {self.kit_module} into {self.task}"
+            )
         problem: CellError | None = None
         if state.running and state.status == "session":
             self._request("tf_stop_request")

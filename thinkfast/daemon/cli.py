@@ -25,7 +25,8 @@ from thinkfast.control.planners import registry
 app = make_app("thinkfast runtime daemon: ball detections over zenoh in, EGM setpoints out.")
 
 # Where the daemon serves EGM. The controller's UDP unicast device sends to this port
-# (robots/irb1600/controller/sys_cfg_udpuc.cfg; tests/test_controller_kit.py keeps them equal).
+# (the kit's sys_cfg_udpuc.cfg, robots/<name>/controller/; tests/test_controller_kit.py keeps
+# them equal).
 EGM_BIND_DEFAULT = "0.0.0.0:6510"
 
 

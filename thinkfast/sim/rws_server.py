@@ -15,12 +15,13 @@ Resources: ``rw/panel/ctrlstate`` (GET; POST ``setctrlstate``), ``rw/panel/opmod
 ``rw/rapid/tasks`` (GET), ``rw/rapid/tasks/{task}`` (POST ``activate``, ``deactivate``),
 ``rw/rapid/symbol/data/RAPID/{task}/{name}`` (GET; POST ``set``). Nothing else.
 
-The simulated program is ``robots/irb1600/controller/ThinkfastEGM.mod`` reduced to its state
-machine (:meth:`FakeRwsController._step_program`): started from main it is "homing" for
-``home_time``, then clears ``tf_start_request`` and shows "waiting"; a start request opens a
-"session" (or, with ``egm_peer=False``, the session is "lost" after ``comm_timeout`` and the
-program stops, as on ``ERR_UDPUC_COMM``); a stop request ends the session after ``ramp_out``
-and the program waits again. Motors off stops the program, as the controller does.
+The simulated program is the kit's ``ThinkfastEGM.mod`` (``robots/<name>/controller/``, the
+same RAPID for every robot) reduced to its state machine
+(:meth:`FakeRwsController._step_program`): started from main it is "homing" for ``home_time``,
+then clears ``tf_start_request`` and shows "waiting"; a start request opens a "session" (or,
+with ``egm_peer=False``, the session is "lost" after ``comm_timeout`` and the program stops, as
+on ``ERR_UDPUC_COMM``); a stop request ends the session after ``ramp_out`` and the program
+waits again. Motors off stops the program, as the controller does.
 
 What is NOT modelled: mastership (RW6 takes RAPID mastership implicitly for a variable write
 and fails when another client holds it), RMMP in manual mode, session cookies (``ABBCX``,
