@@ -100,6 +100,9 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check thinkfast tests bench
 	$(VENV)/bin/ruff format --check thinkfast tests bench
 	$(VENV)/bin/lint-imports
+	@# every robot folder's controller kit is what robot.toml gives (thinkfast-compile kit)
+	@for t in robots/*/robot.toml; do [ ! -d "$${t%/robot.toml}/controller" ] || \
+	  $(VENV)/bin/thinkfast-compile kit "$$t" --check || exit 1; done
 
 bench: $(STAMP) $(KERNELS) $(TREE)
 	$(PY) bench/compile.py
