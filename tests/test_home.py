@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -160,3 +161,31 @@ def test_calibration_takes_the_trees_robot_and_home_in_base(solved_tree, tmp_pat
     assert np.array_equal(robot.home, Provenance.of(load_meta(solved_tree)).home)
     with pytest.raises(RobotModelError, match="another robot than the tree's"):
         _robot(ROBOT_TOML, solved_tree)
+
+
+def test_the_kit_of_a_solved_home_tree_homes_the_arm_there(solved_tree, tmp_path):
+    """``thinkfast-compile kit ROBOT --tree T``: the RAPID module's TF_HOME is the tree's
+    home; the simulated controller refuses a kit that homes elsewhere (the daemon would find
+    the arm away from home) and caps joint speeds at the kit's EGM_MAX_SPEED_DEV."""
+    from tests.conftest import run_cli
+    from thinkfast.compile.kit import read_kit
+    from thinkfast.sim.irc5_cli import controller_cell
+    from thinkfast.tree.file import load_meta
+    from thinkfast.tree.provenance import Provenance
+
+    home = np.array(Provenance.of(load_meta(solved_tree)).home)
+    toml = Path(load_meta(solved_tree)["config_path"]).parent / "nohome" / "robot.toml"
+    kit = tmp_path / "kit"
+    proc = run_cli(
+        "thinkfast-compile", "kit", str(toml), "--tree", str(solved_tree), "-o", str(kit)
+    )
+    assert proc.returncode == 0, proc.stderr
+    got = read_kit(kit)
+    assert np.max(np.abs(np.array(got.home) - home)) < 1e-6
+    robot, servo, _ = controller_cell(solved_tree, None, None, kit)
+    assert max(servo.v_max) <= got.max_speed_deviation + 1e-12
+    assert min(servo.v_max) == pytest.approx(min(robot.v_max), abs=2e-8)  # rounded down only
+    other = tmp_path / "default_kit"
+    run_cli("thinkfast-compile", "kit", str(ROBOT_TOML), "-o", str(other))
+    with pytest.raises(ConfigError, match=r"TF_HOME.*away from home.*--tree"):
+        controller_cell(solved_tree, None, None, other)

@@ -208,15 +208,46 @@ def kit(
     check: bool = typer.Option(
         False, "--check", help="write nothing; exit 1 naming each file that differs"
     ),
+    tree: Path | None = typer.Option(
+        None,
+        "--tree",
+        help="the cell's tree: its home (a solved one) instead of robot.toml's; the robot must "
+        "be the tree's (default output: TREE's name + .controller/ beside it)",
+    ),
 ) -> None:
     """Generate the controller kit (RAPID module, UDP device, Motion config, README) from
-    robot.toml: its home in degrees and EGM_MAX_SPEED_DEV (docs/EGM_CONTROLLER.md)."""
-    from thinkfast.compile.kit import controller_kit, kit_differences, robot_dir_label, write_kit
+    robot.toml: its home in degrees and EGM_MAX_SPEED_DEV (docs/EGM_CONTROLLER.md). A cell
+    whose tree solved its own home (docs/ROBOTS.md, "Home") needs the kit of that tree."""
+    from thinkfast.compile.kit import (
+        capped_joints,
+        controller_kit,
+        kit_differences,
+        robot_dir_label,
+        write_kit,
+    )
     from thinkfast.robot.model import load_robot
 
-    robot = load_robot(robot_toml)
-    files = controller_kit(robot, robot_dir_label(robot_toml))
-    directory = output if output is not None else robot_toml.parent / "controller"
+    source = None
+    if tree is not None:
+        from thinkfast.tree.file import load_meta
+        from thinkfast.tree.robot_match import robot_for_tree
+
+        robot = robot_for_tree(load_meta(tree), str(tree), robot_toml, placed=False)
+        source = f"the home of the tree {tree.name}"
+        default = tree.with_suffix(".controller")
+    else:
+        robot = load_robot(robot_toml)
+        default = robot_toml.parent / "controller"
+    files = controller_kit(robot, robot_dir_label(robot_toml), source)
+    directory = output if output is not None else default
+    capped = capped_joints(robot)
+    if capped and not check:
+        names = ", ".join(robot.joint_names[i] for i in capped)
+        print(
+            f"note: EGM caps every joint at the slowest max_velocity; {names} may go faster by "
+            "robot.toml and lag a plan that uses it (docs/EGM_CONTROLLER.md, MaxSpeedDeviation)",
+            file=sys.stderr,
+        )
     if check:
         problems = kit_differences(files, directory)
         for p in problems:

@@ -23,10 +23,13 @@ RAPID logic, the EGM arguments of docs/EGM_CONTROLLER.md's table, port 6510, the
 from __future__ import annotations
 
 import math
+import re
 from importlib import resources
 from pathlib import Path
 from string import Template
+from typing import NamedTuple
 
+from thinkfast.errors import ConfigError
 from thinkfast.robot.model import Robot
 
 KIT_FILES = (
@@ -168,3 +171,44 @@ def write_kit(kit: dict[str, str], directory: Path) -> list[Path]:
         path.write_bytes(text.encode("utf-8"))
         paths.append(path)
     return paths
+
+
+class KitSettings(NamedTuple):
+    """What a kit's RAPID module makes the controller do that the daemon depends on."""
+
+    home: tuple[float, ...]  # TF_HOME [rad] (the module holds degrees)
+    max_speed_deviation: float  # EGM_MAX_SPEED_DEV [rad/s] (the module holds deg/s)
+
+
+_TF_HOME = re.compile(r"CONST jointtarget TF_HOME := \[\[([^\]]*)\]")
+_SPEED = re.compile(r"CONST num EGM_MAX_SPEED_DEV := ([0-9.eE+-]+);")
+
+
+def read_kit(directory: Path) -> KitSettings:
+    """The home and the EGM speed cap of the kit in ``directory`` (its ThinkfastEGM.mod).
+
+    Raises:
+        ConfigError: the module is missing or holds no TF_HOME / EGM_MAX_SPEED_DEV line.
+    """
+    path = Path(directory) / "ThinkfastEGM.mod"
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        why = f"cannot read the kit's module ({exc.strerror})"
+        raise ConfigError(str(path), None, why) from None
+    home, speed = _TF_HOME.search(text), _SPEED.search(text)
+    if home is None or speed is None:
+        missing = "TF_HOME" if home is None else "EGM_MAX_SPEED_DEV"
+        raise ConfigError(str(path), missing, "not found: is this a thinkfast controller kit?")
+    try:
+        deg = [float(x) for x in home.group(1).split(",")]
+    except ValueError:
+        raise ConfigError(str(path), "TF_HOME", f"not numbers: {home.group(1)!r}") from None
+    return KitSettings(tuple(math.radians(x) for x in deg), math.radians(float(speed.group(1))))
+
+
+def capped_joints(robot: Robot) -> list[int]:
+    """Joints whose robot.toml ``max_velocity`` is above the kit's EGM speed cap: the controller
+    holds them to the cap, so a plan faster than it lags on them."""
+    cap = max_speed_deviation(robot) + SPEED_SLACK
+    return [i for i, v in enumerate(robot.v_max) if math.degrees(v) > cap]

@@ -34,6 +34,13 @@ def controller(
         help="the daemon's tree: the arm is its robot (home, servo limits) and "
         "throws aim at its plane (default: the run config's robot, else the default robot)",
     ),
+    kit: Path | None = typer.Option(
+        None,
+        "--kit",
+        help="the controller kit loaded (its controller/ folder): the program homes to its "
+        "TF_HOME, EGM caps joint speeds at its EGM_MAX_SPEED_DEV; refused when its home is "
+        "not the tree's",
+    ),
 ) -> None:
     """A simulated IRC5 on this machine: RWS over HTTP (thinkfast-cell) and EGM over UDP to the
     daemon while the kit's RAPID program is in a session (docs/CELL.md, rehearsal); with
@@ -51,7 +58,7 @@ def controller(
     host, port = parse_hostport(rws, "--rws")
     if throws < 0 or (throws > 0 and zenoh is None):
         raise ConfigError("--throws", None, "a count >= 0; with throws, give --zenoh")
-    robot, cfg, plane = controller_cell(tree, config, servo)
+    robot, cfg, plane = controller_cell(tree, config, servo, kit)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     logging.getLogger("thinkfast.sim.controller").setLevel(logging.ERROR)  # overrun chatter
     irc5 = SimIrc5(target, host, port, cfg, q0=robot.home)
@@ -82,7 +89,9 @@ def controller(
     print("simulated IRC5 stopped", flush=True)
 
 
-def controller_cell(tree: Path | None, config: str | None, servo: str | None):
+def controller_cell(
+    tree: Path | None, config: str | None, servo: str | None, kit: Path | None = None
+):
     """The simulated arm of ``thinkfast-sim controller``: (robot, servo model, plane).
 
     Args:
@@ -90,6 +99,9 @@ def controller_cell(tree: Path | None, config: str | None, servo: str | None):
         config: the daemon's run config (its ``robot``, when set, must be the tree's).
         servo: TOML of :class:`~thinkfast.sim.controller.ServoConfig` keys (None: defaults);
             limits it leaves out are the robot's.
+        kit: the controller kit's folder (None: a kit made for this robot and home is
+            assumed): its home must be the robot's (the tree's), within :data:`KIT_HOME_TOL`;
+            its EGM speed cap bounds the simulated arm's joint speeds, as on the controller.
 
     Returns:
         The :class:`~thinkfast.robot.model.Robot` (its ``home`` is where the arm starts), the
@@ -115,7 +127,43 @@ def controller_cell(tree: Path | None, config: str | None, servo: str | None):
         robot, plane = load_robot(Path(cfg.robot) if cfg.robot else None), None
         robot.require_home("pass --tree: the tree names the home the arm starts at")
     model = ServoConfig() if servo is None else from_dict(ServoConfig, load_toml(servo), servo)
-    return robot, servo_for(robot, model, str(servo or "servo")), plane
+    limits = servo_for(robot, model, str(servo or "servo"))
+    if kit is not None:
+        limits = _with_kit(robot, limits, kit, tree)
+    return robot, limits, plane
+
+
+KIT_HOME_TOL = 1e-5  # rad: the kit's TF_HOME holds 4 decimals of a degree (5e-5 deg = 9e-7 rad)
+
+
+def _with_kit(robot, servo, kit: Path, tree: Path | None):
+    """``servo`` with the kit's EGM speed cap, after checking the kit homes the arm to the
+    robot's (the tree's) home.
+
+    Raises:
+        ConfigError: the kit's home is another (names both, and the command that makes the
+            right kit).
+    """
+    import dataclasses
+
+    import numpy as np
+
+    from thinkfast.compile.kit import read_kit
+    from thinkfast.errors import ConfigError
+
+    settings = read_kit(kit)
+    home = np.asarray(settings.home)
+    if home.shape != robot.home.shape or np.max(np.abs(home - robot.home)) > KIT_HOME_TOL:
+        deg = lambda q: [round(float(np.degrees(x)), 4) for x in q]  # noqa: E731
+        fix = f" --tree {tree}" if tree is not None else ""
+        raise ConfigError(
+            str(kit), "TF_HOME", f"the kit homes the arm to {deg(home)} deg, but "
+            f"{tree or robot.toml_path}'s home is {deg(robot.home)} deg: the daemon would find "
+            f"the arm away from home; generate the kit for it: thinkfast-compile kit "
+            f"{robot.toml_path}{fix}",
+        )  # fmt: skip
+    cap = settings.max_speed_deviation
+    return dataclasses.replace(servo, v_max=tuple(min(float(v), cap) for v in servo.v_max))
 
 
 def _throw(irc5, robot, n, zenoh: str, prefix: str, seed: int, config, plane, stopping) -> None:
