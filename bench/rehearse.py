@@ -44,7 +44,7 @@ def until(pred, timeout: float) -> bool:
     return False
 
 
-def rehearse(tree: Path, throws: int, seed: int, workdir: Path) -> dict:
+def rehearse(tree: Path, throws: int, seed: int, workdir: Path, use_kit: bool = True) -> dict:
     import socket
 
     from thinkfast.tree.file import load_meta
@@ -66,7 +66,8 @@ def rehearse(tree: Path, throws: int, seed: int, workdir: Path) -> dict:
     lines: list[str] = []
     ctl = subprocess.Popen(
         [str(BIN / "thinkfast-sim"), "controller", "--egm", f"127.0.0.1:{egm}", "--rws",
-         f"127.0.0.1:{rws}", "--tree", str(tree), "--kit", str(kit), "--throws", str(throws),
+         f"127.0.0.1:{rws}", "--tree", str(tree), *(["--kit", str(kit)] if use_kit else []),
+         "--throws", str(throws),
          "--seed", str(seed), "--zenoh", f"tcp/127.0.0.1:{zen}"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
@@ -78,9 +79,13 @@ def rehearse(tree: Path, throws: int, seed: int, workdir: Path) -> dict:
     time.sleep(2.0)  # the daemon's zenoh and EGM sockets up
     start = subprocess.run([str(BIN / "thinkfast-cell"), "start", "--url", url],
                            capture_output=True, text=True)  # fmt: skip
-    done = ok and start.returncode == 0 and until(
-        lambda: any(ln.startswith(("blocked ", "throws stopped")) for ln in lines),
-        30 + 3 * throws,
+    done = (
+        ok
+        and start.returncode == 0
+        and until(
+            lambda: any(ln.startswith(("blocked ", "throws stopped")) for ln in lines),
+            30 + 3 * throws,
+        )
     )
     for p in (ctl, daemon):
         p.send_signal(signal.SIGINT)
@@ -100,6 +105,7 @@ def rehearse(tree: Path, throws: int, seed: int, workdir: Path) -> dict:
         "away_from_home": text.count("away_from_home"),
         "interventions": text.count("intervention"),
         "daemon_exit": daemon.returncode,
+        "warnings": [ln for ln in text.splitlines() if " WARNING " in ln or " ERROR " in ln],
     }
 
 
@@ -108,15 +114,18 @@ def main() -> int:
     ap.add_argument("trees", nargs="+", type=Path)
     ap.add_argument("--throws", type=int, default=10)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--no-kit", action="store_true", help="the simulated IRC5 without the kit")
     a = ap.parse_args()
     ok = True
     with tempfile.TemporaryDirectory(prefix="thinkfast-rehearse-") as d:
         for tree in a.trees:
-            r = rehearse(tree.resolve(), a.throws, a.seed, Path(d))
+            r = rehearse(tree.resolve(), a.throws, a.seed, Path(d), not a.no_kit)
             print(f"== {r['tree']} ({r['robot']}): done {r['done']}, daemon exit "
                   f"{r['daemon_exit']}, away_from_home lines {r['away_from_home']}, "
                   f"intervention lines {r['interventions']}")  # fmt: skip
             print("\n".join(r["lines"]))
+            for w in r["warnings"][:8]:
+                print(f"  daemon: {w[:240]}")
             ok &= r["done"] and r["daemon_exit"] == 0
     print(f"load average at the end: {[round(x, 2) for x in os.getloadavg()]}")
     return 0 if ok else 1

@@ -222,6 +222,7 @@ def kit(
         capped_joints,
         controller_kit,
         kit_differences,
+        max_speed_deviation,
         robot_dir_label,
         write_kit,
     )
@@ -244,8 +245,9 @@ def kit(
     if capped and not check:
         names = ", ".join(robot.joint_names[i] for i in capped)
         print(
-            f"note: EGM caps every joint at the slowest max_velocity; {names} may go faster by "
-            "robot.toml and lag a plan that uses it (docs/EGM_CONTROLLER.md, MaxSpeedDeviation)",
+            f"note: EGM caps every joint at {max_speed_deviation(robot)} deg/s (the fastest "
+            f"positioning joint); {names} may go faster by robot.toml and are held to it "
+            "(docs/EGM_CONTROLLER.md, MaxSpeedDeviation)",
             file=sys.stderr,
         )
     if check:

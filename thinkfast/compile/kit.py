@@ -10,11 +10,13 @@ RAPID logic, the EGM arguments of docs/EGM_CONTROLLER.md's table, port 6510, the
 - ``TF_HOME``: the home [rad], in degrees with 4 decimals (a value that rounds to zero is ``0``).
   RAPID's ``num`` is a 32-bit float, about 7 significant digits: 4 decimals is what it holds of
   a joint angle; the controller moves home within 5e-5 deg of the home.
-- ``EGM_MAX_SPEED_DEV``: the slowest joint's ``max_velocity`` [deg/s], rounded DOWN to an
-  integer, so that the cap exceeds no joint's limit (ABB advises no value above the slowest
-  axis's top speed; docs/EGM_CONTROLLER.md, ``\\MaxSpeedDeviation``). A value within 1e-6 deg/s
-  below an integer (rad/s typed from a whole deg/s) counts as that integer.
-- comments: the robot's name and robot.toml in the headers, the joints of the slowest velocity,
+- ``EGM_MAX_SPEED_DEV``: the fastest positioning joint's ``max_velocity`` [deg/s], rounded UP
+  to an integer (:func:`max_speed_deviation`): EGM caps every joint at it, and a cap below a
+  speed the tree plans makes the arm lag the plan (docs/EGM_CONTROLLER.md,
+  ``\\MaxSpeedDeviation``). A value within 1e-6 deg/s above an integer (rad/s typed from a
+  whole deg/s) counts as that integer. Wrist joints faster than the cap are held to it
+  (:func:`capped_joints`; ``thinkfast-compile kit`` says which).
+- comments: the robot's name and robot.toml in the headers, the joints of that velocity,
   the longest ``v_max / a_max`` (the stop the ramp-out time is set against).
 
 :func:`controller_kit` is pure: the same robot and folder label give the same bytes.
@@ -75,9 +77,13 @@ def rapid_degrees(q: float) -> str:
 
 
 def max_speed_deviation(robot: Robot) -> int:
-    """``\\MaxSpeedDeviation`` [deg/s]: the slowest ``max_velocity``, rounded down."""
-    slowest = min(math.degrees(v) for v in robot.v_max)
-    return math.floor(slowest + SPEED_SLACK)
+    """``\\MaxSpeedDeviation`` [deg/s]: the fastest positioning joint's ``max_velocity``,
+    rounded up: EGM caps every joint at this one speed, and a cap below a speed the tree plans
+    makes the arm lag the plan until the daemon's deviation check brakes (the IRB 1600-6/1.2 at
+    the slowest joint's 150 deg/s: docs/EGM_CONTROLLER.md). The daemon itself never commands a
+    joint above its own ``max_velocity``."""
+    fastest = max(math.degrees(v) for v in robot.v_max[: robot.n_arm])
+    return math.ceil(fastest - SPEED_SLACK)
 
 
 def kit_values(robot: Robot, robot_dir: str | Path, home_source: str | None = None) -> dict:
@@ -94,8 +100,8 @@ def kit_values(robot: Robot, robot_dir: str | Path, home_source: str | None = No
     """
     toml = f"{Path(robot_dir).as_posix()}/{robot.toml_path.name}"
     home = robot.require_home(f"give {toml} a home (a tree's: thinkfast-compile info TREE)")
-    v_deg = [math.degrees(v) for v in robot.v_max]
-    slowest = min(v_deg)
+    v_deg = [math.degrees(v) for v in robot.v_max[: robot.n_arm]]
+    fastest = max(v_deg)
     stops = [f"{v / a:.2f}" for v, a in zip(robot.v_max, robot.a_max, strict=True)]
     longest = max(stops, key=float)
     return {
@@ -104,9 +110,9 @@ def kit_values(robot: Robot, robot_dir: str | Path, home_source: str | None = No
         "home_source": home_source or f"{toml} `home`",
         "home_deg": ", ".join(rapid_degrees(float(q)) for q in home),
         "max_speed_dev": str(max_speed_deviation(robot)),
-        "v_slowest": f"{round(slowest, 3):g}",
-        "v_slowest_joints": format_joints(
-            [i for i, v in enumerate(v_deg) if v <= slowest + SPEED_SLACK]
+        "v_fastest": f"{round(fastest, 3):g}",
+        "v_fastest_joints": format_joints(
+            [i for i, v in enumerate(v_deg) if v >= fastest - SPEED_SLACK]
         ),
         "stop_time": longest,
         "stop_joints": format_joints([i for i, s in enumerate(stops) if s == longest]),

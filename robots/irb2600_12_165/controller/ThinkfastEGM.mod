@@ -37,9 +37,10 @@ MODULE ThinkfastEGM
     CONST num EGM_SAMPLE_RATE := 4; ! [ms]
     ! EGMActJoint \LpFilter [Hz]: bandwidth of the controller's reference filter.
     CONST num EGM_LP_FILTER := 20; ! [Hz]
-    ! EGMActJoint \MaxSpeedDeviation [deg/s]: joint speed cap of EGM; the slowest
-    ! max_velocity of robot.toml (175 deg/s, joints 1-3), rounded down to whole deg/s.
-    ! For the first tests lower max_velocity and generate the kit again.
+    ! EGMActJoint \MaxSpeedDeviation [deg/s]: joint speed cap of EGM, every joint; the
+    ! fastest positioning max_velocity of robot.toml (175 deg/s, joints 1-3),
+    ! rounded up: a lower cap makes the arm lag the tree's plan. For the first tests lower
+    ! max_velocity and generate the kit again.
     CONST num EGM_MAX_SPEED_DEV := 175; ! [deg/s]
     ! EGMActJoint \J1..\J6 [deg]: convergence window per joint (only matters with
     ! \CondTime).

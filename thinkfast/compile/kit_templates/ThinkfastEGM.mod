@@ -36,9 +36,10 @@ ${header}
     CONST num EGM_SAMPLE_RATE := 4; ! [ms]
     ! EGMActJoint \LpFilter [Hz]: bandwidth of the controller's reference filter.
     CONST num EGM_LP_FILTER := 20; ! [Hz]
-    ! EGMActJoint \MaxSpeedDeviation [deg/s]: joint speed cap of EGM; the slowest
-    ! max_velocity of robot.toml (${v_slowest} deg/s, ${v_slowest_joints}), rounded down to whole deg/s.
-    ! For the first tests lower max_velocity and generate the kit again.
+    ! EGMActJoint \MaxSpeedDeviation [deg/s]: joint speed cap of EGM, every joint; the
+    ! fastest positioning max_velocity of robot.toml (${v_fastest} deg/s, ${v_fastest_joints}),
+    ! rounded up: a lower cap makes the arm lag the tree's plan. For the first tests lower
+    ! max_velocity and generate the kit again.
     CONST num EGM_MAX_SPEED_DEV := ${max_speed_dev}; ! [deg/s]
     ! EGMActJoint \J1..\J6 [deg]: convergence window per joint (only matters with
     ! \CondTime).
