@@ -24,7 +24,7 @@ class Segment(NamedTuple):
         kind: EDGE, TERMINAL, STEER, RETURN or HOLD.
         t0: wall time at which the trajectory's time 0 is commanded [s].
         traj: Ruckig trajectory (None for HOLD).
-        end: state (9,) held after the trajectory (p [rad], v, a).
+        end: state (3n,) held after the trajectory (p [rad], v, a of its n joints).
         duration: how long the segment runs before the next decision [s] (eps for tree edges).
         ref: tree node (EDGE), terminal edge (TERMINAL) or goal (STEER) index; -1 otherwise.
     """
@@ -41,7 +41,7 @@ class Segment(NamedTuple):
         return self.t0 + self.duration
 
     def state(self, t: float) -> np.ndarray:
-        """Commanded state (9,) at wall time ``t`` (held after the end)."""
+        """Commanded state (3n,) at wall time ``t`` (held after the end)."""
         if self.traj is None:
             return self.end
         s = min(max(t - self.t0, 0.0), self.duration, self.traj.duration)

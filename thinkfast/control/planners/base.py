@@ -154,5 +154,5 @@ class Planner:
         goal = self.tree.nearest_goal(c.mean[:2])
         seg = self.timeline.segment
         if not (seg.kind == STEER and seg.ref == goal):
-            self.timeline.steer_to(self.tree.goal_q[goal, :3], goal, b.t_now)
+            self.timeline.steer_to(self.tree.goal_q[goal, : self.n_arm], goal, b.t_now)
         return Act(leave=True)
