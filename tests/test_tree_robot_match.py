@@ -202,3 +202,21 @@ def test_the_short_arm_misses_a_crossing_only_the_long_arm_reaches(tmp_path_fact
         got[arm] = {o.planner: o.blocked for o in rows}
     assert got["1.45"]["oracle"], got
     assert not got["1.2"]["oracle"] and not got["1.2"]["tree"], got
+
+
+def test_a_robot_positioning_with_other_joints_than_the_trees_is_refused(tree_10):
+    """The tree's node states hold the robot's positioning joints (``robot.n_arm``): a robot
+    whose split differs is refused before any planning."""
+    import dataclasses
+
+    from thinkfast.control.config import RunConfig
+    from thinkfast.decide.tree_view import runtime_tree
+    from thinkfast.errors import RobotModelError
+    from thinkfast.tree.file import load_tree
+    from thinkfast.tree.robot_match import robot_for_tree
+
+    tree = load_tree(tree_10)
+    robot = robot_for_tree(tree.meta, str(tree_10))
+    runtime_tree(tree, robot, RunConfig())
+    with pytest.raises(RobotModelError, match="plans 3 of 6 joints.*with 2 of 6"):
+        runtime_tree(tree, dataclasses.replace(robot, positioning_joints=2), RunConfig())

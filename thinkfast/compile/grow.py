@@ -57,7 +57,7 @@ class GrowInputs:
 
     robot: Robot
     tree: TreeConfig
-    goal_q: np.ndarray  # (G, 6) [rad]
+    goal_q: np.ndarray  # (G, n_joints) [rad]
     subgoal_goal: np.ndarray  # (K,) indices into goal_q
 
 
@@ -67,7 +67,8 @@ _W: dict[str, Any] = {}  # per-process worker state
 def _init_worker(inputs: GrowInputs) -> None:
     robot, cfg = inputs.robot, inputs.tree
     _W["inputs"] = inputs
-    _W["steer"] = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
+    n = robot.n_arm  # the tree's joints, q[:n]
+    _W["steer"] = Steering(robot.v_max[:n], robot.a_max[:n], robot.j_max[:n])
     _W["check"] = PathChecker(robot, cfg.collision_resolution, cfg.position_margin, cfg.sample_dt)
     _W["sampler"] = ShieldSampler(robot)
     dt = sample_spacing(cfg.eps, cfg.shield_dt)
@@ -76,14 +77,14 @@ def _init_worker(inputs: GrowInputs) -> None:
 
 
 def _expand(chunk: list[tuple[int, np.ndarray, np.ndarray]]) -> tuple[list, Counter]:
-    """Children of each (node, state (9,), wrist (3,)) in ``chunk``."""
+    """Children of each (node, state (3 n_arm,), wrist (n_joints - n_arm,)) in ``chunk``."""
     inputs, steer = _W["inputs"], _W["steer"]
-    eps = inputs.tree.eps
+    eps, n = inputs.tree.eps, inputs.robot.n_arm
     why, moves = Counter(), []
     for node, state, wrist in chunk:
         for k, g in enumerate(inputs.subgoal_goal):
             try:
-                traj = steer.steer(state, inputs.goal_q[g, :3])
+                traj = steer.steer(state, inputs.goal_q[g, :n])
             except NoSolutionError:
                 why["steering_failed"] += 1
                 continue
@@ -138,11 +139,11 @@ def _connect(chunk: list[tuple[int, np.ndarray, np.ndarray, list[int]]]) -> tupl
     """Terminal edges of each (leaf, state, wrist, goals) in ``chunk``: (leaf, goal, duration,
     shield centres (n, 3) every shield_dt from 0 to one sample past the end)."""
     inputs, steer = _W["inputs"], _W["steer"]
-    why, moves = Counter(), []
+    why, moves, n = Counter(), [], inputs.robot.n_arm
     for leaf, state, wrist, goals in chunk:
         for g in goals:
             try:
-                traj = steer.steer(state, inputs.goal_q[g, :3])
+                traj = steer.steer(state, inputs.goal_q[g, :n])
             except NoSolutionError:
                 why["steering_failed"] += 1
                 continue
@@ -212,18 +213,20 @@ def grow(
 
     Args:
         inputs: robot, tree parameters, goals and sub-goals.
-        leaf_plane_yz: maps configurations (L, 6) [rad] to shield centres on the plane (L, 2).
+        leaf_plane_yz: maps configurations (L, n_joints) [rad] to shield centres on the plane
+            (L, 2).
         goal_yz: goal positions on the plane (G, 2) [m].
         jobs: worker processes (1: in this process).
         progress: called with (phase, done, total).
     """
     robot, cfg = inputs.robot, inputs.tree
-    root_state = np.r_[robot.home[:3], np.zeros(6)]
+    n = robot.n_arm  # the tree's joints (node states: p, v, a of q[:n]); the wrist's: q[n:]
+    root_state = np.r_[robot.home[:n], np.zeros(2 * n)]
     parent, depth, kind = [-1], [0], [EDGE_REACHED]
     duration, target, ttc = [0.0], [-1], [0.0]
-    state, wrist = [root_state], [robot.home[3:].copy()]
+    state, wrist = [root_state], [robot.home[n:].copy()]
     k_edge = steps_per_edge(cfg.eps, sample_spacing(cfg.eps, cfg.shield_dt))
-    root_q = np.broadcast_to(root_state[:3], (1, k_edge + 1, 3))
+    root_q = np.broadcast_to(root_state[:n], (1, k_edge + 1, n))
     shield = [ShieldSampler(robot).centres(root_q)[0]]  # the root's stub stays at home
     tree_why, term_why = Counter(), Counter()
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
@@ -264,8 +267,8 @@ def grow(
         duration=np.array(duration, np.float64),
         target=np.array(target, np.int32),
         ttc=np.array(ttc, np.float64),
-        state=np.array(state, np.float64).reshape(-1, 9),
-        wrist=np.array(wrist, np.float64).reshape(-1, 3),
+        state=np.array(state, np.float64).reshape(-1, 3 * n),
+        wrist=np.array(wrist, np.float64).reshape(-1, robot.n_joints - n),
         edge_shield=np.array(shield, np.float64),
         terminals=[t[:3] for t in terms],
         terminal_shield=[t[3] for t in terms],
@@ -276,9 +279,9 @@ def grow(
 
 def _connect_plan(inputs: GrowInputs, depth, state, wrist, plane_yz, goal_yz):
     """(node, sorted goal indices) for every node that gets terminal edges, in node order."""
-    cfg = inputs.tree
+    cfg, n = inputs.tree, inputs.robot.n_arm
     depth = np.asarray(depth)
-    q = np.column_stack([np.asarray(state)[:, :3], np.asarray(wrist)])
+    q = np.column_stack([np.asarray(state)[:, :n], np.asarray(wrist)])
     d = microns(np.linalg.norm(plane_yz(q)[:, None, :] - goal_yz[None, :, :], axis=2))  # (N, G)
     link = d <= microns(cfg.connect_radius)
     leaves = np.flatnonzero(depth == cfg.max_depth)

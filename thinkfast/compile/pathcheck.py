@@ -88,6 +88,7 @@ class PathChecker:
 
     def __init__(self, robot: Robot, resolution: float, position_margin: float, sample_dt: float):
         self.robot = robot
+        self.n_arm = robot.n_arm  # q[:n_arm] from the primitive, q[n_arm:] by the wrist rule
         self.resolution = resolution
         self.sample_dt = sample_dt
         self.lower = robot.q_lower + position_margin
@@ -98,14 +99,15 @@ class PathChecker:
         self.extent = self.batch.link_extent
 
     def sample(self, traj: Trajectory, t_end: float, wrist_prev: np.ndarray, dt: float):
-        """Times (N,), all-joint positions (N, 6) over [0, t_end] every ``dt`` at most."""
+        """Times (N,), all-joint positions (N, n_joints) over [0, t_end] every ``dt`` at most."""
         n = max(int(np.ceil(t_end / dt - 1e-9)), 1) + 1
         t = np.linspace(0.0, t_end, n)
         q123 = positions(traj, t)
         return t, np.column_stack([q123, self.wrist.solve(q123, wrist_prev)])
 
     def check(self, traj: Trajectory, t_end: float, wrist_prev: np.ndarray) -> PathResult:
-        """Validate ``traj`` over [0, t_end] [s], the wrist starting from ``wrist_prev`` (3,)."""
+        """Validate ``traj`` over [0, t_end] [s], the wrist starting from ``wrist_prev``
+        (n_joints - n_arm,)."""
         return self.check_many([traj], [t_end], np.asarray(wrist_prev, dtype=float)[None])[0]
 
     def check_many(
@@ -115,12 +117,13 @@ class PathChecker:
 
         Args:
             trajs: Ruckig trajectories (M). t_end: checked span of each [s] (M,).
-            wrist_prev: wrist angles [rad] (M, 3) at the start of each.
+            wrist_prev: wrist angles [rad] (M, n_joints - n_arm) at the start of each.
             table: ``TrajectoryTable(trajs)`` when the caller has it already.
         """
         table = TrajectoryTable(trajs) if table is None else table
         spans = [float(x) for x in t_end]
-        wrist_prev = np.asarray(wrist_prev, dtype=float).reshape(-1, 3)
+        n_wrist = self.robot.n_joints - self.n_arm
+        wrist_prev = np.asarray(wrist_prev, dtype=float).reshape(-1, n_wrist)
         out: list[PathResult | None] = [None] * len(spans)
         checks: list = []
         group: list[int] = []
@@ -139,7 +142,7 @@ class PathChecker:
     def _sample_group(self, table, todo: list, spans, wrist_prev, out: list, checks: list):
         """Sample primitives ``todo`` until resolved; limit failures go to ``out``, the rest
         to ``checks`` as (index, wrist at the end, checked joints, their link poses)."""
-        dt = {m: self.sample_dt for m in todo}
+        dt, n = {m: self.sample_dt for m in todo}, self.n_arm
         while todo:
             batch = sample_paths(table, self.wrist, todo, spans, dt, wrist_prev)
             step = step_motion(batch.poses, self.extent, batch.starts)
@@ -154,33 +157,34 @@ class PathChecker:
                     # the coplanar wrist rule passing (near) its singularity: it would whip the
                     # wrist round faster than any arm moves; a physical test, the same at every
                     # resolution
-                    out[m] = PathResult(False, "wrist_singularity", q[-1, 3:], 0, "wrist flips")
+                    out[m] = PathResult(False, "wrist_singularity", q[-1, n:], 0, "wrist flips")
                 elif worst <= 0.5 * self.resolution:
                     res, idx = self._limits_and_checks(table.trajectories[m], spans[m], q, st)
                     out[m] = res
                     if res is None:
                         rows = idx + s.start
                         poses = {link: P[rows] for link, P in batch.poses.items()}
-                        checks.append((m, q[-1, 3:].copy(), q[idx], poses))
+                        checks.append((m, q[-1, n:].copy(), q[idx], poses))
                 else:
                     dt[m] = dt[m] / np.ceil(2.0 * worst / self.resolution)
                     if spans[m] / dt[m] > MAX_SAMPLES:
-                        out[m] = PathResult(False, "wrist_singularity", q[-1, 3:], 0, "wrist flips")
+                        out[m] = PathResult(False, "wrist_singularity", q[-1, n:], 0, "wrist flips")
                     else:
                         again.append(m)
             todo = again
 
     def _limits_and_checks(self, traj, t_end: float, q: np.ndarray, step: np.ndarray):
         """(a failed PathResult, None) at a limit, else (None, indices of the checked samples)."""
-        lo, hi = position_range(traj, t_end, q[:, :3])
+        n = self.n_arm
+        lo, hi = position_range(traj, t_end, q[:, :n])
         names = self.robot.joint_names
-        for k in range(3):
+        for k in range(n):
             if lo[k] < self.lower[k] or hi[k] > self.upper[k]:
-                return PathResult(False, "position_limit", q[-1, 3:], 0, names[k]), None
-        wrist_lo, wrist_hi = q[:, 3:].min(axis=0), q[:, 3:].max(axis=0)
-        for k in range(3, 6):
-            if wrist_lo[k - 3] < self.lower[k] or wrist_hi[k - 3] > self.upper[k]:
-                return PathResult(False, "wrist_limit", q[-1, 3:], 0, names[k]), None
+                return PathResult(False, "position_limit", q[-1, n:], 0, names[k]), None
+        wrist_lo, wrist_hi = q[:, n:].min(axis=0), q[:, n:].max(axis=0)
+        for k in range(n, len(names)):
+            if wrist_lo[k - n] < self.lower[k] or wrist_hi[k - n] > self.upper[k]:
+                return PathResult(False, "wrist_limit", q[-1, n:], 0, names[k]), None
         # first sample of every half-resolution bucket: consecutive checks <= resolution apart
         travelled = np.r_[0.0, np.cumsum(step)]
         bucket = np.floor(travelled / (0.5 * self.resolution))
@@ -206,7 +210,8 @@ class PathChecker:
 
 class SampledPaths(NamedTuple):
     """Samples of several primitives, one after another: times [s] (S,), all joints [rad]
-    (S, 6), each primitive's first sample (P,) and sample count (P,), link poses (S, 4, 4)."""
+    (S, n_joints), each primitive's first sample (P,) and sample count (P,), link poses
+    (S, 4, 4)."""
 
     t: np.ndarray
     q: np.ndarray
@@ -225,8 +230,9 @@ def sample_paths(table, wrist, which, spans, dt, wrist_prev) -> SampledPaths:
     counts = np.array([len(t) for t in times])
     starts = np.cumsum(counts) - counts
     t = np.concatenate(times)
-    q = np.zeros((len(t), 6))
-    q[:, :3] = table.positions(np.repeat(np.asarray(which), counts), t)
+    n = table.n_joints  # the primitives' joints; the wrist's follow them
+    q = np.zeros((len(t), n + wrist_prev.shape[-1]))
+    q[:, :n] = table.positions(np.repeat(np.asarray(which), counts), t)
     early = wrist.fk.frames(q, until="link_3")  # joints 1-3 only: shared with the full FK
-    q[:, 3:] = wrist.solve_paths(q[:, :3], starts, wrist_prev[which], early)
+    q[:, n:] = wrist.solve_paths(q[:, :n], starts, wrist_prev[which], early)
     return SampledPaths(t, q, starts, counts, assemble(*wrist.fk.frames(q, resume=early)))

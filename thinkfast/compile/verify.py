@@ -56,7 +56,8 @@ _V: dict = {}
 def _init(inputs: _Inputs) -> None:
     cfg, robot = inputs.config.tree, inputs.robot
     _V["in"] = inputs
-    _V["steer"] = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
+    n = robot.n_arm  # the tree's joints, q[:n]; the wrist's: q[n:]
+    _V["steer"] = Steering(robot.v_max[:n], robot.a_max[:n], robot.j_max[:n])
     _V["check"] = PathChecker(
         robot,
         cfg.collision_resolution / inputs.factor,
@@ -67,9 +68,9 @@ def _init(inputs: _Inputs) -> None:
 
 def _edge(i: int) -> tuple[list[str], int]:
     inp, steer, check = _V["in"], _V["steer"], _V["check"]
-    t, eps = inp.tree, inp.config.tree.eps
+    t, eps, n = inp.tree, inp.config.tree.eps, inp.robot.n_arm
     p = int(t.node_parent[i])
-    goal = t.goal_q[t.subgoal_goal[t.edge_target[i]], :3]
+    goal = t.goal_q[t.subgoal_goal[t.edge_target[i]], :n]
     try:
         traj = steer.steer(t.node_state[p], goal)
     except NoSolutionError as exc:
@@ -87,32 +88,32 @@ def _edge(i: int) -> tuple[list[str], int]:
         out.append(f"node {i}: time-to-come is not parent + duration")
     checks = 0
     if t_move > 0.0:
-        res = check.check(traj, t_move, t.node_q[p, 3:])
+        res = check.check(traj, t_move, t.node_q[p, n:])
         checks = res.checks
         if not res.ok:
             out.append(f"node {i}: {res.reason} ({res.detail}) at the finer resolution")
-        elif np.max(np.abs(res.wrist_end - t.node_q[i, 3:])) > 1e-6:
+        elif np.max(np.abs(res.wrist_end - t.node_q[i, n:])) > 1e-6:
             out.append(f"node {i}: wrist differs from the coplanar rule")
     return out, checks
 
 
 def _terminal(k: int) -> tuple[list[str], int]:
     inp, steer, check = _V["in"], _V["steer"], _V["check"]
-    t = inp.tree
+    t, n = inp.tree, inp.robot.n_arm
     node, g = int(t.term_node[k]), int(t.term_goal[k])
     try:
-        traj = steer.steer(t.node_state[node], t.goal_q[g, :3])
+        traj = steer.steer(t.node_state[node], t.goal_q[g, :n])
     except NoSolutionError as exc:
         return [f"terminal {k}: {exc}"], 0
     out = []
     if abs(traj.duration - t.term_duration[k]) > TOL:
         out.append(f"terminal {k}: duration {t.term_duration[k]} != {traj.duration}")
     end = state_at(traj, traj.duration)
-    if np.max(np.abs(end[:3] - t.goal_q[g, :3])) > GOAL_TOL or np.max(np.abs(end[3:])) > GOAL_TOL:
+    if np.max(np.abs(end[:n] - t.goal_q[g, :n])) > GOAL_TOL or np.max(np.abs(end[n:])) > GOAL_TOL:
         out.append(f"terminal {k}: does not end at goal {g} at rest")
     if t.term_arrival[k] != t.node_ttc[node] + t.term_duration[k]:
         out.append(f"terminal {k}: arrival is not time-to-come + duration")
-    res = check.check(traj, traj.duration, t.node_q[node, 3:])
+    res = check.check(traj, traj.duration, t.node_q[node, n:])
     if not res.ok:
         out.append(f"terminal {k}: {res.reason} ({res.detail}) at the finer resolution")
     return out, res.checks
@@ -159,9 +160,10 @@ def verify_tree(
         problems.append(f"{robot.urdf_path}: URDF differs from the one the tree was compiled for")
     if robot.toml_sha256 != tree.meta.get("robot_toml_sha256"):
         problems.append(f"{robot.toml_path}: robot.toml differs from the compile-time one")
-    if tree.node_ttc[0] != 0.0 or np.any(tree.node_state[0, 3:] != 0.0):
+    n = robot.n_arm  # the tree's joints, q[:n]
+    if tree.node_ttc[0] != 0.0 or np.any(tree.node_state[0, n:] != 0.0):
         problems.append("root is not at rest at time 0")
-    if np.max(np.abs(tree.node_state[0, :3] - robot.home[:3])) > TOL:
+    if np.max(np.abs(tree.node_state[0, :n] - robot.home[:n])) > TOL:
         problems.append("root is not at home")
     inputs = _Inputs(robot, config, factor, tree)
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()

@@ -102,7 +102,7 @@ class ControlCore(FaultPolicy):
         self.shadow = shadow
         self.standby = False  # the controller does not follow references (module doc)
         self.standby_replies = 0
-        self.hold_q: np.ndarray | None = None  # shadow: the position sent [rad] (6,)
+        self.hold_q: np.ndarray | None = None  # shadow: the position sent [rad] (n_joints,)
         self._last_rx = -math.inf  # receive time of the last packet (shadow) [s]
         self.clock = ControllerClock(cfg.dt, cfg.resync_after)
         self.last: Reply | None = None
@@ -125,7 +125,8 @@ class ControlCore(FaultPolicy):
     # ------------------------------------------------------------------ queries
     @property
     def measured(self) -> tuple[float, np.ndarray] | None:
-        """(controller time [s], joints [rad] (6,)) of the last feedback, None before any."""
+        """(controller time [s], joints [rad] (n_joints,)) of the last feedback, None before
+        any."""
         self.settle()
         return self.rate.fb
 
@@ -249,7 +250,7 @@ class ControlCore(FaultPolicy):
             self.standby = False
             self._waiting = -1
             self.on_event(tick.t, "controller_ready", {"q": np.round(q_meas, 4).tolist()})
-            return self._restart(tick._replace(resync=True), q_meas, np.zeros(6))
+            return self._restart(tick._replace(resync=True), q_meas, np.zeros(self.sup.q.size))
         if tick.repeat and self._waiting >= 0:
             self.deferred += 1  # the same packet again: still nothing measured
             return None

@@ -17,7 +17,7 @@ FAULT_REASONS = ("deviation", "nonfinite")
 
 
 class Reply(NamedTuple):
-    """One reply: ``q`` [rad], ``qd`` [rad/s] (6,), the ``mode`` to mirror, and the tick."""
+    """One reply: ``q`` [rad], ``qd`` [rad/s] (n_joints,), the ``mode`` to mirror, the tick."""
 
     q: np.ndarray
     qd: np.ndarray
@@ -44,7 +44,7 @@ class FaultPolicy:
             self.on_event(tick.t, "controller_standby", {"q": np.round(q, 4).tolist()})
         self.standby_replies += 1
         self.rate.fb = (tick.t, q)
-        self.last = Reply(self.sup.q, np.zeros(6), "standby", tick)
+        self.last = Reply(self.sup.q, np.zeros(self.sup.q.size), "standby", tick)
         return self.last
 
     def _catch_up(self, t_from: float, held: int) -> None:
@@ -90,7 +90,7 @@ class FaultPolicy:
             pass  # unusable measurement: the supervisor brakes from the old state
         else:
             self.resyncs += 1
-            self.ex.resync(self.sup.q, self.sup.qd, np.zeros(6), tick.t)
+            self.ex.resync(self.sup.q, self.sup.qd, np.zeros(self.sup.q.size), tick.t)
             self.on_event(tick.t, "resync", {"silence": "restart from the measured feedback"})
         self.last = Reply(self.sup.q, self.sup.qd, self.mode(), tick)
         return self.last

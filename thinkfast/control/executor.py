@@ -95,12 +95,14 @@ class Executor:
     Attributes:
         name: the planner's name. planner: the planner. gate: the throw gate.
         timeline: the commanded joint 1-3 motion. hedge: the hedge stage (None: none).
+        n_arm: ``robot.n_arm``, the timeline's joints ``q[:n_arm]`` (the wrist's: ``q[n_arm:]``).
     """
 
     def __init__(self, tree: RuntimeTree, robot: Robot, cfg: RunConfig, planner: str = "tree"):
         entry = registry.get(planner)
         cfg = entry.configure(cfg)
         self.tree, self.robot, self.cfg, self.name = tree, robot, cfg, planner
+        self.n_arm = robot.n_arm  # q[:n_arm]: the timeline's joints; q[n_arm:]: the wrist
         self.timeline = Timeline(robot, cfg.execution)
         self.planner = entry.load()(tree, robot, cfg, self.timeline)
         self.gate = ThrowGate(tree, cfg, self.planner.gate)
@@ -117,7 +119,7 @@ class Executor:
         self.episode = EpisodeLog()
         self.last_episode: EpisodeLog | None = None  # the last confirmed throw, once it ended
         self.episodes = 0
-        self.wrist.reset(robot.home[3:], -np.inf)
+        self.wrist.reset(robot.home[self.n_arm :], -np.inf)
         self.home_on_start = True  # away from home at start: go home at once (module doc)
         self.away = False  # holding away from home, balls ignored, until go_home
 
@@ -223,16 +225,18 @@ class Executor:
 
     # ---------------------------------------------------------------- ticks
     def setpoint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Joint positions [rad] (6,) and velocities [rad/s] (6,) to command at wall time ``t``."""
+        """Joint positions [rad] (n_joints,) and velocities [rad/s] (n_joints,) to command at
+        wall time ``t``."""
         self._end_of_throw(t)
         if self.mode == EXECUTING:
             self.planner.advance(t, self.episode)
+        n, m = self.n_arm, self.wrist.n  # joints of the timeline, of the wrist
         s = self.timeline.state(t)
-        w = self.wrist.step(t, s[:3], *self.wrist_inputs())
+        w = self.wrist.step(t, s[:n], *self.wrist_inputs())
         seg = self.timeline.segment
         if self.mode == RETURNING and (seg.kind != RETURN or t >= seg.t_end):
-            arm_home = np.all(np.abs(s[:3] - self.robot.home[:3]) < ARM_HOME) and np.all(
-                np.abs(s[3:]) < ARM_HOME
+            arm_home = np.all(np.abs(s[:n] - self.robot.home[:n]) < ARM_HOME) and np.all(
+                np.abs(s[n:]) < ARM_HOME
             )
             if not arm_home:
                 # the way home ended elsewhere, was replaced by a hold (a resync) or never
@@ -241,15 +245,15 @@ class Executor:
                 self._start_return(t)
             else:
                 ex = self.cfg.execution
-                wrist_home = np.all(np.abs(w[3:6]) < ex.wrist_home_speed) and np.all(
-                    np.abs(w[:3] - self.robot.home[3:]) < ex.wrist_home_tolerance
+                wrist_home = np.all(np.abs(w[m : 2 * m]) < ex.wrist_home_speed) and np.all(
+                    np.abs(w[:m] - self.robot.home[n:]) < ex.wrist_home_tolerance
                 )
                 if wrist_home or t > seg.t_end + ex.wrist_home_timeout:
                     self._finish_return(t)  # the whole arm is home and at rest: ready
-        return np.r_[s[:3], w[:3]], np.r_[s[3:6], w[3:6]]
+        return np.r_[s[:n], w[:m]], np.r_[s[n : 2 * n], w[m : 2 * m]]
 
     def wrist_inputs(self) -> tuple[np.ndarray, np.ndarray | None]:
-        """(shield normal (3,), wrist angles [rad] (3,) to go to instead, or None): what the
+        """(shield normal (3,), wrist angles [rad] (q[n_arm:]) to go to instead, or None): what the
         wrist tracker steps towards in the present mode and belief."""
         ball_v = None  # the shield turns towards the ball only in a confirmed throw
         belief = self.gate.belief
@@ -259,7 +263,7 @@ class Executor:
             if fast and v_std < self.cfg.execution.wrist_confident_speed_std:
                 ball_v = belief.mean[3:]
         # on the way back the wrist goes to its home angles, never to the equivalent branch
-        home = self.robot.home[3:] if self.mode in (RETURNING, IDLE) else None
+        home = self.robot.home[self.n_arm :] if self.mode in (RETURNING, IDLE) else None
         return self.wrist.normal_for(ball_v), home
 
     def _end_of_throw(self, t: float) -> None:
@@ -292,7 +296,7 @@ class Executor:
 
     def _finish_return(self, t: float) -> None:
         self._reset_episode(IDLE)
-        self.timeline.hold_at(self.robot.home[:3], t)
+        self.timeline.hold_at(self.robot.home[: self.n_arm], t)
 
     def _reset_episode(self, mode: str) -> None:
         if not math.isnan(self.episode.t_confirmed):
@@ -307,12 +311,12 @@ class Executor:
             self.hedge.drop()
 
     def start_from(self, q: np.ndarray, t: float) -> None:
-        """Begin at the measured joints ``q`` (6,) at rest. Away from home: return there first
-        with ``home_on_start``, else hold ``q`` and ignore balls until :meth:`go_home`."""
-        q = np.asarray(q, dtype=float)
+        """Begin at the measured joints ``q`` (n_joints,) at rest. Away from home: return there
+        first with ``home_on_start``, else hold ``q`` and ignore balls until :meth:`go_home`."""
+        q, n = np.asarray(q, dtype=float), self.n_arm
         self._reset_episode(IDLE)
-        self.wrist.reset(q[3:], t)
-        self.timeline.hold_at(q[:3], t)
+        self.wrist.reset(q[n:], t)
+        self.timeline.hold_at(q[:n], t)
         self.away = bool(np.max(np.abs(q - self.robot.home)) > HOME_TOLERANCE)
         if self.away and self.home_on_start:
             self.go_home(t)
@@ -323,35 +327,38 @@ class Executor:
         self._start_return(t)
 
     def recover(self, q: np.ndarray, t: float) -> None:
-        """After the supervisor stopped the arm at ``q`` (6,): drop the throw and return home."""
-        self.resync(q, np.zeros(6), np.zeros(6), t)
+        """After the supervisor stopped the arm at ``q`` (n_joints,): drop the throw and return
+        home."""
+        n = self.robot.n_joints
+        self.resync(q, np.zeros(n), np.zeros(n), t)
         self._reset_episode(IDLE)
         self._start_return(t)
 
     def hold_fault(self, q: np.ndarray, t: float) -> None:
-        """Latched fault: drop the throw and hold ``q`` (6,) at rest until restarted (the control
-        core's braked supervisor holds the arm too; the requests say the same)."""
-        q = np.asarray(q, dtype=float)
-        self.wrist.reset(q[3:], t)
-        self.timeline.hold_at(q[:3], t)
+        """Latched fault: drop the throw and hold ``q`` (n_joints,) at rest until restarted (the
+        control core's braked supervisor holds the arm too; the requests say the same)."""
+        q, n = np.asarray(q, dtype=float), self.n_arm
+        self.wrist.reset(q[n:], t)
+        self.timeline.hold_at(q[:n], t)
         self._reset_episode(FAULT)
 
     def resync(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, t: float) -> None:
-        """Continue from the commanded (or measured) state ``q, qd, qdd`` (6,) at time ``t`` [s]
+        """Continue from the commanded (or measured) state ``q, qd, qdd`` (n_joints,) at ``t`` [s]
         with the same intent: the motion in progress is planned again from that state (a tree
         edge, which cannot be resumed off its compiled path, becomes what the planner says:
         :meth:`~thinkfast.control.planners.base.Planner.resume_edge`). Used after the supervisor
         changed a command and after an EGM silence."""
         q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
+        n = self.n_arm
         # an acceleration no plan of these limits would hold at that speed (one extrapolated
         # over a missed cycle, say) would carry the new plan past the velocity limit
         s, w = self.timeline.steer, self.wrist.steer
-        a_arm = feasible_acceleration(qd[:3], qdd[:3], s.v_max, s.a_max, s.j_max)
-        a_wrist = feasible_acceleration(qd[3:], qdd[3:], w.v_max, w.a_max, w.j_max)
-        state = np.r_[q[:3], qd[:3], a_arm]
-        self.wrist.reset(q[3:], t, qd[3:], a_wrist)
+        a_arm = feasible_acceleration(qd[:n], qdd[:n], s.v_max, s.a_max, s.j_max)
+        a_wrist = feasible_acceleration(qd[n:], qdd[n:], w.v_max, w.a_max, w.j_max)
+        state = np.r_[q[:n], qd[:n], a_arm]
+        self.wrist.reset(q[n:], t, qd[n:], a_wrist)
         seg = self.timeline.segment
-        kind, target, ref = seg.kind, seg.end[:3], seg.ref
+        kind, target, ref = seg.kind, seg.end[:n], seg.ref
         if kind == EDGE:
             kind, target, ref = self.planner.resume_edge(q)
         self.timeline.replan(state, kind, target, ref, t)

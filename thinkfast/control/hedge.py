@@ -92,7 +92,8 @@ class Hedger:
         self.tree, self.steer, self.cfg, self.early = tree, steer, cfg, early
         self.gravity, self.lag = gravity, lag
         self.sampler = ShieldSampler(robot)
-        self.home = np.array(robot.home[:3], dtype=float)
+        self.n_arm = robot.n_arm  # the joints it moves, q[:n_arm]
+        self.home = np.array(robot.home[: self.n_arm], dtype=float)
         self.home_c = self.sampler.centres(self.home)
         self.yz_lo = tree.goal_yz.min(axis=0)
         self.yz_hi = tree.goal_yz.max(axis=0)
@@ -109,21 +110,21 @@ class Hedger:
         return (fit, c) if c.ok else (None, None)
 
     def target(self, c: Crossing, stamp: float, t_now: float) -> np.ndarray:
-        """Joint 1-3 target [rad] (3,) of the hedge under the crossing ``c`` (belief at
+        """Joint 1-3 target [rad] (n_arm,) of the hedge under the crossing ``c`` (belief at
         ``stamp``, planned at ``t_now``), truncated to the bound; home to stay."""
         if self.cfg.mode == "mean":
-            q = self.tree.goal_q[self.tree.nearest_goal(c.mean[:2]), :3]
+            q = self.tree.goal_q[self.tree.nearest_goal(c.mean[:2]), : self.n_arm]
         else:
             d = self.tree.decide(c, stamp, t_now, self.lag)
             child = -1 if d.backup is None else self.tree.best_child(d, 0)
             if child < 0:
                 return self.home.copy()
             t = self.tree.compiled
-            q = self.tree.subgoal_q[t.edge_target[child], :3]
+            q = self.tree.subgoal_q[t.edge_target[child], : self.n_arm]
         return self.truncate(np.asarray(q, dtype=float))
 
     def displacement(self, q: np.ndarray) -> np.ndarray:
-        """Shield-centre distance from home [m] for joints 1-3 ``q`` (..., 3), shape (...)."""
+        """Shield-centre distance from home [m] for joints 1-3 ``q`` (..., n_arm), shape (...)."""
         return np.linalg.norm(self.sampler.centres(q) - self.home_c, axis=-1)
 
     def truncate(self, q: np.ndarray) -> np.ndarray:
@@ -135,13 +136,13 @@ class Hedger:
         return pts[max(k - 1, 0)]
 
     def plan(self, state: np.ndarray, target: np.ndarray, t: float) -> Segment | None:
-        """A move to rest at ``target`` from the commanded ``state`` (9,) at ``t`` [s] whose
+        """A move to rest at ``target`` from the commanded ``state`` (3 n_arm,) at ``t`` [s] whose
         sampled shield path stays within :data:`PLANNED` of the bound; None when Ruckig fails
         or it would not."""
         traj = self.steer.to_rest(state, target)
         if traj is None or not self.within(traj):
             return None
-        end = np.r_[target, np.zeros(6)]
+        end = np.r_[target, np.zeros(2 * self.n_arm)]
         return Segment(STEER, t, traj, end, traj.duration, -1)
 
     def within(self, traj) -> bool:

@@ -29,6 +29,7 @@ from thinkfast.control.config import RunConfig
 from thinkfast.control.executor import FAULT, IDLE, RETURNING, Mode
 from thinkfast.control.segments import EDGE, HOLD, RETURN, STEER, TERMINAL, Segment, WristTracker
 from thinkfast.control.timeline import Timeline
+from thinkfast.errors import RobotModelError
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import feasible_acceleration
 
@@ -36,8 +37,13 @@ MODES = tuple(m.value for m in Mode) + ("brake", "standby", "shadow")
 KINDS = (EDGE, TERMINAL, STEER, RETURN, HOLD)
 CALLS = ("resync", "start_from", "hold_fault", "recover")
 K_MAX = 10  # cubic pieces per joint: 2 of a brake pre-trajectory, 7 phases, the end
-_SEG = 4 + 9 + 1 + 3 * K_MAX * 5  # kind, t0, duration, ref, end, pieces, (start, p, v, a, j)
-_HEAD = 10  # id, epoch, mode, normal (3), goal (3), segments
+# The vector's layout holds the segments of N_ARM joints and a wrist goal of N_WRIST angles:
+# the split of every robot here (robot.n_arm, robot.n_joints - robot.n_arm; PlanFollower checks).
+N_ARM, N_WRIST = 3, 3
+# a segment: kind, t0, duration, ref, end (p, v, a), the trajectory's duration, its pieces
+# (start, p, v, a, j)
+_SEG = 4 + 3 * N_ARM + 1 + N_ARM * K_MAX * 5
+_HEAD = 3 + 3 + N_WRIST + 1  # id, epoch, mode, normal (3), goal (N_WRIST), segments
 SIZE = _HEAD + 2 * _SEG
 
 
@@ -46,8 +52,8 @@ class Pieces:
     Ruckig's (within rounding: the same formulas).
 
     Args:
-        start: piece start times [s] (3, K_MAX), +inf past the last piece of a joint.
-        coef: (p, v, a, j) at each piece's start (3, K_MAX, 4).
+        start: piece start times [s] (N_ARM, K_MAX), +inf past the last piece of a joint.
+        coef: (p, v, a, j) at each piece's start (N_ARM, K_MAX, 4).
         duration: the trajectory's duration [s].
     """
 
@@ -59,8 +65,8 @@ class Pieces:
     @classmethod
     def of(cls, traj) -> tuple[np.ndarray, np.ndarray]:
         """(start, coef) arrays of a one-section Ruckig trajectory (``to_rest``'s)."""
-        start = np.full((3, K_MAX), np.inf)
-        coef = np.zeros((3, K_MAX, 4))
+        start = np.full((N_ARM, K_MAX), np.inf)
+        coef = np.zeros((N_ARM, K_MAX, 4))
         for k, pr in enumerate(traj.profiles[0]):
             rows: list[tuple[float, float, float, float, float]] = []
             b, tb = pr.brake, pr.brake.duration
@@ -77,7 +83,7 @@ class Pieces:
         return start, coef
 
     def at_time(self, s: float):
-        """Positions, velocities, accelerations (3 lists of 3) at ``s`` [s] from the start."""
+        """Positions, velocities, accelerations (3 lists of N_ARM) at ``s`` [s] from the start."""
         p, v, a = [], [], []
         for starts, coefs in zip(self.start, self.coef, strict=True):
             i = max(bisect.bisect_right(starts, s) - 1, 0)
@@ -103,23 +109,24 @@ class Plan(NamedTuple):
 
 def _put_segment(out: np.ndarray, seg: Segment) -> None:
     out[:4] = (KINDS.index(seg.kind), seg.t0, seg.duration, seg.ref)
-    out[4:13] = seg.end
-    out[13] = np.nan if seg.traj is None else seg.traj.duration
+    e = 4 + 3 * N_ARM  # the end state (p, v, a) fills out[4:e]
+    out[4:e] = seg.end
+    out[e] = np.nan if seg.traj is None else seg.traj.duration
     if seg.traj is not None:
         start, coef = Pieces.of(seg.traj)
-        n = 3 * K_MAX
-        out[14 : 14 + n] = start.ravel()
-        out[14 + n : 14 + 5 * n] = coef.ravel()
+        n = N_ARM * K_MAX
+        out[e + 1 : e + 1 + n] = start.ravel()
+        out[e + 1 + n : e + 1 + 5 * n] = coef.ravel()
 
 
 def _get_segment(v: np.ndarray) -> Segment:
     kind, t0, duration, ref = v[:4]
-    traj = None
-    if not np.isnan(v[13]):
-        n = 3 * K_MAX
-        traj = Pieces(v[14 : 14 + n].reshape(3, K_MAX), v[14 + n : 14 + 5 * n].reshape(3, K_MAX, 4),
-                      v[13])  # fmt: skip
-    return Segment(KINDS[int(kind)], float(t0), traj, v[4:13].copy(), float(duration), int(ref))
+    e, traj = 4 + 3 * N_ARM, None
+    if not np.isnan(v[e]):
+        n, a = N_ARM * K_MAX, e + 1
+        traj = Pieces(v[a : a + n].reshape(N_ARM, K_MAX),
+                      v[a + n : a + 5 * n].reshape(N_ARM, K_MAX, 4), v[e])  # fmt: skip
+    return Segment(KINDS[int(kind)], float(t0), traj, v[4:e].copy(), float(duration), int(ref))
 
 
 def plan_vector(plan_id: int, epoch: int, mode: str, segments, normal, goal) -> np.ndarray:
@@ -127,8 +134,8 @@ def plan_vector(plan_id: int, epoch: int, mode: str, segments, normal, goal) -> 
     out = np.full(SIZE, np.nan)
     out[:3] = (plan_id, epoch, MODES.index(mode))
     out[3:6] = normal
-    out[6:9] = np.nan if goal is None else goal
-    out[9] = len(segments)
+    out[6 : 6 + N_WRIST] = np.nan if goal is None else goal
+    out[_HEAD - 1] = len(segments)
     for k, seg in enumerate(segments[:2]):
         _put_segment(out[_HEAD + k * _SEG : _HEAD + (k + 1) * _SEG], seg)
     return out
@@ -138,8 +145,8 @@ def decode_plan(v: np.ndarray) -> Plan | None:
     """The :class:`Plan` of a vector from :func:`plan_vector`; None for an empty block."""
     if not math.isfinite(v[0]):
         return None
-    segs = tuple(_get_segment(v[_HEAD + k * _SEG :]) for k in range(int(v[9])))
-    goal = None if np.isnan(v[6]) else v[6:9].copy()
+    segs = tuple(_get_segment(v[_HEAD + k * _SEG :]) for k in range(int(v[_HEAD - 1])))
+    goal = None if np.isnan(v[6]) else v[6 : 6 + N_WRIST].copy()
     return Plan(int(v[0]), int(v[1]), MODES[int(v[2])], v[3:6].copy(), goal, segs)
 
 
@@ -166,21 +173,32 @@ def plan_key(ex, epoch: int) -> tuple:
 
 class PlanFollower:
     """The executor's stand-in in the reply process: evaluates the plans it is given (module
-    doc). ``calls``: ``(name, t, q, qd, qdd)`` of each replan made here, for the planner."""
+    doc). ``calls``: ``(name, t, q, qd, qdd)`` of each replan made here, for the planner.
+
+    Raises:
+        RobotModelError: ``robot``'s split is not the plan vector's (:data:`N_ARM`,
+            :data:`N_WRIST`).
+    """
 
     def __init__(self, robot: Robot, cfg: RunConfig):
+        if (robot.n_arm, robot.n_joints - robot.n_arm) != (N_ARM, N_WRIST):
+            raise RobotModelError(
+                f"{robot.toml_path}: a plan vector holds {N_ARM} positioning and {N_WRIST} "
+                f"wrist joints, the robot has {robot.n_arm} and {robot.n_joints - robot.n_arm}"
+            )
         ex = cfg.execution
+        self.n_arm = robot.n_arm  # q[:n_arm]: the timeline's joints; q[n_arm:]: the wrist
         self.home = np.array(robot.home, dtype=float)
         self.timeline = Timeline(robot, ex)
         self.wrist = WristTracker(
             robot, ex.wrist_max_tilt, cfg.safety.position_margin + ex.wrist_inner_margin
         )
-        self.wrist.reset(self.home[3:], -math.inf)
+        self.wrist.reset(self.home[self.n_arm :], -math.inf)
         self.mode: str = IDLE
         self.away = False
         self.segments: tuple[Segment, ...] = (self.timeline.segment,)
         self.normal = self.wrist.normal_for(None)
-        self.goal: np.ndarray | None = self.home[3:]
+        self.goal: np.ndarray | None = self.home[self.n_arm :]
         self.plan_id, self.epoch = -1, 0
         self.calls: list[tuple[str, float, np.ndarray, np.ndarray, np.ndarray]] = []
         self.t_set = -math.inf  # the last time a setpoint was asked for
@@ -204,7 +222,8 @@ class PlanFollower:
         return True
 
     def setpoint(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Joint positions [rad] (6,) and velocities [rad/s] (6,) of the plan at ``t`` [s]."""
+        """Joint positions [rad] (n_joints,) and velocities [rad/s] (n_joints,) of the plan at
+        ``t`` [s]."""
         self._undo = (self.t_set, self.timeline.segment, self.wrist.memo())
         segs = self.segments
         seg = segs[0]
@@ -212,10 +231,11 @@ class PlanFollower:
             if t >= later.t0:
                 seg = later
         self.timeline.segment = seg
+        n, m = self.n_arm, self.wrist.n  # joints of the timeline, of the wrist
         s = seg.state(t)
-        w = self.wrist.step(t, s[:3], self.normal, self.goal)
+        w = self.wrist.step(t, s[:n], self.normal, self.goal)
         self.t_set = t
-        return np.r_[s[:3], w[:3]], np.r_[s[3:6], w[3:6]]
+        return np.r_[s[:n], w[:m]], np.r_[s[n : 2 * n], w[m : 2 * m]]
 
     def retract(self) -> None:
         """Undo the last :meth:`setpoint` (asked ahead for a reply that will not use it: a new
@@ -231,41 +251,42 @@ class PlanFollower:
         self._undo = None
         self.segments = (self.timeline.segment,)
         self.epoch += 1
-        z = np.zeros(6)
+        z = np.zeros(self.home.size)
         self.calls.append((name, t, np.array(q, float), z + qd, z + qdd))
 
     def resync(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, t: float) -> None:
-        """Plan on from ``q, qd, qdd`` (6,) at ``t`` with the same intent (as the executor)."""
+        """Plan on from ``q, qd, qdd`` (n_joints,) at ``t`` with the same intent (as the
+        executor)."""
         q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
-        s, w = self.timeline.steer, self.wrist.steer
-        a_arm = feasible_acceleration(qd[:3], qdd[:3], s.v_max, s.a_max, s.j_max)
-        a_wrist = feasible_acceleration(qd[3:], qdd[3:], w.v_max, w.a_max, w.j_max)
-        self.wrist.reset(q[3:], t, qd[3:], a_wrist)
+        s, w, n = self.timeline.steer, self.wrist.steer, self.n_arm
+        a_arm = feasible_acceleration(qd[:n], qdd[:n], s.v_max, s.a_max, s.j_max)
+        a_wrist = feasible_acceleration(qd[n:], qdd[n:], w.v_max, w.a_max, w.j_max)
+        self.wrist.reset(q[n:], t, qd[n:], a_wrist)
         seg = self.timeline.segment
         kind = STEER if seg.kind == EDGE else seg.kind
-        self.timeline.replan(np.r_[q[:3], qd[:3], a_arm], kind, seg.end[:3], seg.ref, t)
+        self.timeline.replan(np.r_[q[:n], qd[:n], a_arm], kind, seg.end[:n], seg.ref, t)
         self._replanned("resync", t, q, qd, qdd)
 
     def start_from(self, q: np.ndarray, t: float) -> None:
-        """Hold ``q`` (6,) at rest from ``t`` (the planner decides what follows)."""
+        """Hold ``q`` (n_joints,) at rest from ``t`` (the planner decides what follows)."""
         self._hold(q, t, IDLE)
         self._replanned("start_from", t, q, 0.0, 0.0)
 
     def hold_fault(self, q: np.ndarray, t: float) -> None:
-        """Latched fault: hold ``q`` (6,) at rest."""
+        """Latched fault: hold ``q`` (n_joints,) at rest."""
         self._hold(q, t, FAULT)
         self._replanned("hold_fault", t, q, 0.0, 0.0)
 
     def recover(self, q: np.ndarray, t: float) -> None:
-        """After a fault stop at ``q`` (6,): return home from there."""
+        """After a fault stop at ``q`` (n_joints,): return home from there."""
         self._hold(q, t, RETURNING)
         self.timeline.start_return(t)
         self._replanned("recover", t, q, 0.0, 0.0)
 
     def _hold(self, q, t: float, mode: str) -> None:
-        q = np.asarray(q, dtype=float)
-        self.wrist.reset(q[3:], t)
-        self.timeline.hold_at(q[:3], t)
+        q, n = np.asarray(q, dtype=float), self.n_arm
+        self.wrist.reset(q[n:], t)
+        self.timeline.hold_at(q[:n], t)
         self.mode = mode
         self.normal = self.wrist.normal_for(None)  # no belief here: as the executor without one
-        self.goal = self.home[3:] if mode in (IDLE, RETURNING) else None
+        self.goal = self.home[n:] if mode in (IDLE, RETURNING) else None

@@ -24,7 +24,7 @@ class Segment(NamedTuple):
         kind: EDGE, TERMINAL, STEER, RETURN or HOLD.
         t0: wall time at which the trajectory's time 0 is commanded [s].
         traj: Ruckig trajectory (None for HOLD).
-        end: state (9,) held after the trajectory (p [rad], v, a).
+        end: state (3n,) held after the trajectory (p [rad], v, a of its n joints).
         duration: how long the segment runs before the next decision [s] (eps for tree edges).
         ref: tree node (EDGE), terminal edge (TERMINAL) or goal (STEER) index; -1 otherwise.
     """
@@ -41,7 +41,7 @@ class Segment(NamedTuple):
         return self.t0 + self.duration
 
     def state(self, t: float) -> np.ndarray:
-        """Commanded state (9,) at wall time ``t`` (held after the end)."""
+        """Commanded state (3n,) at wall time ``t`` (held after the end)."""
         if self.traj is None:
             return self.end
         s = min(max(t - self.t0, 0.0), self.duration, self.traj.duration)
@@ -74,8 +74,9 @@ def stop(steer: Steering, kind: str, state, t0: float) -> Segment | None:
 
 
 def hold(state: np.ndarray, t0: float) -> Segment:
-    """Stay at rest at the position of ``state``."""
-    end = np.r_[state[:3], np.zeros(6)]
+    """Stay at rest at the position of ``state`` (3n,)."""
+    n = len(state) // 3
+    end = np.r_[state[:n], np.zeros(2 * n)]
     return Segment(HOLD, t0, None, end, np.inf)
 
 
@@ -88,25 +89,28 @@ class WristTracker:
     commanded joints 1-3; every tick a minimum-time Ruckig move towards them is sampled one tick
     ahead, so the wrist follows with bounded velocity, acceleration and jerk. A tick that starts
     at rest on the goal of the same inputs as the last one (the arm standing still) reuses that
-    tick's result: the solve and Ruckig would give it again, bit for bit.
+    tick's result: the solve and Ruckig would give it again, bit for bit. ``n``: the wrist's
+    joints, ``q[robot.n_arm:]`` (``robot.n_joints - robot.n_arm``).
     """
 
     def __init__(self, robot: Robot, max_tilt: float, margin: float):
+        k = robot.n_arm  # the wrist is q[k:]
+        self.n = robot.n_joints - k
         self.rule = CoplanarWrist(robot)
-        self.steer = Steering(robot.v_max[3:], robot.a_max[3:], robot.j_max[3:])
-        self.lo = robot.q_lower[3:] + margin
-        self.hi = robot.q_upper[3:] - margin
+        self.steer = Steering(robot.v_max[k:], robot.a_max[k:], robot.j_max[k:])
+        self.lo = robot.q_lower[k:] + margin
+        self.hi = robot.q_upper[k:] - margin
         self.max_tilt = max_tilt
-        self.state = np.r_[robot.home[3:], np.zeros(6)]  # p, v, a of joints 4-6
-        self.goal = robot.home[3:].copy()
+        self.state = np.r_[robot.home[k:], np.zeros(2 * self.n)]  # p, v, a of joints 4-6
+        self.goal = robot.home[k:].copy()
         self.t = -np.inf
         self._traj, self._t0 = None, 0.0
         self._rest: tuple | None = None  # (inputs, state, goal, traj) of the last standstill
 
     def reset(self, q: np.ndarray, t: float, qd=None, qdd=None) -> None:
-        """Start at wrist angles ``q`` (3,) [rad] with velocity ``qd`` and acceleration ``qdd``
-        (3,) (default: at rest) at time ``t`` [s]."""
-        z = np.zeros(3)
+        """Start at wrist angles ``q`` (n,) [rad] with velocity ``qd`` and acceleration ``qdd``
+        (n,) (default: at rest) at time ``t`` [s]."""
+        z = np.zeros(self.n)
         self.state = np.r_[q, z if qd is None else qd, z if qdd is None else qdd].astype(float)
         self.goal = np.array(q, dtype=float)
         self.t = t
@@ -139,16 +143,16 @@ class WristTracker:
         return n
 
     def target(self, q123: np.ndarray, normal: np.ndarray) -> np.ndarray:
-        """Wrist angles (3,) for ``normal`` at joints 1-3 ``q123``, nearest the current wrist."""
-        w = self.rule.solve_one(q123, self.state[:3], normal)
+        """Wrist angles (n,) for ``normal`` at joints 1-3 ``q123``, nearest the current wrist."""
+        w = self.rule.solve_one(q123, self.state[: self.n], normal)
         return np.clip(w, self.lo, self.hi)
 
     def step(
         self, t: float, q123: np.ndarray, normal: np.ndarray, goal: np.ndarray | None = None
     ) -> np.ndarray:
-        """Advance to wall time ``t``; returns the wrist state (9,) = p, v, a.
+        """Advance to wall time ``t``; returns the wrist state (3n,) = p, v, a.
 
-        ``goal``: wrist angles (3,) to go to instead of the ones for ``normal`` (e.g. home on
+        ``goal``: wrist angles (n,) to go to instead of the ones for ``normal`` (e.g. home on
         the way back, which must not end on the equivalent wrist branch).
         """
         dt = t - self.t

@@ -21,13 +21,15 @@ ARM_HOME = 1e-6  # rad, rad/s: the commanded way home has ended (Ruckig lands wi
 
 
 class Timeline:
-    """Commanded joint 1-3 motion: the segment in progress and what follows it.
+    """Commanded motion of the positioning joints (``robot.n_arm``, joints 1-3): the segment in
+    progress and what follows it.
 
     Args:
         robot: the robot (limits, home).
         cfg: the ``[execution]`` table (``return_speed_scale``: the limits of the way home).
 
     Attributes:
+        n_arm: the joints it commands (``robot.n_arm``); a state is (3 n_arm,): p, v, a.
         steer: Ruckig at the robot's full limits.
         steer_home: Ruckig at the return limits (``return_speed_scale`` of the full ones).
         home_steers: the ways home tried in turn (:meth:`home_move`): the return limits, the
@@ -39,33 +41,33 @@ class Timeline:
     """
 
     def __init__(self, robot: Robot, cfg: ExecutionConfig):
-        self.home = np.array(robot.home[:3], dtype=float)
-        self.steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
+        n = self.n_arm = robot.n_arm
+        self.home = np.array(robot.home[:n], dtype=float)
+        v_max, a_max, j_max = robot.v_max[:n], robot.a_max[:n], robot.j_max[:n]
+        self.steer = Steering(v_max, a_max, j_max)
         scale = cfg.return_speed_scale
-        self.steer_home = Steering(
-            robot.v_max[:3] * scale, robot.a_max[:3] * scale, robot.j_max[:3] * scale
-        )
+        self.steer_home = Steering(v_max * scale, a_max * scale, j_max * scale)
         # with the full jerk, a brake from a fast state passes no full limit (home_move)
-        full_jerk = Steering(robot.v_max[:3] * scale, robot.a_max[:3] * scale, robot.j_max[:3])
+        full_jerk = Steering(v_max * scale, a_max * scale, j_max)
         self.home_steers = (self.steer_home, full_jerk, self.steer)
-        self.segment = hold(np.r_[self.home, np.zeros(6)], -np.inf)
+        self.segment = hold(np.r_[self.home, np.zeros(2 * n)], -np.inf)
         self.pending: tuple[int, float] | None = None
         self.node = 0
 
     def state(self, t: float) -> np.ndarray:
-        """Commanded state (9,) at ``t`` [s]: positions [rad], velocities, accelerations."""
+        """Commanded state (3 n_arm,) at ``t`` [s]: positions [rad], velocities, accelerations."""
         return self.segment.state(t)
 
     def at_home(self, t: float) -> bool:
         """The commanded joints 1-3 are home and at rest at ``t`` (within :data:`ARM_HOME`)."""
-        s = self.segment.state(t)
+        s, n = self.segment.state(t), self.n_arm
         return bool(
-            np.all(np.abs(s[:3] - self.home) < ARM_HOME) and np.all(np.abs(s[3:]) < ARM_HOME)
+            np.all(np.abs(s[:n] - self.home) < ARM_HOME) and np.all(np.abs(s[n:]) < ARM_HOME)
         )
 
     def steer_to(self, target: np.ndarray, ref: int, t: float) -> None:
-        """Move to rest at ``target`` (3,) [rad] (goal ``ref``) from the commanded state at ``t``;
-        the segment in progress stays when Ruckig fails."""
+        """Move to rest at ``target`` (n_arm,) [rad] (goal ``ref``) from the commanded state at
+        ``t``; the segment in progress stays when Ruckig fails."""
         seg = move(self.steer, STEER, self.segment.state(t), target, t, ref)
         if seg is not None:
             self.segment = seg
@@ -84,14 +86,14 @@ class Timeline:
         executor plans the rest (:meth:`start_return`). Home at once when it is nothing to stop
         or Ruckig fails it."""
         state = self.segment.state(t)
-        seg = stop(self.steer, RETURN, state, t) if state[3:].any() else None
+        seg = stop(self.steer, RETURN, state, t) if state[self.n_arm :].any() else None
         if seg is None:
             self.start_return(t)
             return
         self.segment = seg
 
     def home_move(self, state: np.ndarray, t: float, ok=None) -> Segment | None:
-        """The move home from the commanded ``state`` (9,) at ``t`` [s] with the first of
+        """The move home from the commanded ``state`` (3 n_arm,) at ``t`` [s] with the first of
         :attr:`home_steers` whose move stays within the full velocity and acceleration limits
         and passes ``ok(traj)`` (when given); else the full limits' move (the last of them), or
         None when Ruckig fails it or ``ok`` refuses it.
@@ -115,15 +117,15 @@ class Timeline:
         return None
 
     def hold_at(self, q: np.ndarray, t: float) -> None:
-        """Hold joints 1-3 at ``q`` (3,) [rad] at rest from ``t``."""
-        self.segment = hold(np.r_[q, np.zeros(6)], t)
+        """Hold joints 1-3 at ``q`` (n_arm,) [rad] at rest from ``t``."""
+        self.segment = hold(np.r_[q, np.zeros(2 * self.n_arm)], t)
 
     def replan(self, state: np.ndarray, kind: str, target: np.ndarray, ref: int, t: float):
-        """The motion of ``kind`` to ``target`` (3,) planned again from ``state`` (9,) at ``t``
-        (a resync): a hold at rest stays one; a way home is :meth:`home_move` (it always ends
-        at home); when Ruckig fails, it comes to rest where ``state`` stops."""
+        """The motion of ``kind`` to ``target`` (n_arm,) planned again from ``state`` (3 n_arm,)
+        at ``t`` (a resync): a hold at rest stays one; a way home is :meth:`home_move` (it
+        always ends at home); when Ruckig fails, it comes to rest where ``state`` stops."""
         self.pending = None
-        if kind == HOLD and not state[3:].any():
+        if kind == HOLD and not state[self.n_arm :].any():
             self.segment = hold(state, t)
             return
         if kind == RETURN:
@@ -131,7 +133,7 @@ class Timeline:
         else:
             new = move(self.steer, kind, state, target, t, ref)
         if new is None:  # Ruckig failed: come to rest where the state would stop
-            new = move(self.steer, HOLD, state, state[:3], t) or hold(state, t)
+            new = move(self.steer, HOLD, state, state[: self.n_arm], t) or hold(state, t)
         self.segment = new
 
     def drop(self) -> None:

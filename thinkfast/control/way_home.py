@@ -36,12 +36,12 @@ class WayHomeResult(NamedTuple):
 
 
 class WayHome:
-    """Checks the way home from ``q0`` (6,) at rest, a slice at a time.
+    """Checks the way home from ``q0`` (n_joints,) at rest, a slice at a time.
 
     Args:
         make_executor: builds a fresh executor (the same configuration as the daemon's).
         checker: collision checker of the robot in its cell.
-        q0: measured joints [rad] (6,).
+        q0: measured joints [rad] (n_joints,).
         dt: sampling step [s] (one EGM cycle).
     """
 

@@ -114,7 +114,7 @@ class Chooser:
     """Scores motions by the moving-shield block probability (see the module doc).
 
     Args:
-        goal_q: joint angles of every goal [rad], shape (G, >=3).
+        goal_q: joint angles of every goal [rad], shape (G, >= robot.n_arm).
         goal_yz: goal points on the plane [m], shape (G, 2).
         robot: the robot (shield, kinematics).
         plane_x: the plane's x in ``base`` [m].
@@ -128,7 +128,7 @@ class Chooser:
         self, goal_q, goal_yz, robot, plane_x, ball_radius, steer: Steering, cfg,
         quadrature: PathValueConfig = PathValueConfig(),
     ):  # fmt: skip
-        self.goal_q = np.asarray(goal_q, dtype=float)[:, :3]
+        self.goal_q = np.asarray(goal_q, dtype=float)[:, : robot.n_arm]
         self.goal_yz = np.asarray(goal_yz, dtype=float)
         self.sampler = ShieldSampler(robot)
         self.geom = block_geometry(robot, plane_x, ball_radius)
@@ -177,7 +177,8 @@ class Chooser:
         branch_at: BranchPoint | None = None,
         table=None,
     ) -> tuple[Option, list[Option]]:
-        """The best motion from the commanded ``state`` (9,) at ``t_plan`` [s], and all scored.
+        """The best motion from the commanded ``state`` (3 n_arm,) at ``t_plan`` [s], and all
+        scored.
 
         Args:
             crossing_mean, crossing_cov: N(Y, Z, tau) of the crossing, tau from ``t_belief``.
@@ -242,11 +243,11 @@ class Chooser:
 
     # ------------------------------------------------------------------ values
     def score_joint_paths(self, joints, times, mean, cov, approach, t_start) -> np.ndarray:
-        """P(block) of joint 1-3 paths (M, T, 3) sampled at ``times`` (T,) [s, path clock]
+        """P(block) of joint 1-3 paths (M, T, n_arm) sampled at ``times`` (T,) [s, path clock]
         whose clock reads 0 at ``t_start`` [s] after the belief, shape (M,)."""
-        m, n_t = joints.shape[:2]
+        m, n_t, n = joints.shape
         planes = np.empty((6, m * n_t))  # the packed layout, filled by rows
-        self.sampler.centre_rows(joints.reshape(m * n_t, 3), out=planes[:3])
+        self.sampler.centre_rows(joints.reshape(m * n_t, n), out=planes[:3])
         if not np.logical_and.reduce(np.isfinite(planes[:3]), axis=None):
             raise ValueError("times and centres must be finite")
         packed = pack(times, planes, self.geom)
@@ -259,29 +260,30 @@ class Chooser:
 
 
 def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndarray):
-    """Joints 1-3 (1 + M, T, 3): the segment in progress at ``current_times`` and ``trajs`` at
+    """Joints 1-3 (1 + M, T, n): the segment in progress at ``current_times`` and ``trajs`` at
     ``times`` [s], each clipped to its trajectory (as :func:`_sample`, bit for bit: with compiled
     kernels the phases read once per trajectory and evaluated in one compiled pass,
     :mod:`traj_jit`; with numpy ones many samples in one numpy pass, few by at_time)."""
-    n_t = len(times)
     moving = ([current.traj] if current.traj is not None else []) + list(trajs)
+    # n: joints, the trajectories' (else the end state's: p, v, a)
+    n_t, n = len(times), moving[0].degrees_of_freedom if moving else len(current.end) // 3
     jit = kernels.compiled()
     if not jit and len(moving) * n_t < BATCH_SAMPLES:
         flat = _flat(current.traj, current_times.tolist(), current.end)
         shared = times.tolist()
         for tr in trajs:
             flat += _flat(tr, shared, None)
-        return np.array(flat, dtype=float).reshape(1 + len(trajs), n_t, 3)
-    out = np.empty((1 + len(trajs), n_t, 3))
+        return np.array(flat, dtype=float).reshape(1 + len(trajs), n_t, n)
+    out = np.empty((1 + len(trajs), n_t, n))
     first = 0 if current.traj is not None else 1
     if first:
-        out[0] = np.asarray(current.end[:3], dtype=float)
+        out[0] = np.asarray(current.end[:n], dtype=float)
     if not jit:
         table = TrajectoryTable(moving)
         owner = np.repeat(np.arange(len(moving)), n_t)
         t = np.concatenate([current_times] * (current.traj is not None) + [times] * len(trajs))
         t = np.minimum(np.maximum(t, 0.0), table.duration[owner])
-        out[first:] = table.positions(owner, t).reshape(len(moving), n_t, 3)
+        out[first:] = table.positions(owner, t).reshape(len(moving), n_t, n)
     elif moving:
         from thinkfast.robot.traj_jit import clipped_positions, phases
 
@@ -294,22 +296,23 @@ def _joint_paths(current, current_times: np.ndarray, trajs: list, times: np.ndar
 
 
 def _sample(traj, times: np.ndarray, end) -> np.ndarray:
-    """Joints 1-3 of ``traj`` at ``times`` [s] clipped to ``[0, duration]``, shape (T, 3), one
-    ``at_time`` per sample (the reference); a trajectory-less segment stays at ``end[:3]``."""
+    """Joints 1-3 of ``traj`` at ``times`` [s] clipped to ``[0, duration]``, shape (T, n), one
+    ``at_time`` per sample (the reference); a trajectory-less segment stays at the position
+    of its ``end`` state (3n,)."""
     if traj is None:
-        return np.tile(np.asarray(end[:3], dtype=float), (len(times), 1))
+        return np.tile(np.asarray(end[: len(end) // 3], dtype=float), (len(times), 1))
     dur = traj.duration
     rows = [traj.at_time(min(max(t, 0.0), dur))[0] for t in np.asarray(times).tolist()]
-    return np.array(rows, dtype=float).reshape(-1, 3)
+    return np.array(rows, dtype=float).reshape(-1, traj.degrees_of_freedom)
 
 
 def _flat(traj, times: list, end) -> list:
-    """:func:`_sample` flat (3 T floats) for ``times`` ascending (a list), with one ``at_time``
+    """:func:`_sample` flat (n T floats) for ``times`` ascending (a list), with one ``at_time``
     per distinct clipped time: the times at or before 0 read at 0, those at or after the end
     at the end."""
     n = len(times)
     if traj is None:
-        return [float(x) for x in end[:3]] * n
+        return [float(x) for x in end[: len(end) // 3]] * n
     at, dur = traj.at_time, traj.duration
     lo = bisect_right(times, 0.0)
     hi = max(bisect_left(times, dur), lo)

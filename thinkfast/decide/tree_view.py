@@ -18,6 +18,7 @@ import numpy as np
 
 from thinkfast.decide import backup as bk
 from thinkfast.decide import values as vl
+from thinkfast.errors import RobotModelError
 from thinkfast.estimate import crossing as delta
 from thinkfast.robot import kernels
 from thinkfast.tree.action_tree import ActionTree
@@ -98,5 +99,17 @@ class RuntimeTree:
 
 
 def runtime_tree(tree: ActionTree, robot, cfg) -> RuntimeTree:
-    """The runtime view of ``tree`` for ``robot``: blocks within shield + ball radius."""
+    """The runtime view of ``tree`` for ``robot``: blocks within shield + ball radius.
+
+    Raises:
+        RobotModelError: the tree's node states are not of ``robot.n_arm`` joints (p, v, a) or
+            its configurations not of ``robot.n_joints``: the tree moves other joints than the
+            robot's positioning ones.
+    """
+    arm, joints = tree.node_state.shape[1] // 3, tree.node_q.shape[1]
+    if (arm, joints) != (robot.n_arm, robot.n_joints):
+        raise RobotModelError(
+            f"{robot.toml_path}: the tree plans {arm} of {joints} joints, the robot positions "
+            f"the shield with {robot.n_arm} of {robot.n_joints} (positioning_joints)"
+        )
     return RuntimeTree(tree, cfg.value, robot.shield_radius + BALL_RADIUS)

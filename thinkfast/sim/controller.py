@@ -152,7 +152,7 @@ class Stamps:
 
 
 class JointHistory(NamedTuple):
-    """Recorded motion: ``t`` [s] (T,), ``q`` [rad] (T, 6), ``qd`` [rad/s] (T, 6)."""
+    """Recorded motion: ``t`` [s] (T,), ``q`` [rad] (T, n), ``qd`` [rad/s] (T, n) (n joints)."""
 
     t: np.ndarray
     q: np.ndarray
@@ -165,11 +165,14 @@ class SimController:
     Args:
         config: servo model and limits (limits left empty: the default robot's; a simulator
             of a robot passes :func:`servo_for` of it).
-        q0: initial joint angles [rad], shape (6,); zeros by default.
+        q0: initial joint angles [rad], shape (n,); zeros by default.
         max_history: keep only this many recent history samples and commands (None: all; a
             long run at 250 Hz would otherwise grow without bound).
         clock: ``tm`` stamps of a clock that is not hard real-time (None: exact, whole ms of
             the servo's time).
+
+    Attributes:
+        n: the arm's joints (one per value of each limit of ``config``).
     """
 
     def __init__(
@@ -181,13 +184,14 @@ class SimController:
     ):
         self.config = config = _resolved(config)
         self._stamps = None if clock is None else Stamps(clock)
-        self.q = np.zeros(6) if q0 is None else np.array(q0, dtype=float).reshape(6)
-        self.qd = np.zeros(6)
+        self.n = n = len(config.q_min)  # the arm's joints (the robot's: servo_for)
+        self.q = np.zeros(n) if q0 is None else np.array(q0, dtype=float).reshape(n)
+        self.qd = np.zeros(n)
         self.t = 0.0
         self.seqno = 0
         self.malformed = 0
-        self._ref = (self.q.copy(), np.zeros(6))  # active (q_ref, qd_ref) after the delay
-        self._filt = (self.q.copy(), np.zeros(6))  # low-passed reference
+        self._ref = (self.q.copy(), np.zeros(n))  # active (q_ref, qd_ref) after the delay
+        self._filt = (self.q.copy(), np.zeros(n))  # low-passed reference
         self._queue: collections.deque = collections.deque()
         self._lock = threading.Lock()
         self._hist: collections.deque[tuple[float, np.ndarray, np.ndarray]] = collections.deque(
@@ -246,7 +250,7 @@ class SimController:
         return True
 
     def command(self, q_ref, qd_ref, t: float | None = None) -> None:
-        """Queue a position [rad] and speed [rad/s] reference, shape (6,), received at ``t``."""
+        """Queue a position [rad] and speed [rad/s] reference, shape (n,), received at ``t``."""
         t = self.t if t is None else t
         q_ref, qd_ref = np.array(q_ref, dtype=float), np.array(qd_ref, dtype=float)
         with self._lock:
@@ -255,7 +259,7 @@ class SimController:
 
     def step(self, dt: float) -> None:
         """Integrate the servo model over ``dt`` [s] and record one history sample."""
-        cfg = self.config
+        cfg, nj = self.config, self.n  # nj: joints
         n = max(1, math.ceil(dt / cfg.substep - 1e-9))
         h = dt / n
         alpha = 1.0 - math.exp(-2.0 * math.pi * cfg.lowpass_hz * h)
@@ -264,7 +268,7 @@ class SimController:
             if not self.following:  # references ignored: the servo stops the arm where it is
                 self._queue.clear()
                 qd = self.qd
-                self._ref = (self.q + qd * np.abs(qd) / (2.0 * self._a_max), np.zeros(6))
+                self._ref = (self.q + qd * np.abs(qd) / (2.0 * self._a_max), np.zeros(nj))
                 fq, fqd = self._ref
             refs, ref, active = [], None, None
             for i in range(n):  # each substep's reference, as joint lists
@@ -273,19 +277,19 @@ class SimController:
                     self._ref = self._queue.popleft()[1:]
                 if self._ref is not active:
                     active = self._ref
-                    ref = tuple(_joint_list(r) for r in active)
+                    ref = tuple(_joint_list(r, nj) for r in active)
                 refs.append(ref)
             gain = (cfg.kff, cfg.kp, h / cfg.tau_v)
             # A zero substep divides by zero: numpy scalars give inf/nan as the arrays did.
             h_j = h if h else np.float64(h)
-            q, qd, fq, fqd = (_joint_list(x) for x in (self.q, self.qd, fq, fqd))
+            q, qd, fq, fqd = (_joint_list(x, nj) for x in (self.q, self.qd, fq, fqd))
             joints = [
                 _servo_joint(
                     (q[j], qd[j], fq[j], fqd[j]), refs, j, self._joint_limits[j], gain, alpha, h_j
                 )
-                for j in range(6)
+                for j in range(nj)
             ]
-            q, qd, fq, fqd = np.array(joints, dtype=float).T.copy()  # rows: C-contiguous (6,)
+            q, qd, fq, fqd = np.array(joints, dtype=float).T.copy()  # rows: C-contiguous (nj,)
             self._filt = (fq, fqd)
             self.q, self.qd, self.t = q, qd, self.t + dt
             self._hist.append((self.t, q.copy(), qd.copy()))
@@ -305,7 +309,7 @@ class SimController:
         with self._lock:
             rows = list(self._cmds)
         if not rows:
-            return JointHistory(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)))
+            return JointHistory(np.zeros(0), np.zeros((0, self.n)), np.zeros((0, self.n)))
         return JointHistory(
             np.array([r[0] for r in rows]),
             np.array([r[1] for r in rows]),
@@ -313,11 +317,12 @@ class SimController:
         )
 
 
-def _joint_list(x) -> list:
-    """Six joint values as floats, broadcast as the array form would (a (6,) array is quick)."""
-    if getattr(x, "shape", None) == (6,):
+def _joint_list(x, n: int) -> list:
+    """``n`` joint values as floats, broadcast as the array form would (an (n,) array is
+    quick)."""
+    if getattr(x, "shape", None) == (n,):
         return x.tolist()
-    return np.broadcast_to(x, (6,)).tolist()
+    return np.broadcast_to(x, (n,)).tolist()
 
 
 def _servo_joint(state, refs, j, limits, gain, alpha, h):
@@ -330,7 +335,7 @@ def _servo_joint(state, refs, j, limits, gain, alpha, h):
     Args:
         state: ``(q, qd, fq, fqd)``: position [rad], speed [rad/s] and the low-passed
             reference position [rad] and speed [rad/s].
-        refs: per substep, the active ``(q_ref, qd_ref)`` as lists of six joints [rad], [rad/s].
+        refs: per substep, the active ``(q_ref, qd_ref)`` as lists of every joint [rad], [rad/s].
         j: joint index.
         limits: ``(q_min, q_max, v_max, -v_max, a_max, -a_max)`` of the joint [rad, rad/s,
             rad/s^2].

@@ -42,7 +42,7 @@ class SimIrc5:
         egm_target: ``(host, port)`` of the daemon's EGM socket (the UDP unicast device).
         rws_host, rws_port: where RWS listens (port 0: a free one; see :attr:`url`).
         servo: the arm's servo model.
-        q0: joints at start [rad] (6,), default the servo's zero.
+        q0: joints at start [rad] (n_joints,), default the servo's zero.
         timing: durations of the simulated RAPID program.
     """
 
@@ -118,7 +118,7 @@ class SimIrc5:
             self.runner = None
 
     def joints(self) -> np.ndarray:
-        """The simulated arm's joints [rad] (6,)."""
+        """The simulated arm's joints [rad] (n_joints,)."""
         return self.sim.q.copy()
 
     def run(self, stop) -> None:

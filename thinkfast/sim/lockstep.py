@@ -230,20 +230,22 @@ def _oracle(world: World, throw: Throw, cross, t_go: float, t_rel: float):
     """Setpoint function of the oracle: from ``t_go`` on, a minimum-time move to the exact
     crossing."""
     robot = world.robot
-    steer = Steering(robot.v_max[:3], robot.a_max[:3], robot.j_max[:3])
+    n = robot.n_arm  # joints of the move; the wrist tracker's: q[n:]
+    steer = Steering(robot.v_max[:n], robot.a_max[:n], robot.j_max[:n])
     traj = _oracle_move(world, throw.plane_x, cross, steer, t_rel + cross.t - t_go)
     wrist = WristTracker(robot, 0.0, world.cfg.safety.position_margin)
-    wrist.reset(robot.home[3:], 0.0)
+    wrist.reset(robot.home[n:], 0.0)
+    m = wrist.n
     normal = np.array([1.0, 0.0, 0.0])
 
     def setpoint(t: float):
         s = t - t_go
         if traj is None or s <= 0.0:
-            p, v = robot.home[:3], np.zeros(3)
+            p, v = robot.home[:n], np.zeros(n)
         else:
             p, v, _ = traj.at_time(min(s, traj.duration))
         w = wrist.step(t, np.asarray(p), normal)
-        return np.r_[p, w[:3]], np.r_[v, w[3:6]]
+        return np.r_[p, w[:m]], np.r_[v, w[m : 2 * m]]
 
     return setpoint
 
@@ -253,7 +255,7 @@ COVER_DIRECTIONS = 8
 
 
 def _nearest_goal(tree, y: float, z: float) -> np.ndarray:
-    """Joint angles (6,) [rad] of the tree's goal nearest ``(y, z)`` on the plane [m]."""
+    """Joint angles (n_joints,) [rad] of the tree's goal nearest ``(y, z)`` on the plane [m]."""
     return tree.goal_q[int(np.argmin(np.sum(np.square(tree.goal_yz - [y, z]), axis=1)))]
 
 
@@ -270,12 +272,13 @@ def _oracle_move(world: World, plane_x: float, cross, steer: Steering, time_left
     oracle is not beaten by a planner's terminal edge that does either."""
     robot, tree = world.robot, world.tree
     normal = (1.0, 0.0, 0.0)
-    start = np.r_[robot.home[:3], np.zeros(6)]
+    n = robot.n_arm  # the move's joints, q[:n]
+    start = np.r_[robot.home[:n], np.zeros(2 * n)]
     seed = _nearest_goal(tree, cross.y, cross.z)
     ik = solve_shield_ik(world.kin, np.array([plane_x, cross.y, cross.z]), normal, seed)
     found = []
     if ik.converged and _inside(robot, ik.q):
-        traj = steer.to_rest(start, ik.q[:3])
+        traj = steer.to_rest(start, ik.q[:n])
         if traj is not None and traj.duration <= time_left:
             return traj
         found.append(ik.q)
@@ -290,9 +293,9 @@ def _oracle_move(world: World, plane_x: float, cross, steer: Steering, time_left
             if ik.converged and _inside(robot, ik.q):
                 found.append(ik.q)
     found.extend(tree.goal_q)
-    trajs = steer.to_rest_each(start, [q[:3] for q in found])
+    trajs = steer.to_rest_each(start, [q[:n] for q in found])
     at = max(time_left - world.cfg.execution.controller_lag, 0.0)  # the arm lags the command
-    q123 = np.array([start[:3] if t is None else t.at_time(min(at, t.duration))[0] for t in trajs])
+    q123 = np.array([start[:n] if t is None else t.at_time(min(at, t.duration))[0] for t in trajs])
     centres = world.shield.centres(q123)
     miss = np.hypot(centres[:, 1] - cross.y, centres[:, 2] - cross.z)
     miss[[t is None for t in trajs]] = np.inf
@@ -301,7 +304,8 @@ def _oracle_move(world: World, plane_x: float, cross, steer: Steering, time_left
 
 def _stay(home: np.ndarray):
     """Setpoint function that holds the arm at ``home``."""
-    return lambda t: (np.array(home, dtype=float), np.zeros(6))
+    n = len(home)
+    return lambda t: (np.array(home, dtype=float), np.zeros(n))
 
 
 def _inside(robot: Robot, q: np.ndarray) -> bool:

@@ -107,6 +107,7 @@ class Planner:
 
     def __init__(self, tree: RuntimeTree, robot: Robot, cfg: RunConfig, timeline: Timeline):
         self.tree, self.robot, self.cfg, self.timeline = tree, robot, cfg, timeline
+        self.n_arm = robot.n_arm  # the timeline's joints, q[:n_arm]
         self.lag = cfg.execution.controller_lag
         self.decision: Decision | None = None  # the at-rest backup of the last belief
 
@@ -118,12 +119,12 @@ class Planner:
         """Every tick while the arm is out, before the timeline is sampled at ``t`` [s]."""
 
     def resume_edge(self, q: np.ndarray) -> tuple[str, np.ndarray, int]:
-        """(kind, joint 1-3 target [rad] (3,), ref) the compiled tree edge in progress becomes
-        when planned again from the joints ``q`` (6,): a move to the most probable goal of the
-        last decision (none: a stop at ``q``)."""
-        d = self.decision
+        """(kind, joint 1-3 target [rad] (n_arm,), ref) the compiled tree edge in progress
+        becomes when planned again from the joints ``q`` (n_joints,): a move to the most
+        probable goal of the last decision (none: a stop at ``q``)."""
+        d, n = self.decision, self.n_arm
         goal = -1 if d is None or d.backup is None else int(d.backup.best_goal)
-        return STEER, self.tree.goal_q[goal, :3] if goal >= 0 else q[:3], goal
+        return STEER, self.tree.goal_q[goal, :n] if goal >= 0 else q[:n], goal
 
     def value(self) -> tuple[float, int] | None:
         """(value, goal) of the last decision: the at-rest backup at the timeline's node and its
@@ -153,5 +154,5 @@ class Planner:
         goal = self.tree.nearest_goal(c.mean[:2])
         seg = self.timeline.segment
         if not (seg.kind == STEER and seg.ref == goal):
-            self.timeline.steer_to(self.tree.goal_q[goal, :3], goal, b.t_now)
+            self.timeline.steer_to(self.tree.goal_q[goal, : self.n_arm], goal, b.t_now)
         return Act(leave=True)

@@ -64,7 +64,8 @@ class TreePlanner(Planner):
             return self.rush(b)
         if best.kind != DIRECT:
             return STAY  # continuing (at home: waiting) is worth the most
-        end = np.r_[self.tree.goal_q[best.goal, :3], np.zeros(6)]
+        n = self.n_arm
+        end = np.r_[self.tree.goal_q[best.goal, :n], np.zeros(2 * n)]
         tl.segment = Segment(STEER, b.t_now, best.traj, end, best.traj.duration, best.goal)
         tl.pending = None
         return Act(leave=True, value=best.value)
@@ -89,16 +90,17 @@ class TreePlanner(Planner):
         child, t0 = tl.pending
         if self.tree.compiled.node_parent[child] != tl.segment.ref:
             return None
-        target = self.tree.subgoal_q[self.tree.compiled.edge_target[child], :3]
+        n = self.n_arm
+        target = self.tree.subgoal_q[self.tree.compiled.edge_target[child], :n]
         traj = tl.steer.to_rest(tl.state(t0), target)
         if traj is None:
             return None
-        return Segment(EDGE, t0, traj, np.r_[target, np.zeros(6)], traj.duration, int(child))
+        return Segment(EDGE, t0, traj, np.r_[target, np.zeros(2 * n)], traj.duration, int(child))
 
     def resume_edge(self, q: np.ndarray) -> tuple[str, np.ndarray, int]:
         """An edge steers on to its sub-goal: resume that move."""
         seg = self.timeline.segment
-        return STEER, seg.end[:3], -1
+        return STEER, seg.end[: self.n_arm], -1
 
     def value(self) -> tuple[float, int] | None:
         return self.chosen
@@ -138,12 +140,13 @@ class TreePlanner(Planner):
         is taken then."""
         t = self.tree.compiled
         tl = self.timeline
-        target = self.tree.subgoal_q[t.edge_target[child], :3]
+        n = self.n_arm
+        target = self.tree.subgoal_q[t.edge_target[child], :n]
         traj = tl.steer.to_rest(tl.state(t0), target)
         tl.pending = None
         if traj is None:
             return
-        end = np.r_[target, np.zeros(6)]
+        end = np.r_[target, np.zeros(2 * n)]
         tl.segment = Segment(EDGE, t0, traj, end, traj.duration, int(child))
         tl.node = int(t.node_parent[child])
         ep.path.append(int(child))

@@ -54,7 +54,7 @@ class TreeRestPlanner(Planner):
             if b.best_goal < 0:
                 return STAY
             goal = int(b.best_goal)
-            self.timeline.steer_to(self.tree.goal_q[goal, :3], goal, t_now)
+            self.timeline.steer_to(self.tree.goal_q[goal, : self.n_arm], goal, t_now)
             return Act(leave=True, value=float(b.value[0]))
         first = self._next_from(0, t_now, ep)
         if first is None or (first.kind == EDGE and self._is_stay(first)):
@@ -76,13 +76,14 @@ class TreeRestPlanner(Planner):
         state = t.node_state[node]
         child, term = self.tree.best_child(d, node), self.tree.best_terminal(d, node)
         if child >= 0 and (term < 0 or b.child_value[node] >= b.term_value[node]):
-            target = self.tree.subgoal_q[t.edge_target[child], :3]
+            target = self.tree.subgoal_q[t.edge_target[child], : self.n_arm]
             traj = self.timeline.steer.to_rest(state, target)
             if traj is not None:
                 return Segment(EDGE, t0, traj, t.node_state[child], self.tree.eps, child)
         if term >= 0:
             goal = int(t.term_goal[term])
-            seg = move(self.timeline.steer, TERMINAL, state, self.tree.goal_q[goal, :3], t0, term)
+            target = self.tree.goal_q[goal, : self.n_arm]
+            seg = move(self.timeline.steer, TERMINAL, state, target, t0, term)
             if seg is not None:
                 ep.terminal = term
                 return seg
@@ -100,4 +101,4 @@ class TreeRestPlanner(Planner):
             current = int(self.tree.compiled.term_goal[current])
         if current == goal:
             return
-        self.timeline.steer_to(self.tree.goal_q[goal, :3], goal, t_now)
+        self.timeline.steer_to(self.tree.goal_q[goal, : self.n_arm], goal, t_now)
