@@ -242,20 +242,20 @@ def _no_daemon_outlives_its_test():
             run.stop(timeout=5.0)
 
 
-HOME_J1 = 0.1  # joint_1 at home [rad] of the robot of other_home_tree (the default's is 0)
+HOME_J6 = 0.5  # joint_6 at home [rad] of the robot of other_home_tree (the default's is 0)
 TURNED_NAME = "abb_turned"  # its name
 
 
 def other_home_tree(directory: Path) -> tuple[Path, Path]:
-    """A robot folder made in ``directory`` (robots/irb1600 copied, its robot.toml's home
-    turned to joint_1 = :data:`HOME_J1`) and a small tree compiled for it (goals every 0.3 m,
-    max_depth 1): (tree, robot.toml)."""
+    """A robot folder made in ``directory`` (robots/irb1600 copied, its robot.toml's home with
+    joint_6 = :data:`HOME_J6`: another joint vector, the same shield pose, so still on the
+    plane) and a small tree compiled for it (goals every 0.3 m, max_depth 1): (tree, robot.toml)."""
     rdir = directory / "turned"
     shutil.copytree(ROBOT_TOML.parent, rdir)
     toml = rdir / "robot.toml"
     text = toml.read_text()
-    assert text.count("\nhome = [0.0, ") == 1
-    text = text.replace("\nhome = [0.0, ", f"\nhome = [{HOME_J1!r}, ")
+    assert text.count(", 0.0]\n\n# Data sheet") == 1
+    text = text.replace(", 0.0]\n\n# Data sheet", f", {HOME_J6!r}]\n\n# Data sheet")
     toml.write_text(text.replace('name = "abb_irb1600_10_145"', f'name = "{TURNED_NAME}"'))
     config = small_tree_config(directory, robot=toml, spacing=0.3, depth=1)
     return compile_cached(config, directory / "turned.h5"), toml

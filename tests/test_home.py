@@ -80,11 +80,17 @@ def test_the_simulated_controller_starts_at_a_solved_home(solved_tree):
 def test_a_given_home_off_the_plane_is_refused_with_the_distance(tmp_path):
     """The default robot's home, made for the plane at 0.8 m, stands 13 mm off a plane at
     0.813 m (the 1.2 m arm's case): refused naming the key, the distance and the fix."""
+    from tests.conftest import run_cli
     from thinkfast.compile.config import load_compile_config
 
-    config = _config(tmp_path, ROBOT_TOML, "[plane]\ndistance = 0.813\n")
+    config = _config(tmp_path, ROBOT_TOML, "[plane]\ndistance = 0.813\n[goals]\nspacing = 0.5\n")
+    loaded = load_compile_config(config)
     with pytest.raises(ConfigError, match=r"tree\.home.*13\.0 mm off the plane.*solve"):
-        load_compile_config(config).robot()
+        loaded.check_home(loaded.robot())
+    out = tmp_path / "t.h5"
+    proc = run_cli("thinkfast-compile", "tree", str(config), "-o", str(out), "--jobs", "1")
+    assert proc.returncode == 1 and not out.exists()
+    assert "tree.home" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     ok = _config(tmp_path, ROBOT_TOML, '[plane]\ndistance = 0.813\n[tree]\nhome = "solve"\n')
     from thinkfast.compile.home import home_error
 

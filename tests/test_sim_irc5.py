@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import HOME_J1, ROBOT_TOML, assert_one_line_error, other_home_tree, run_cli
+from tests.conftest import HOME_J6, ROBOT_TOML, assert_one_line_error, other_home_tree, run_cli
 from tests.daemon_harness import free_port, until
 from thinkfast.contract.zenoh_session import free_tcp_port
 
@@ -151,7 +151,7 @@ def test_the_simulated_controller_starts_at_the_trees_home(turned):
 
     tree, toml = turned
     robot, servo, plane = controller_cell(tree, None, None)
-    assert robot.toml_path == toml.resolve() and robot.home[0] == HOME_J1
+    assert robot.toml_path == toml.resolve() and robot.home[5] == HOME_J6
     assert servo.q_max == tuple(robot.q_upper) and servo.a_max == tuple(robot.a_max)
     assert plane == (0.8, str(tree))
     egm, zport = free_port(), free_tcp_port()

@@ -111,7 +111,7 @@ def test_diff_reports_a_changed_parameter_and_exits_1(trees, other, key):
     lines = proc.stdout.splitlines()
     assert lines[2:4] == [
         "provenance:",
-        "  parameters: 1 of 22 differ (resolved, defaults filled in):",
+        "  parameters: 1 of 23 differ (resolved, defaults filled in):",
     ]
     assert lines[4].startswith(f"    {key}: ")
     for same in ("  robot files: equal", "  versions: equal", "  machine: equal"):

@@ -49,6 +49,7 @@ def compile_tree(
     robot = loaded.robot()  # placed in the plane's frame
     grid = solve_goal_grid(robot, cfg.goals, cfg.plane.distance)
     require_reachable(grid, str(loaded.path))
+    loaded.check_home(robot)  # robot.toml's home on this plane (a solved one is)
     reach = grid.goal_index
     goal_q = np.array(grid.q[reach])
     goal_yz = np.array(grid.yz[reach])

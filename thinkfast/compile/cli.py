@@ -67,6 +67,7 @@ def goals(
         goal_png(grid, robot, str(png))
         print(f"wrote {png}")
     require_reachable(grid, str(config))
+    loaded.check_home(robot)
 
 
 @app.command()

@@ -144,13 +144,21 @@ class LoadedConfig:
         is in the plane's frame.
 
         Raises:
-            ConfigError: robot.toml's home is off the plane, or no home can be solved.
+            ConfigError: no home can be solved. robot.toml's home on the plane is checked by
+                :meth:`check_home`, after the goal grid.
         """
         from thinkfast.compile.home import resolve_home
         from thinkfast.robot.model import load_robot
 
         placed = load_robot(self.robot_path).placed(self.config.plane.pose())
         return resolve_home(placed, self.config, str(self.path))
+
+    def check_home(self, robot) -> None:
+        """Refuse robot.toml's home when its shield is off this config's plane
+        (:func:`thinkfast.compile.home.check_home`)."""
+        from thinkfast.compile.home import check_home
+
+        check_home(robot, self.config, str(self.path))
 
     def parameters(self, robot) -> dict:
         """The resolved configuration as a tree records it (``parameters``): every key, except

@@ -109,14 +109,25 @@ def solve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config")
 
 
 def resolve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config") -> Robot:
-    """``robot`` with the home the tree is compiled from (see the module doc).
+    """``robot`` with the home the tree is compiled from (see the module doc): robot.toml's
+    under ``"auto"`` (not checked here: :func:`check_home`, once the goal grid is known to
+    be reachable, so that a plane out of reach is said first), else the solved one.
 
     Raises:
-        ConfigError: robot.toml's home is off the plane under ``"auto"`` (names ``tree.home``,
-            the distance and the fix), or no home can be solved.
+        ConfigError: no home can be solved.
     """
-    mode = cfg.tree.home
-    if mode == "auto" and robot.home is not None:
+    if cfg.tree.home == "auto" and robot.home is not None:
+        return robot
+    return robot.with_home(solve_home(robot, cfg, source), solved=True)
+
+
+def check_home(robot: Robot, cfg: CompileConfig, source: str = "compile config") -> None:
+    """Refuse a home read from robot.toml whose shield is off the plane (a solved one is on it).
+
+    Raises:
+        ConfigError: names ``tree.home``, the distance, the angle and the fix.
+    """
+    if robot.home is not None and not robot.home_solved:
         off, ang = home_error(robot, robot.home, cfg.plane.distance)
         if off > PLANE_TOLERANCE or ang > NORMAL_TOLERANCE:
             raise ConfigError(
@@ -128,5 +139,3 @@ def resolve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config
                 f'{math.degrees(NORMAL_TOLERANCE):g} deg): set [tree] home = "solve" to solve '
                 "it for this plane's region, or fix robot.toml's home",
             )
-        return robot
-    return robot.with_home(solve_home(robot, cfg, source), solved=True)

@@ -23,7 +23,7 @@ from thinkfast.sim.cli_options import (
 from thinkfast.sim.planners import DEFAULT, check_planners, lockstep_planners
 
 # the bench JSON's keys that say where its numbers came from (the rest are the statistics)
-PROVENANCE = ("tree_fingerprint", "machine", "versions")
+PROVENANCE = ("tree_fingerprint", "cell", "machine", "versions")  # where, not what
 
 
 def bench(
