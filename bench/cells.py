@@ -71,8 +71,11 @@ def one_cell(config: Path, out: Path, throws: int, seed: int, jobs: int) -> dict
         "verify": rc_verify == 0 and "verify: OK" in text,
         "fingerprint": fp,
         "size": size,
-        "seconds": {"compile": round(t_compile, 1), "verify": round(t_verify, 1),
-                    "bench": round(t_bench, 1)},  # fmt: skip
+        "seconds": {
+            "compile": round(t_compile, 1),
+            "verify": round(t_verify, 1),
+            "bench": round(t_bench, 1),
+        },  # fmt: skip
     }
 
 
@@ -91,10 +94,19 @@ def table(rows: list[dict], throws: int) -> str:
         lo, hi = s["planners"]["tree"]["ci95"]
         bound = all(blocked["oracle"] >= v for v in blocked.values())
         lines.append(
-            "| " + " | ".join([r["name"], cell["robot"], plane,
-                               *(str(blocked[k]) for k in PLANNERS),
-                               f"[{lo * 100:.1f}, {hi * 100:.1f}] %", "yes" if bound else "**no**",
-                               "OK" if r["verify"] else "**FAILED**"]) + " |"  # fmt: skip
+            "| "
+            + " | ".join(
+                [
+                    r["name"],
+                    cell["robot"],
+                    plane,
+                    *(str(blocked[k]) for k in PLANNERS),
+                    f"[{lo * 100:.1f}, {hi * 100:.1f}] %",
+                    "yes" if bound else "**no**",
+                    "OK" if r["verify"] else "**FAILED**",
+                ]
+            )
+            + " |"  # fmt: skip
         )
     lines.append(f"\n({throws} throws per cell, no feints; blocked counts of {throws})")
     return "\n".join(lines)
