@@ -153,7 +153,7 @@ class ReplyLoop:
         elif not stale and sup.brake_reason == "planner_stale" and sup.stopped:
             core.invalidate()
             sup.release()  # the planner speaks again: plan on from where the arm stopped
-            z = np.zeros(6)
+            z = np.zeros(len(sup.q))
             self.follower.resync(np.array(sup.q), z, z, core.clock.t)
             self.events.append(event_row(core.clock.t, "planner_resumed"))
 

@@ -180,7 +180,8 @@ class SplitDaemon(Daemon):
                                      "ready": bool(row[COL["ready"]])}  # fmt: skip
             self._event(t, "controller_state", self.controller_state)
         if row[COL["stepped"]]:  # the executor's episode at this controller time
-            ex.wrist.reset(q[3:], t, qd[3:], qdd[3:])  # its wrist where the reply loop's is
+            n = ex.n_arm  # the wrist's joints follow the positioning joints
+            ex.wrist.reset(q[n:], t, qd[n:], qdd[n:])  # its wrist where the reply loop's is
             try:
                 ex.setpoint(t)
             except Exception as exc:

@@ -70,8 +70,8 @@ class ChannelPainter:
         (live_view.WAIT_DECAY) and hold the view's queue for seconds."""
         emit, self.emit = self.emit, lambda t, topic, data: None
         try:
-            q = np.asarray(robot.home, dtype=float)
-            self.joints(0.0, q, np.zeros(6), q)
+            q = np.asarray(robot.any_q, dtype=float)
+            self.joints(0.0, q, np.zeros(robot.n_joints), q)
             self.raw(0.0, (1.0, 0.0, 1.0))
             self.belief(0.0, np.r_[1.0, 0.0, 1.0, -1.0, 0.0, 0.0], np.eye(6))
             self.crossing(0.0, np.zeros(3), np.eye(3))
