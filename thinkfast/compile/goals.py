@@ -111,6 +111,16 @@ def _limit_violation(robot: Robot, q: np.ndarray) -> str:
     return ""
 
 
+def candidate_problem(robot: Robot, checker: CollisionChecker, q: np.ndarray) -> str:
+    """Why the IK solution ``q`` cannot be a goal (or home): a joint limit, else a collision
+    (the first pair); "" when it can."""
+    why = _limit_violation(robot, q)
+    if not why:
+        hits = checker.collisions(q)
+        why = f"collision: {hits[0][0]} / {hits[0][1]}" if hits else ""
+    return why
+
+
 def solve_goal_grid(
     robot: Robot,
     cfg: GoalsConfig,
@@ -162,10 +172,7 @@ def solve_goal_grid(
                 miss = min(miss, res.position_error)
                 continue
             for cand in _variants(robot, res.q):
-                why = _limit_violation(robot, cand)
-                if not why:
-                    hits = checker.collisions(cand)
-                    why = f"collision: {hits[0][0]} / {hits[0][1]}" if hits else ""
+                why = candidate_problem(robot, checker, cand)
                 if why:
                     if not failure.startswith("collision"):
                         failure = why  # report the deepest test reached

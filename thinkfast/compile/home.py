@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from thinkfast.compile.config import CompileConfig
-from thinkfast.compile.goals import SHIELD_NORMAL, _limit_violation, _variants
+from thinkfast.compile.goals import SHIELD_NORMAL, _variants, candidate_problem
 from thinkfast.errors import ConfigError
 from thinkfast.robot import fixed_order as fo
 from thinkfast.robot.collision import CollisionChecker
@@ -86,10 +86,7 @@ def solve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config")
             miss = min(miss, res.position_error)
             continue
         for cand in _variants(robot, res.q):
-            problem = _limit_violation(robot, cand)
-            if not problem:
-                hits = checker.collisions(cand)
-                problem = f"collision: {hits[0][0]} / {hits[0][1]}" if hits else ""
+            problem = candidate_problem(robot, checker, cand)
             if problem:
                 why = why or problem
                 continue
