@@ -98,7 +98,7 @@ def test_diff_of_a_tree_with_itself_and_its_reloaded_copy_is_same(tree, tmp_path
 def test_a_changed_parameter_is_reported_even_with_identical_arrays(tree):
     result = tree_diff(tree, with_config(tree, "max_depth = 3", "max_depth = 4"))
     assert not result.same
-    assert "  parameters: 1 of 22 differ (resolved, defaults filled in):\n" in result.text
+    assert "  parameters: 1 of 23 differ (resolved, defaults filled in):\n" in result.text
     assert "\n    tree.max_depth: 3 -> 4\n" in result.text
     assert result.text.splitlines()[-1] == "different: parameters differ"
 
@@ -114,7 +114,7 @@ def test_a_default_left_out_of_or_written_into_the_text_is_no_change(tree):
         assert "  parameters: equal (resolved" in result.text
         assert "config sha256: " in result.text and "(text only: comments, layout" in result.text
     text = tree_diff(left_out, with_config(tree, "eps = 0.1\n", "eps = 0.12\n")).text
-    assert "  parameters: 1 of 22 differ" in text and "    tree.eps: 0.1 -> 0.12" in text
+    assert "  parameters: 1 of 23 differ" in text and "    tree.eps: 0.1 -> 0.12" in text
     assert "absent" not in text and "not recorded" not in text
 
 
