@@ -153,7 +153,10 @@ def test_the_simulated_controller_starts_at_the_trees_home(turned):
     robot, servo, plane = controller_cell(tree, None, None)
     assert robot.toml_path == toml.resolve() and robot.home[5] == HOME_J6
     assert servo.q_max == tuple(robot.q_upper) and servo.a_max == tuple(robot.a_max)
-    assert plane == (0.8, str(tree))
+    assert plane[:2] == (0.8, str(tree)) and (plane.aim_y, plane.aim_z) == (
+        (-0.9, 0.9),
+        (0.25, 1.75),
+    )
     egm, zport = free_port(), free_tcp_port()
     proc = start_daemon(tree, "tree", egm, zport, "thinkfast", None, None)
     irc5, stop, status = None, [], None
