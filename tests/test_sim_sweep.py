@@ -350,3 +350,17 @@ def test_the_example_and_benchmark_sweeps_load():
     assert (len(example.points), len({p.tree_key for p in example.points})) == (8, 4)
     timed = load_sweep(ROOT / "bench" / "sweep_4x200.toml")
     assert len({p.tree_key for p in timed.points}) == 4 and timed.settings.throws == 200
+
+
+def test_an_embedded_cluster_leaves_this_processs_environment_as_it_was():
+    """Dask's nannies set thread limits (OMP_NUM_THREADS=1, ...) for their workers in the
+    parent's os.environ; left there, every process started afterwards (a bench, a compile)
+    ran with one BLAS thread and recorded another machine than this one."""
+    import os
+
+    from thinkfast.sim.cluster import open_client
+
+    before = dict(os.environ)
+    with open_client("local", 1) as client:
+        assert client is not None
+    assert dict(os.environ) == before

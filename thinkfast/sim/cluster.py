@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import logging
+import os
 import tempfile
 import threading
 import time
@@ -211,6 +212,18 @@ class DaskClient:
             self.cluster.close()
 
 
+def _restore_environ(before: dict[str, str]) -> None:
+    """This process's environment as it was before an embedded cluster: Dask's nannies set
+    thread limits for their workers (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ... = 1,
+    ``MALLOC_TRIM_THRESHOLD_``) in the parent's ``os.environ`` and leave them there, where
+    every process it starts afterwards (a bench, a compile) would inherit them."""
+    for key in set(os.environ) - set(before):
+        del os.environ[key]
+    for key, value in before.items():
+        if os.environ.get(key) != value:
+            os.environ[key] = value
+
+
 @contextlib.contextmanager
 def open_client(scheduler: str, workers: int) -> Iterator[InlineClient | DaskClient]:
     """A client for ``scheduler``: ``serial`` (this process, no Dask), ``local`` (an embedded
@@ -231,6 +244,7 @@ def open_client(scheduler: str, workers: int) -> Iterator[InlineClient | DaskCli
             f"--scheduler {scheduler}: Dask is not installed (pip install 'thinkfast[sweep]', "
             "or --scheduler serial)"
         ) from None
+    environ = dict(os.environ)  # the embedded cluster's nannies change it: see _restore_environ
     if scheduler == LOCAL:
         cluster = distributed.LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
@@ -256,6 +270,8 @@ def open_client(scheduler: str, workers: int) -> Iterator[InlineClient | DaskCli
         yield wrapped
     finally:
         wrapped.close()
+        if scheduler == LOCAL:
+            _restore_environ(environ)
 
 
 # --- one bench ------------------------------------------------------------------------------
