@@ -5,7 +5,6 @@ from __future__ import annotations
 import fcntl
 import functools
 import hashlib
-import json
 import os
 import shutil
 import subprocess
@@ -197,19 +196,15 @@ def compile_cached(config: Path, path: Path) -> Path:
 
     The same config always gives the same tree, so each one is compiled once per machine and
     source state: test processes (parallel workers, the real-time step) share a cache keyed by
-    the config text, :func:`_compiler_sources_digest`, the files of the config's robot folder and
-    the machine record the tree would carry, filled under a file lock; every caller
+    the config text, :func:`_compiler_sources_digest` and the files of the config's robot folder,
+    filled under a file lock; every caller
     gets its own copy (tests may damage theirs).
     """
     from thinkfast.compile.build import compile_tree
     from thinkfast.compile.config import load_compile_config
-    from thinkfast.machine import machine_info
     from thinkfast.tree.file import save_tree
 
     h = hashlib.sha256((config.read_text() + _compiler_sources_digest()).encode())
-    # the tree records the machine it was made on (its kernels' environment, cores, BLAS): a
-    # cached tree is this process's own, or a diff against a fresh one sees two machines
-    h.update(json.dumps(machine_info(), sort_keys=True).encode())
     robot_dir = load_compile_config(config).robot_path.parent  # a robot folder outside robots/
     for f in sorted(robot_dir.glob("*")) if robot_dir.is_dir() else ():
         if f.is_file():
