@@ -25,14 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent
 ZENOH = ROOT / "thinkfast" / "sim" / "loopback_zenoh.json5"
-
-
-def free_port(kind=None) -> int:
-    import socket
-
-    with socket.socket(socket.AF_INET, kind or socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+sys.path.insert(0, str(ROOT))  # bench.faultkit
 
 
 def until(pred, timeout: float) -> bool:
@@ -45,8 +38,8 @@ def until(pred, timeout: float) -> bool:
 
 
 def rehearse(tree: Path, throws: int, seed: int, workdir: Path, use_kit: bool = True) -> dict:
-    import socket
-
+    from bench.faultkit.senders import free_udp_port
+    from thinkfast.contract.zenoh_session import free_tcp_port
     from thinkfast.tree.file import load_meta
     from thinkfast.tree.robot_match import tree_robot_path
 
@@ -55,7 +48,7 @@ def rehearse(tree: Path, throws: int, seed: int, workdir: Path, use_kit: bool = 
     kit = workdir / f"{tree.stem}.controller"
     subprocess.run([str(BIN / "thinkfast-compile"), "kit", str(robot_toml), "--tree", str(tree),
                     "-o", str(kit)], check=True, capture_output=True)  # fmt: skip
-    egm, rws, zen = free_port(socket.SOCK_DGRAM), free_port(), free_port()
+    egm, rws, zen = free_udp_port(), free_tcp_port(), free_tcp_port()
     log = tempfile.TemporaryFile(mode="w+")
     daemon = subprocess.Popen(
         [str(BIN / "thinkfast-run"), "--tree", str(tree), "--egm-bind", f"127.0.0.1:{egm}",

@@ -182,8 +182,7 @@ def verify(
 
     tree_ = load_tree(path)
     prov = Provenance.of(tree_.meta, str(path))
-    params = {k: v for k, v in prov.parameters.items() if k != "home"}  # solved: the tree's own
-    config = from_dict(CompileConfig, params, f"{path}: attribute parameters")
+    config = from_dict(CompileConfig, prov.config_parameters, f"{path}: attribute parameters")
     if robot_path is None:
         robot_path = (Path(prov.config_path).parent / config.robot).resolve()
     robot = place_for_tree(tree_.meta, load_robot(robot_path), str(path))  # plane and home

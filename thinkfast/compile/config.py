@@ -42,10 +42,8 @@ class PlaneConfig:
     def parameters(self) -> dict:
         """The plane as a tree records it: the pose keys only where the plane has a pose, so
         that a plane without one is the same tree as before poses existed."""
-        out = {"distance": self.distance}
-        if not self.pose().identity:
-            out.update(yaw=self.yaw, offset=self.offset, base_height=self.base_height)
-        return out
+        pose = self.pose()
+        return {"distance": self.distance} if pose.identity else pose.as_dict()
 
 
 @dataclass(frozen=True)
@@ -64,6 +62,11 @@ class GoalsConfig:
         unit="rad",
         doc="largest joint 1-3 jump to a solved neighbour before a branch switch is assumed",
     )
+
+    def region(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The protected region, ``((y_min, y_max), (z_min, z_max))`` [m] on the plane (a
+        tree's ``Provenance.region``)."""
+        return (self.y_min, self.y_max), (self.z_min, self.z_max)
 
 
 @dataclass(frozen=True)

@@ -111,6 +111,11 @@ def _limit_violation(robot: Robot, q: np.ndarray) -> str:
     return ""
 
 
+def normal_error(normal: np.ndarray) -> float:
+    """Angle [rad] between a shield normal (3,) and the plane's, :data:`SHIELD_NORMAL`."""
+    return math.atan2(fo.norm(np.cross(normal, SHIELD_NORMAL)), normal[0])
+
+
 def candidate_problem(robot: Robot, checker: CollisionChecker, q: np.ndarray) -> str:
     """Why the IK solution ``q`` cannot be a goal (or home): a joint limit, else a collision
     (the first pair); "" when it can."""
@@ -188,7 +193,7 @@ def solve_goal_grid(
         q[i] = best
         pose = kin.shield(best)
         pos_err[i] = fo.norm(pose.centre - target)
-        ang_err[i] = math.atan2(fo.norm(np.cross(pose.normal, SHIELD_NORMAL)), pose.normal[0])
+        ang_err[i] = normal_error(pose.normal)
     reachable = ~np.isnan(q[:, 0])
     for arr in (q, pos_err, ang_err, reachable, yz):
         arr.setflags(write=False)

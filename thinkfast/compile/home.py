@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from thinkfast.compile.config import CompileConfig
-from thinkfast.compile.goals import SHIELD_NORMAL, _variants, candidate_problem
+from thinkfast.compile.goals import SHIELD_NORMAL, _variants, candidate_problem, normal_error
 from thinkfast.errors import ConfigError
 from thinkfast.robot import fixed_order as fo
 from thinkfast.robot.collision import CollisionChecker
@@ -33,7 +33,6 @@ from thinkfast.robot.model import Robot
 
 PLANE_TOLERANCE = 0.005  # m: a given home's shield centre within this of the plane
 NORMAL_TOLERANCE = math.radians(2.0)  # rad: and its normal within this of the plane's normal
-HOME_MODES = ("auto", "solve")
 
 # Seeds of the home solve, in the positioning joints (joint_1 is aimed at the target, the wrist
 # starts straight): elbow-up configurations of a 6-axis ABB arm, from upright to leaning forward.
@@ -45,14 +44,13 @@ def home_error(robot: Robot, q: np.ndarray, distance: float) -> tuple[float, flo
     distance from the plane [m] and the angle of its normal from the plane's [rad] (both in the
     robot's frame: the plane's when placed)."""
     pose = Kinematics(robot).shield(np.asarray(q, dtype=np.float64))
-    ang = math.atan2(fo.norm(np.cross(pose.normal, SHIELD_NORMAL)), pose.normal[0])
-    return abs(float(pose.centre[0]) - distance), float(ang)
+    return abs(float(pose.centre[0]) - distance), float(normal_error(pose.normal))
 
 
 def region_centre(cfg: CompileConfig) -> np.ndarray:
     """The protected region's centre on the plane, in the plane's frame [m] (3,)."""
-    g = cfg.goals
-    return np.array([cfg.plane.distance, 0.5 * (g.y_min + g.y_max), 0.5 * (g.z_min + g.z_max)])
+    (y0, y1), (z0, z1) = cfg.goals.region()
+    return np.array([cfg.plane.distance, 0.5 * (y0 + y1), 0.5 * (z0 + z1)])
 
 
 def solve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config") -> np.ndarray:
@@ -115,7 +113,7 @@ def resolve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config
     """
     if cfg.tree.home == "auto" and robot.home is not None:
         return robot
-    return robot.with_home(solve_home(robot, cfg, source), solved=True)
+    return robot.with_home(solve_home(robot, cfg, source))
 
 
 def check_home(robot: Robot, cfg: CompileConfig, source: str = "compile config") -> None:

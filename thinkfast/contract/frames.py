@@ -95,6 +95,9 @@ def to_base(det: Detection, R_base_camera: np.ndarray, p_base_camera: np.ndarray
     return det._replace(position=pos, frame="base", covariance=cov)
 
 
+POSE_KEYS = ("yaw", "offset", "base_height")  # PlanePose's pose, beside its distance
+
+
 @dataclasses.dataclass(frozen=True)
 class PlanePose:
     """Where the intercept plane stands in ``base``, and the ``plane`` frame it defines.
@@ -114,6 +117,20 @@ class PlanePose:
     yaw: float = 0.0  # rad: the plane's normal turned about base z
     offset: float = 0.0  # m: the plane's centre line, to the left of the base's axis
     base_height: float = 0.0  # m: the base's origin above the floor
+
+    @classmethod
+    def from_dict(cls, d) -> PlanePose:
+        """The pose of a ``{"distance", "yaw", "offset", "base_height"}`` mapping (a tree's
+        ``parameters.plane``, a record's ``plane``); a pose key left out is 0.
+
+        Raises:
+            KeyError: no ``distance``. TypeError, ValueError: a value that is not a number.
+        """
+        return cls(float(d["distance"]), *(float(d.get(k, 0.0)) for k in POSE_KEYS))
+
+    def as_dict(self) -> dict[str, float]:
+        """``{"distance", "yaw", "offset", "base_height"}`` [m, rad], in that order."""
+        return {"distance": float(self.distance), **{k: float(getattr(self, k)) for k in POSE_KEYS}}
 
     @property
     def identity(self) -> bool:

@@ -124,7 +124,7 @@ class DaemonView:
         self, painter: Painter, cfg, tree_view, joint_rate: float = 50.0, queue=512, plane=None
     ):
         from thinkfast.contract.detection import parse_detection
-        from thinkfast.contract.frames import to_base
+        from thinkfast.contract.frames import PlanePose, to_base
 
         self.painter, self.cfg, self.tree = painter, cfg, tree_view
         self.period = 1.0 / joint_rate
@@ -139,7 +139,7 @@ class DaemonView:
         self._parse, self._to_base = parse_detection, to_base
         self._R, self._p = cfg.camera.rotation(), cfg.camera.translation()
         # raw detections are in base on the wire; the view draws in the frame of the estimates
-        self._plane = None if plane is None or plane.identity else plane
+        self._plane = PlanePose() if plane is None else plane
         self._last_motion: tuple | None = None
         self.status_msg: dict | None = None  # the daemon's last status message, not yet drawn
         self.next_status = -math.inf
@@ -225,8 +225,7 @@ class DaemonView:
         p = self.painter
         det = self._parse(s.payload, self.cfg.detections)
         if hasattr(det, "position"):
-            x = self._to_base(det, self._R, self._p).position
-            p.raw(s.t, x if self._plane is None else self._plane.to_plane(np.asarray(x, float)))
+            p.raw(s.t, self._plane.to_plane(self._to_base(det, self._R, self._p).position))
         if s.accepted is not None:
             p.accepted(s.t, s.accepted.position)
 

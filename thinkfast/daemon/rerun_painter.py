@@ -105,14 +105,14 @@ class Painter:
             rec.log(f"joints/{name}", rr.SeriesLines(names=names), static=True)
 
     def raw(self, t: float, p: np.ndarray) -> None:
-        """A detection as received, in base [m]."""
+        """A detection as received, in the plane's frame [m] (``base`` without a pose)."""
         self._at(t)
         self.raw_trail.append(np.asarray(p, dtype=float))
         pts = np.array(self.raw_trail)
         self.rec.log("world/detections/raw", self.rr.Points3D(pts, radii=0.006, colors=GREY))
 
     def accepted(self, t: float, p: np.ndarray) -> None:
-        """A detection the intake accepted, in base [m]."""
+        """A detection the intake accepted, in the plane's frame [m] (``base`` without a pose)."""
         self._at(t)
         self.acc_trail.append(np.asarray(p, dtype=float))
         pts = np.array(self.acc_trail)

@@ -86,12 +86,12 @@ class ChannelPainter:
         self.emit(t, SCENE_TOPIC, self.scene.update([e for e in entities if e is not None]))
 
     def raw(self, t: float, p) -> None:
-        """A detection as received, in base [m]."""
+        """A detection as received, in the plane's frame [m] (``base`` without a pose)."""
         if self.ros:
             self.emit(t, "/thinkfast/detections/raw", cdr_point_stamped(t, p))
 
     def accepted(self, t: float, p) -> None:
-        """A detection the intake accepted, in base [m]."""
+        """A detection the intake accepted, in the plane's frame [m] (``base`` without a pose)."""
         if self.ros:
             self.emit(t, "/thinkfast/detections/accepted", cdr_point_stamped(t, p))
 

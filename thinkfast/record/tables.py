@@ -64,10 +64,7 @@ class RawPoints(NamedTuple):
 def plane_json(plane) -> str:
     """A :class:`~thinkfast.contract.frames.PlanePose` (or None: ``base``) as a record's
     ``plane`` attribute: JSON ``{"distance", "yaw", "offset", "base_height"}``, or ``""``."""
-    if plane is None:
-        return ""
-    keys = ("distance", "yaw", "offset", "base_height")
-    return json.dumps({k: float(getattr(plane, k)) for k in keys})
+    return "" if plane is None else json.dumps(plane.as_dict())
 
 
 def record_plane(record: Record):
@@ -75,16 +72,14 @@ def record_plane(record: Record):
     for ``base`` (a record without one, or of a plane without a pose).
 
     Raises:
-        ValueError: the attribute is not the JSON :func:`plane_json` writes.
+        ValueError, KeyError: the attribute is not the JSON :func:`plane_json` writes.
     """
     from thinkfast.contract.frames import PlanePose
 
     text = record.attrs.get("plane") or ""
     if not text:
         return None
-    d = json.loads(text)
-    plane = PlanePose(float(d["distance"]), float(d["yaw"]), float(d["offset"]),
-                      float(d["base_height"]))  # fmt: skip
+    plane = PlanePose.from_dict(json.loads(text))
     return None if plane.identity else plane
 
 
@@ -93,17 +88,16 @@ def raw_positions(record: Record, cfg) -> RawPoints:
     then into the plane's frame where the record's plane has a pose (:func:`record_plane`:
     the frame of its estimates)."""
     from thinkfast.contract.detection import parse_detection
-    from thinkfast.contract.frames import to_base
+    from thinkfast.contract.frames import PlanePose, to_base
 
     R, p = cfg.camera.rotation(), cfg.camera.translation()
-    plane = record_plane(record)
+    plane = record_plane(record) or PlanePose()
     t, pos = [], []
     for ti, payload in zip(record.raw_t, record.raw_payloads, strict=True):
         det = parse_detection(payload, cfg.detections)
         if hasattr(det, "position"):
             t.append(ti)
-            x = to_base(det, R, p).position
-            pos.append(x if plane is None else plane.to_plane(np.asarray(x, dtype=float)))
+            pos.append(plane.to_plane(to_base(det, R, p).position))
     return RawPoints(np.array(t, dtype=float), np.array(pos, dtype=float).reshape(-1, 3))
 
 

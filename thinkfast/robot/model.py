@@ -165,8 +165,9 @@ class Robot:
         """The link every pose is expressed in (``base_link``, or ``plane`` when placed)."""
         return next(link for link, parent in self.link_parent.items() if not parent)
 
-    def with_home(self, q, solved: bool = True) -> Robot:
-        """This robot with another home (a tree's, a solved one), checked against the limits.
+    def with_home(self, q) -> Robot:
+        """This robot with another home than robot.toml's (a tree's, a solved one:
+        ``home_solved``), checked against the limits.
 
         Raises:
             RobotModelError: ``q`` is not one finite value per joint inside the position limits.
@@ -183,7 +184,7 @@ class Robot:
                 f"{self.toml_path}: home {self.joint_names[j]} = {h[j]:+.4f} rad is outside "
                 f"[{self.q_lower[j]:+.4f}, {self.q_upper[j]:+.4f}]"
             )
-        return dataclasses.replace(self, home=frozen(h), home_solved=solved)
+        return dataclasses.replace(self, home=frozen(h), home_solved=True)
 
     @property
     def any_q(self) -> np.ndarray:

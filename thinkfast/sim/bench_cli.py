@@ -154,9 +154,7 @@ def cell_summary(robot, plane) -> dict:
         "robot_toml_sha256": robot.toml_sha256,
         "urdf_sha256": robot.urdf_sha256,
         "home": [float(x) for x in robot.home],
-        "plane": {k: float(getattr(pose, k)) for k in ("distance", "yaw", "offset", "base_height")}
-        if pose is not None
-        else {"distance": float(plane.plane_x)},
+        "plane": pose.as_dict() if pose is not None else {"distance": float(plane.plane_x)},
         "region": {"y": list(plane.aim_y or ()), "z": list(plane.aim_z or ())},
     }
 

@@ -106,33 +106,17 @@ def throw_config(mix: str | None, plane: float | TreePlane | None = None):
     import dataclasses
 
     from thinkfast.sim.thrower import parse_mix
-    from thinkfast.sim.throws import ThrowConfig
+    from thinkfast.sim.throws import ThrowConfig, aimed_at
 
     cfg = ThrowConfig()
-    if isinstance(plane, tuple):
-        plane = TreePlane(*plane)  # (plane x, name[, aim_y, aim_z])
-    if isinstance(plane, TreePlane):
-        cfg = aimed_at(cfg, plane.plane_x, plane.aim_y, plane.aim_z)
+    if isinstance(plane, tuple):  # a TreePlane, or its (plane x, name[, aim_y, aim_z])
+        p = TreePlane(*plane)
+        cfg = aimed_at(cfg, p.plane_x, p.aim_y, p.aim_z)
     elif plane is not None:
         cfg = aimed_at(cfg, plane)
     if mix is None:
         return cfg
     return dataclasses.replace(cfg, thrower=dataclasses.replace(cfg.thrower, mix=parse_mix(mix)))
-
-
-def aimed_at(cfg, plane_x: float, aim_y=None, aim_z=None):
-    """``cfg`` (a :class:`~thinkfast.sim.throws.ThrowConfig`) aimed at the plane ``x =
-    plane_x`` [m] and the region ``aim_y`` x ``aim_z`` ((low, high) [m]; None: unchanged). Values
-    equal to ``cfg``'s leave it as it is (the same throws, bit for bit)."""
-    import dataclasses
-
-    out = {}
-    if float(plane_x) != cfg.plane_distance:
-        out["plane_distance"] = float(plane_x)
-    for key, value in (("aim_y", aim_y), ("aim_z", aim_z)):
-        if value is not None and tuple(map(float, value)) != tuple(getattr(cfg, key)):
-            out[key] = tuple(map(float, value))
-    return dataclasses.replace(cfg, **out) if out else cfg
 
 
 def load_throws(

@@ -33,7 +33,6 @@ from thinkfast.config import from_dict, include_table, load_toml, spec, to_dict,
 from thinkfast.contract.camera_mode import CameraSetup
 from thinkfast.control.config import RunConfig
 from thinkfast.errors import ConfigError
-from thinkfast.sim.cli_options import aimed_at
 from thinkfast.sim.planners import DEFAULT, check_planners
 
 
@@ -216,7 +215,7 @@ def load_sweep(path: str | Path) -> Sweep:
             ``list`` mode, a reference that is not among the planners.
     """
     from thinkfast.robot.model import load_robot
-    from thinkfast.sim.throws import ThrowConfig
+    from thinkfast.sim.throws import ThrowConfig, aimed_at
 
     path = Path(path)
     src = str(path)
@@ -272,9 +271,8 @@ def load_sweep(path: str | Path) -> Sweep:
         tk = tree_key(ccfg, hashes)
         points.append(Point(i, values, ccfg, rcfg, tk, point_key(tk, rcfg, settings, reference)))
 
-    g = base_cfg.goals  # the throws aim at the cell's plane and region, as bench --tree does
-    throw_cfg = aimed_at(ThrowConfig(), base_cfg.plane.distance, (g.y_min, g.y_max),
-                         (g.z_min, g.z_max))  # fmt: skip
+    # the throws aim at the cell's plane and region, as bench --tree does
+    throw_cfg = aimed_at(ThrowConfig(), base_cfg.plane.distance, *base_cfg.goals.region())
     if settings.mix:
         from thinkfast.sim.thrower import parse_mix
 

@@ -77,6 +77,19 @@ class ThrowConfig:
         return self.air_density * self.drag_coefficient * area / (2.0 * self.ball_mass)
 
 
+def aimed_at(cfg: ThrowConfig, plane_x: float, aim_y=None, aim_z=None) -> ThrowConfig:
+    """``cfg`` aimed at the plane ``x = plane_x`` [m] and the region ``aim_y`` x ``aim_z``
+    ((low, high) [m]; None: unchanged). Values equal to ``cfg``'s leave it as it is (the same
+    throws, bit for bit)."""
+    out = {}
+    if float(plane_x) != cfg.plane_distance:
+        out["plane_distance"] = float(plane_x)
+    for key, value in (("aim_y", aim_y), ("aim_z", aim_z)):
+        if value is not None and tuple(map(float, value)) != tuple(getattr(cfg, key)):
+            out[key] = tuple(map(float, value))
+    return dataclasses.replace(cfg, **out) if out else cfg
+
+
 _ZERO3 = np.zeros(3)
 _ZERO3.setflags(write=False)
 

@@ -94,13 +94,7 @@ class Provenance:
     @property
     def plane(self) -> PlanePose:
         """The plane's pose in ``base`` (a tree without pose keys: the contract's plane)."""
-        p = self.parameters["plane"]
-        return PlanePose(
-            float(p["distance"]),
-            float(p.get("yaw", 0.0)),
-            float(p.get("offset", 0.0)),
-            float(p.get("base_height", 0.0)),
-        )
+        return PlanePose.from_dict(self.parameters["plane"])
 
     @property
     def region(self) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -108,6 +102,12 @@ class Provenance:
         plane's frame: the goal grid's ranges, where the simulated thrower aims."""
         g = self.parameters["goals"]
         return (float(g["y_min"]), float(g["y_max"])), (float(g["z_min"]), float(g["z_max"]))
+
+    @property
+    def config_parameters(self) -> dict[str, Any]:
+        """The parameters as a compile configuration reads them: without ``home``, which the
+        compiler solved and records beside them (:attr:`home`)."""
+        return {k: v for k, v in self.parameters.items() if k != "home"}
 
     @property
     def home(self) -> tuple[float, ...] | None:

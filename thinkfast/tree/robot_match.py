@@ -92,9 +92,13 @@ def home_for_tree(meta: Mapping[str, Any], robot: Robot, where: str = "tree") ->
         TreeFileError: the tree's provenance is unreadable.
         RobotModelError: neither the tree nor robot.toml gives a home.
     """
-    home = Provenance.of(meta, str(where)).home
+    return _with_home(Provenance.of(meta, str(where)), robot, where)
+
+
+def _with_home(prov: Provenance, robot: Robot, where: str) -> Robot:
+    home = prov.home
     if home is not None:
-        return robot.with_home(home, solved=True)
+        return robot.with_home(home)
     if robot.home is None:
         raise RobotModelError(
             f"{where} names no home and {robot.toml_path} gives none: recompile the tree"
@@ -112,8 +116,9 @@ def place_for_tree(meta: Mapping[str, Any], robot: Robot, where: str = "tree") -
         TreeFileError: the tree's provenance is unreadable.
         RobotModelError: ``robot`` is placed in another plane, or has no home the tree names.
     """
-    robot = home_for_tree(meta, robot, where)
-    plane = Provenance.of(meta, str(where)).plane
+    prov = Provenance.of(meta, str(where))
+    robot = _with_home(prov, robot, where)
+    plane = prov.plane
     if robot.placement is not None:
         if robot.placement.identity != plane.identity or (
             not plane.identity and robot.placement != plane
