@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 import typer
 
@@ -114,6 +115,53 @@ def stop(
     """End the EGM session with the module's ramp-out (tf_stop_request); --halt stops RAPID."""
     cell = _cell(url, user, password, task, timeout)
     print(cell.stop(halt=halt, wait=wait))
+
+
+@app.command()
+def certs(
+    directory: Path = typer.Argument(..., help="where the CA, certificates and configs go"),
+    camera: list[str] = typer.Option(
+        ["base"], "--camera", help="a camera id of the run config (repeatable; default base)"
+    ),
+    viewer: list[str] = typer.Option(
+        [], "--viewer", help="a read-only node (thinkfast-run status, a ROS 2 bridge; repeatable)"
+    ),
+    daemon_host: list[str] = typer.Option(
+        ["127.0.0.1"],
+        "--daemon-host",
+        help="the workstation's address or name as the nodes reach it (repeatable: every name "
+        "goes in the daemon's certificate, the first in the nodes' connect endpoint)",
+    ),
+    port: int = typer.Option(7447, "--port", help="the daemon's zenoh TLS port"),
+    key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
+    install_dir: str | None = typer.Option(
+        None,
+        "--install-dir",
+        help="where the files will be on the nodes (the configs' paths; default: DIRECTORY)",
+    ),
+    days: int = typer.Option(730, "--days", help="validity of new certificates (days)"),
+) -> None:
+    """The secured cell's CA, one certificate per zenoh node and each node's zenoh config
+    (mutual TLS, access control: docs/SECURITY.md). Existing CA and certificates are kept."""
+    from thinkfast.cell.certs import CellNodes, write_cell
+    from thinkfast.errors import ConfigError
+
+    if not 0 < port < 65536:
+        raise ConfigError("--port", None, f"{port} is not a TCP port")
+    if days < 1:
+        raise ConfigError("--days", None, f"{days} is not a number of days >= 1")
+    nodes = CellNodes(
+        cameras=tuple(dict.fromkeys(camera)), viewers=tuple(dict.fromkeys(viewer)),
+        daemon_hosts=tuple(daemon_host), port=port, prefix=key_prefix,
+        install_dir=install_dir or "",
+    )  # fmt: skip
+    try:
+        written = write_cell(directory, nodes, days)
+    except ValueError as e:
+        raise ConfigError("thinkfast-cell certs", None, str(e)) from None
+    for name in written:
+        print(directory / name)
+    print(f"daemon: thinkfast-run ... --zenoh-config {directory / 'daemon.json5'}")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -19,6 +19,8 @@ import struct
 import time
 from typing import NamedTuple
 
+import zenoh
+
 from thinkfast.contract.ros import (
     RosDecodeError,
     check_domain,
@@ -116,7 +118,11 @@ class RosPublisher:
 
     def put(self, cdr: bytes) -> None:
         """Publish one CDR payload with the next sequence number and the time now."""
-        self.pub.put(cdr, attachment=encode_attachment(self.seq, time.time_ns(), self.gid))
+        self.pub.put(
+            cdr,
+            attachment=encode_attachment(self.seq, time.time_ns(), self.gid),
+            source_info=zenoh.SourceInfo(self.pub.id, self.seq),  # a secured daemon's check
+        )
         self.seq += 1
 
     def close(self) -> None:

@@ -7,15 +7,17 @@ Keyword arguments only for endpoints: ``connect`` and ``listen`` are easy to swa
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import socket
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import zenoh
 
+from thinkfast.contract.zenoh_auth import SessionSecurity, security_of
 from thinkfast.errors import ConfigError
 
 ALONE_AFTER = 3.0  # s: a session with no peer and no router this long after opening is warned
@@ -48,6 +50,18 @@ def drain_samples(sub, limit: int) -> list:
             break
         out.append(sample)
     return out
+
+
+def attributed_put(publisher: zenoh.Publisher) -> Callable[..., None]:
+    """``publisher.put`` with the sample's source attached (the publisher's session and entity
+    id, and a sequence number): a daemon on a secured session admits a detection only from the
+    link of its camera's node, found by that source (docs/SECURITY.md)."""
+    entity, serial = publisher.id, itertools.count()
+
+    def put(payload, **kwargs) -> None:
+        publisher.put(payload, source_info=zenoh.SourceInfo(entity, next(serial)), **kwargs)
+
+    return put
 
 
 def neighbours(session: zenoh.Session) -> int:
@@ -126,6 +140,32 @@ def session_config(
             "--zenoh-connect/--zenoh-listen", None, f"rejected by zenoh ({exc})"
         ) from None
     return conf
+
+
+_SECURITY_KEYS = ("mode", "listen", "connect", "scouting", "transport/link/tls", "access_control")
+
+
+def config_dict(conf: zenoh.Config) -> dict:
+    """The parts of ``conf`` that say who can reach the session, as plain data (nested as in
+    zenoh's schema; unset values are None)."""
+    out: dict = {}
+    for key in _SECURITY_KEYS:
+        try:
+            value = json.loads(conf.get_json(key))
+        except Exception:  # not in this zenoh's schema
+            value = None
+        node = out
+        *path, last = key.split("/")
+        for part in path:
+            node = node.setdefault(part, {})
+        node[last] = value
+    return out
+
+
+def session_security(conf: zenoh.Config) -> SessionSecurity:
+    """What ``conf`` exposes and what guards it
+    (:func:`~thinkfast.contract.zenoh_auth.security_of`)."""
+    return security_of(config_dict(conf))
 
 
 def open_peer(*, listen: Sequence[str] = (), connect: Sequence[str] = ()) -> zenoh.Session:

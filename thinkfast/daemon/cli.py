@@ -60,6 +60,13 @@ def run(
     zenoh_connect: ZenohEndpoints = ZENOH_CONNECT,
     zenoh_listen: ZenohEndpoints = ZENOH_LISTEN,
     zenoh_config: ZenohConfigFile = ZENOH_CONFIG,
+    insecure_zenoh: bool = typer.Option(
+        False,
+        "--insecure-zenoh",
+        help="open a zenoh session that other hosts reach (a non-loopback endpoint, multicast "
+        "scouting) without mutual TLS: anyone on the network can move the arm; warns every "
+        "minute (docs/SECURITY.md)",
+    ),
     record: Path | None = typer.Option(None, "--record", help="flight recorder file (HDF5)"),
     ros_domain: int | None = typer.Option(
         None,
@@ -187,6 +194,13 @@ def run(
         from thinkfast.contract import ros
 
         ros.check_options(ros_domain, key_prefix)
+    conf = session_config(  # without a file: no multicast scouting (docs/SECURITY.md)
+        connect=zenoh_connect or (),
+        listen=zenoh_listen or (),
+        config_file=zenoh_config,
+        multicast=None if zenoh_config else False,
+    )
+    refuse_open_zenoh(conf, insecure_zenoh)
     cfg = load_run_config(config)
     if speed_scale < 1.0 and cfg.choice.branches:
         raise ConfigError(
@@ -196,10 +210,9 @@ def run(
     t = load_tree(tree)
     robot = robot_for_tree(t.meta, str(tree), cfg.robot)  # the tree's robot, or refused
     robot = scale_limits(robot, speed_scale)
-    conf = session_config(
-        connect=zenoh_connect or (), listen=zenoh_listen or (), config_file=zenoh_config
+    ends = Endpoints(
+        egm_bind, egm_controller, egm_handover, key_prefix, record, ros_domain, insecure_zenoh
     )
-    ends = Endpoints(egm_bind, egm_controller, egm_handover, key_prefix, record, ros_domain)
     modes = Modes(shadow=shadow, go_home=go_home, speed_scale=speed_scale)
     spin = math.inf if busy_poll else spin_ahead / 1e3
     kind, extra = Daemon, {}
@@ -223,6 +236,18 @@ def run(
         daemon.view = FoxgloveView(*fox, robot, daemon.executor.tree, cfg)
         logging.getLogger("thinkfast.run").info("foxglove on ws://%s:%d", fox[0], daemon.view.port)
     sys.exit(daemon.run())
+
+
+def refuse_open_zenoh(conf, insecure: bool) -> None:
+    """Refuse a zenoh session that another host reaches without authentication (one line
+    naming ``--insecure-zenoh``), unless ``insecure``: then warn once here (and every minute
+    after, :class:`~thinkfast.daemon.zenoh_edge.ZenohIO`)."""
+    from thinkfast.contract.zenoh_session import session_security
+    from thinkfast.errors import ConfigError
+
+    why = session_security(conf).refusal()
+    if why is not None and not insecure:
+        raise ConfigError("zenoh", None, why)
 
 
 def _stall_option(text: str | None) -> tuple[float, float] | None:

@@ -17,6 +17,7 @@ class Endpoints:
     key_prefix: str = "thinkfast"
     record: Path | None = None
     ros_domain: int | None = None  # also the ROS 2 topics (daemon/ros_edge.py) on this domain
+    insecure_zenoh: bool = False  # open a zenoh session others reach without authentication
 
 
 @dataclass(frozen=True)

@@ -37,10 +37,10 @@ class RosIO(ZenohIO):
             rosbags is missing.
     """
 
-    def __init__(self, conf: zenoh.Config, prefix: str, domain: int):
+    def __init__(self, conf: zenoh.Config, prefix: str, domain: int, insecure: bool = False):
         ros.check_options(domain, prefix)  # before any session opens
         self.topics = ros.topics(prefix)
-        super().__init__(conf, prefix)
+        super().__init__(conf, prefix, insecure)
         self.domain = domain
         self.node = ros_zenoh.RosNode(self.session, domain, ros.NODE_RUN)
         self.sub_ros = self.node.subscriber(
@@ -65,13 +65,13 @@ class RosIO(ZenohIO):
 
     def drain(self, limit: int = 256) -> list[bytes]:
         """JSON detections, then the PointStamped ones and the Detection3DArray ones as JSON
-        (at most ``limit`` of each)."""
+        (at most ``limit`` of each); on a secured session, each from its camera's node."""
         out = super().drain(limit)
         for sub, convert in ((self.sub_ros, ros.detection_from_point),
                              (self.sub_vision, ros_vision.detection_from_array)):  # fmt: skip
             for sample in drain_samples(sub, limit):
                 payload = self._convert(sample, convert)
-                if payload is not None:
+                if payload is not None and (self.gate is None or self.gate.admit(sample, payload)):
                     out.append(payload)
         return out
 

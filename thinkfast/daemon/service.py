@@ -114,11 +114,13 @@ class Daemon:
         self._last_mode = IDLE
         self.egm = self._serve_egm(endpoints)
         if endpoints.ros_domain is None:
-            self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix)
+            self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix, endpoints.insecure_zenoh)
         else:  # rosbags (the ros extra) only when asked for
             from thinkfast.daemon.ros_edge import RosIO
 
-            self.zio = RosIO(zenoh_conf, endpoints.key_prefix, endpoints.ros_domain)
+            self.zio = RosIO(
+                zenoh_conf, endpoints.key_prefix, endpoints.ros_domain, endpoints.insecure_zenoh
+            )
         self.stop_reason: str | None = None
         self._signal_braked = False  # the signal's brake was logged
         self.last_rx = -math.inf  # receive time of the last served EgmRobot (wall clock)

@@ -37,6 +37,7 @@ def status_message(d: Daemon, now: float) -> dict:
         "decision_ms": round(d.decision_ms, 3),
         "stage": {k: getattr(ex, k) for k in STAGE_KEYS},
         "detections": d.intake.as_dict(),
+        "zenoh": d.zio.as_dict(),
         "cameras": {} if ex.check is None else ex.check.as_dict(),
         **({} if d.view is None else {"view": d.view.as_dict()}),
         "egm": {**vars(d.egm.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},

@@ -24,6 +24,7 @@ import zenoh
 from thinkfast.contract import keys
 from thinkfast.contract.zenoh_session import (
     ALONE_AFTER,
+    attributed_put,
     close_session,
     drain,
     open_session,
@@ -115,6 +116,7 @@ class DetectorNode:
                 keys.camera_boxes(prefix, cfg.camera_id or None), fifo
             )
         self.pub = self.session.declare_publisher(keys.detections(prefix))
+        self.put = attributed_put(self.pub)  # its source: a secured daemon checks the sender
         self.pub_status = self.session.declare_publisher(keys.detector_status(prefix))
         self.ros_node = self.ros_pub = None
         if ros_domain is not None:
@@ -221,7 +223,7 @@ class DetectorNode:
                 result, frame.stamp, frame.seq, self.cfg.frame, self.R, self.p,
                 self.cfg.camera_id or None,
             )  # fmt: skip
-            self.pub.put(payload)
+            self.put(payload)
             if self.ros_pub is not None:
                 from thinkfast.contract.ros import point_from_detection
 

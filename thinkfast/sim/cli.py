@@ -248,7 +248,7 @@ def replay(
     detections are re-published only when --zenoh-connect is given as well. With --foxglove
     the record is drawn live in Foxglove at its own pace.
     """
-    from thinkfast.contract.zenoh_session import open_peer
+    from thinkfast.contract.zenoh_session import attributed_put, open_peer
     from thinkfast.errors import ConfigError
     from thinkfast.record.format import read_detections
 
@@ -269,12 +269,13 @@ def replay(
     t, payloads = read_detections(record)  # RecordFileError: one line naming the file
     session = open_peer(connect=list(zenoh_connect or ()))
     pub = session.declare_publisher(keys.detections(key_prefix))
+    put = attributed_put(pub)
     time.sleep(0.5)
     heard = pub.matching_status.matching
     start = time.time()
     for ti, p in zip(t - (t[0] if len(t) else 0.0), payloads, strict=True):
         time.sleep(max(0.0, start + ti / speed - time.time()))
-        pub.put(p)
+        put(p)
         heard = heard or pub.matching_status.matching
     session.close()
     print(f"replayed {len(payloads)} detections from {record}")

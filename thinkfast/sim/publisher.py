@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 import zenoh
 
+from thinkfast.contract.zenoh_session import attributed_put
 from thinkfast.sim.camera import SimDetection, detection_payload
 
 
@@ -36,7 +37,7 @@ def publish_detections(
     :func:`thinkfast.contract.keys.detections`)."""
     publisher = session.declare_publisher(key)
     try:
-        return send_detections(publisher.put, detections, **schedule)
+        return send_detections(attributed_put(publisher), detections, **schedule)
     finally:
         publisher.undeclare()
 
