@@ -240,7 +240,7 @@ def _in_process_daemon(tree_file, robot):
         RunConfig(),
         "tree",
         Endpoints("127.0.0.1:0"),
-        session_config(listen=[f"tcp/127.0.0.1:{socket_port()}"]),
+        session_config(listen=[f"tcp/127.0.0.1:{socket_port()}"], multicast=False),
     )
 
 

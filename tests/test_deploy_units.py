@@ -61,3 +61,19 @@ def test_the_detector_unit_command_line_parses(tmp_path):
     out = subprocess.run([str(BIN / "thinkfast-detect"), *args, "--print-config"],
                          capture_output=True, text=True, timeout=120)  # fmt: skip
     assert out.returncode == 0, out.stderr
+
+
+@pytest.mark.parametrize(
+    "name, node", [("thinkfast-run.service", "daemon"), ("thinkfast-detect.service", "camera-base")]
+)
+def test_the_units_run_the_secured_cells_nodes(name, node):
+    """Each unit's zenoh session is the secured cell's node of examples/zenoh/secured/ (the
+    daemon refuses a plain listener on the network: docs/SECURITY.md)."""
+    from thinkfast.contract.zenoh_session import session_config, session_security
+
+    argv = exec_start(UNITS / name)
+    path = Path(argv[argv.index("--zenoh-config") + 1])
+    assert path.name == f"{node}.json5"
+    assert not {"--zenoh-listen", "--zenoh-connect", "--insecure-zenoh"} & set(argv)
+    example = ROOT / "examples" / "zenoh" / "secured" / path.name
+    assert session_security(session_config(config_file=example)).mode == "tls"

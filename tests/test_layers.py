@@ -21,7 +21,7 @@ ALLOWED = {
     "perception": BASE,
     "sim": BASE | {"estimate", "decide", "control", "record", "daemon", "compile", "perception"},
     "calib": BASE | {"estimate", "decide", "control", "record", "daemon", "sim"},
-    "cell": {"errors", "cli_util"},
+    "cell": {"errors", "cli_util", "contract"},  # contract: the secured cell's identities
 }
 
 

@@ -202,8 +202,7 @@ def node_config(
         "transport": {"link": {"tls": tls}},
         "access_control": acl,
     }
-    if listen:
-        conf["listen"] = {"endpoints": list(listen)}
+    conf["listen"] = {"endpoints": list(listen)}  # none: zenoh's default is every interface
     if connect:
         conf["connect"] = {"endpoints": list(connect)}
     return conf
@@ -309,7 +308,7 @@ class SessionSecurity:
         else:
             why = "without authentication"
         return (
-            f"the zenoh session {' and '.join(what)} {why}: any host on the network could move "
+            f"the session {' and '.join(what)} {why}: any host on the network could move "
             "the arm. Give a secured --zenoh-config (thinkfast-cell certs, docs/SECURITY.md), "
             "loopback endpoints only (--zenoh-listen tcp/127.0.0.1:PORT), or --insecure-zenoh"
         )

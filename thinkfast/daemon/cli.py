@@ -167,6 +167,7 @@ def run(
             "full limits)",
         )  # fmt: skip
     setup_logging(log_level, log_format)
+    zenoh_logging(log_format)
     if rerun is not None:
         from thinkfast.daemon.live_view import parse_sink
 
@@ -305,6 +306,26 @@ def setup_logging(level: str, fmt: str) -> None:
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level.upper())
+
+
+ZENOH_LOG = "error,zenoh_link_tls=warn"  # zenoh's errors, and the TLS links' refused peers
+
+
+def zenoh_logging(fmt: str) -> None:
+    """zenoh's own log on stderr, in its plain text format: its errors and the TLS handshakes
+    it refused (a peer without the cell's certificate, docs/SECURITY.md), or what ``RUST_LOG``
+    asks. Under ``--log-format json`` only when ``RUST_LOG`` is set: those lines are not JSON."""
+    import os
+
+    if fmt == "json" and "RUST_LOG" not in os.environ:
+        return
+    os.environ.setdefault("NO_COLOR", "1")  # no terminal colours in a log file or the journal
+    import zenoh
+
+    try:
+        zenoh.init_log_from_env_or(ZENOH_LOG)
+    except Exception:  # already set up in this process (tests run the CLI in-process)
+        pass
 
 
 def _config_tool(print_config: bool, check: Path | None, tree: Path | None = None) -> None:
