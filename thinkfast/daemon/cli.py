@@ -195,6 +195,12 @@ def run(
         from thinkfast.contract import ros
 
         ros.check_options(ros_domain, key_prefix)
+    cfg = load_run_config(config)
+    if speed_scale < 1.0 and cfg.choice.branches:
+        raise ConfigError(
+            "--speed-scale", None, "not with [choice] branches = true (compiled edges use the "
+            "full limits)",
+        )  # fmt: skip
     conf = session_config(  # without a file: no multicast scouting (docs/SECURITY.md)
         connect=zenoh_connect or (),
         listen=zenoh_listen or (),
@@ -202,12 +208,6 @@ def run(
         multicast=None if zenoh_config else False,
     )
     refuse_open_zenoh(conf, insecure_zenoh)
-    cfg = load_run_config(config)
-    if speed_scale < 1.0 and cfg.choice.branches:
-        raise ConfigError(
-            "--speed-scale", None, "not with [choice] branches = true (compiled edges use the "
-            "full limits)",
-        )  # fmt: skip
     t = load_tree(tree)
     robot = robot_for_tree(t.meta, str(tree), cfg.robot)  # the tree's robot, or refused
     robot = scale_limits(robot, speed_scale)
