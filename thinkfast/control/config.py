@@ -13,6 +13,7 @@ from thinkfast.config import from_dict, include_table, load_toml, spec, to_toml
 from thinkfast.contract.camera_mode import DEFAULT_FPS, CameraSetup, check_camera_setup
 from thinkfast.contract.detection import CAMERA_ID, DetectionLimits
 from thinkfast.control.hedge import HedgeConfig
+from thinkfast.control.planners.solver_config import JplConfig, MpcConfig
 from thinkfast.control.safety import SafetyConfig
 from thinkfast.decide.choice import ChoiceConfig
 from thinkfast.decide.path_value import PathValueConfig
@@ -164,6 +165,8 @@ class RunConfig:
     choice: ChoiceConfig = spec(ChoiceConfig())
     path_value: PathValueConfig = spec(PathValueConfig())
     safety: SafetyConfig = spec(SafetyConfig(position_margin=0.005))
+    mpc: MpcConfig = spec(MpcConfig())
+    jpl: JplConfig = spec(JplConfig())
     status_rate: float = spec(20.0, unit="Hz", lo=10.0, hi=250.0, doc="status publishing rate")
 
 

@@ -19,7 +19,6 @@ left would jump. Clock-free and without I/O.
 
 from __future__ import annotations
 
-import bisect
 import math
 from typing import NamedTuple
 
@@ -27,6 +26,7 @@ import numpy as np
 
 from thinkfast.control.config import RunConfig
 from thinkfast.control.executor import FAULT, IDLE, RETURNING, Mode
+from thinkfast.control.pieces import K_MAX, N_ARM, Pieces
 from thinkfast.control.segments import EDGE, HOLD, RETURN, STEER, TERMINAL, Segment, WristTracker
 from thinkfast.control.timeline import Timeline
 from thinkfast.errors import RobotModelError
@@ -36,63 +36,14 @@ from thinkfast.robot.steering import feasible_acceleration
 MODES = tuple(m.value for m in Mode) + ("brake", "standby", "shadow")
 KINDS = (EDGE, TERMINAL, STEER, RETURN, HOLD)
 CALLS = ("resync", "start_from", "hold_fault", "recover")
-K_MAX = 10  # cubic pieces per joint: 2 of a brake pre-trajectory, 7 phases, the end
 # The vector's layout holds the segments of N_ARM joints and a wrist goal of N_WRIST angles:
 # the split of every robot here (robot.n_arm, robot.n_joints - robot.n_arm; PlanFollower checks).
-N_ARM, N_WRIST = 3, 3
+N_WRIST = 3
 # a segment: kind, t0, duration, ref, end (p, v, a), the trajectory's duration, its pieces
 # (start, p, v, a, j)
 _SEG = 4 + 3 * N_ARM + 1 + N_ARM * K_MAX * 5
 _HEAD = 3 + 3 + N_WRIST + 1  # id, epoch, mode, normal (3), goal (N_WRIST), segments
 SIZE = _HEAD + 2 * _SEG
-
-
-class Pieces:
-    """A Ruckig trajectory of joints 1-3 as cubic pieces; ``at_time`` and ``duration`` as
-    Ruckig's (within rounding: the same formulas).
-
-    Args:
-        start: piece start times [s] (N_ARM, K_MAX), +inf past the last piece of a joint.
-        coef: (p, v, a, j) at each piece's start (N_ARM, K_MAX, 4).
-        duration: the trajectory's duration [s].
-    """
-
-    def __init__(self, start: np.ndarray, coef: np.ndarray, duration: float):
-        self.start = [list(map(float, row)) for row in start]
-        self.coef = [[tuple(map(float, c)) for c in row] for row in coef]
-        self.duration = float(duration)
-
-    @classmethod
-    def of(cls, traj) -> tuple[np.ndarray, np.ndarray]:
-        """(start, coef) arrays of a one-section Ruckig trajectory (``to_rest``'s)."""
-        start = np.full((N_ARM, K_MAX), np.inf)
-        coef = np.zeros((N_ARM, K_MAX, 4))
-        for k, pr in enumerate(traj.profiles[0]):
-            rows: list[tuple[float, float, float, float, float]] = []
-            b, tb = pr.brake, pr.brake.duration
-            if tb > 0.0:
-                rows.append((0.0, b.p[0], b.v[0], b.a[0], b.j[0]))
-                rows.append((b.t[0], b.p[1], b.v[1], b.a[1], b.j[1]))
-            t_sum = np.cumsum(pr.t)
-            for i in range(7):
-                rows.append((tb + (t_sum[i - 1] if i else 0.0), pr.p[i], pr.v[i], pr.a[i], pr.j[i]))
-            rows.append((tb + t_sum[6], pr.p[7], pr.v[7], pr.a[7], 0.0))
-            arr = np.array(rows)
-            start[k, : len(rows)] = arr[:, 0]
-            coef[k, : len(rows)] = arr[:, 1:]
-        return start, coef
-
-    def at_time(self, s: float):
-        """Positions, velocities, accelerations (3 lists of N_ARM) at ``s`` [s] from the start."""
-        p, v, a = [], [], []
-        for starts, coefs in zip(self.start, self.coef, strict=True):
-            i = max(bisect.bisect_right(starts, s) - 1, 0)
-            h = s - starts[i]
-            p0, v0, a0, j = coefs[i]
-            p.append(p0 + h * (v0 + h * (a0 / 2 + h * j / 6)))
-            v.append(v0 + h * (a0 + h * j / 2))
-            a.append(a0 + h * j)
-        return p, v, a
 
 
 class Plan(NamedTuple):

@@ -189,6 +189,12 @@ def run(
             "--fifo", None, "not with --busy-poll: the kernel throttles a SCHED_FIFO thread "
             "that never sleeps (use --spin-ahead-ms)",
         )  # fmt: skip
+    if entry.load().slow and not reply_process:
+        raise ConfigError(
+            "--planner", None, f"{planner} solves an optimisation per decision, which can take "
+            "longer than an EGM cycle: run it with --reply-process (EGM is then answered by a "
+            "process of its own)",
+        )  # fmt: skip
     if reply_process and shadow:
         raise ConfigError("--reply-process", None, "not with --shadow")
     if ros_domain is not None:  # one clear error before anything starts

@@ -143,7 +143,7 @@ def run(
         res = run_with_daemon(
             tree, planner, robot, balls, seed, cfg.camera, key_prefix, record, config,
             frames=frames_resolution if frames else None, detect_config=detect_config,
-            daemon_args=view,
+            daemon_args=view + _slow_planner_args(planner),
         )  # fmt: skip
     k = sum(r.blocked for r in res)
     nt = sum(r.kind != "feint" for r in res)
@@ -155,6 +155,20 @@ def run(
         print(
             f"feints: {len(feints)}, largest shield displacement {worst:.3f} m, home again {home}"
         )
+
+
+def _slow_planner_args(planner: str) -> tuple[str, ...]:
+    """``--reply-process`` for a planner whose decisions may outlast an EGM cycle (the daemon
+    runs it only there), else nothing."""
+    from thinkfast.control.planners import registry
+
+    try:
+        slow = registry.get(planner, online=True).load().slow
+    except ValueError:
+        return ()  # the daemon names the valid planners
+    if slow:
+        print(f"{planner}: the daemon answers EGM from a process of its own (--reply-process)")
+    return ("--reply-process",) if slow else ()
 
 
 app.command("bench")(bench_cmd)  # lockstep statistics, thinkfast/sim/bench_cli.py

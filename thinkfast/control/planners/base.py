@@ -18,8 +18,10 @@ the plans run on (the controller's clock) [s].
 
 Class attributes say what else the planner needs from the executor: ``gate`` (which throw gate
 confirms, :mod:`thinkfast.control.gate`), ``hedges`` (the hedge stage may run before the
-confirmation, :mod:`thinkfast.control.hedge_stage`) and ``full_limits`` (it follows compiled
-edges at the robot's full limits: no ``--speed-scale``). The registry
+confirmation, :mod:`thinkfast.control.hedge_stage`), ``full_limits`` (it follows compiled
+edges at the robot's full limits: no ``--speed-scale``) and ``slow`` (a decision may take
+longer than an EGM cycle: the daemon runs it only in the planner process of
+``--reply-process``, never where EGM is answered). The registry
 (:mod:`thinkfast.control.planners.registry`) names the planners.
 """
 
@@ -104,6 +106,7 @@ class Planner:
     gate: ClassVar[str] = CONFIRM
     hedges: ClassVar[bool] = False
     full_limits: ClassVar[bool] = False
+    slow: ClassVar[bool] = False  # a decision may outlast an EGM cycle (online: --reply-process)
 
     def __init__(self, tree: RuntimeTree, robot: Robot, cfg: RunConfig, timeline: Timeline):
         self.tree, self.robot, self.cfg, self.timeline = tree, robot, cfg, timeline

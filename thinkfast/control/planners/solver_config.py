@@ -1,0 +1,94 @@
+"""Settings of the optimisation planners, ``[mpc]`` and ``[jpl]`` of the runtime config
+(docs/RESULTS.md, "The other interceptors"). Defaults are the published designs' where they give
+one (marked DESIGN), else ASSUMED."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from thinkfast.config import spec
+
+
+@dataclass(frozen=True)
+class MpcConfig:
+    """``mpc``: the fixed-time MPC interceptor (CasADi + IPOPT)."""
+
+    intervals: int = spec(20, lo=4, hi=28, doc="DESIGN: control intervals over the horizon")
+    rate: float = spec(20.0, unit="Hz", lo=1.0, hi=250.0, doc="DESIGN: re-solves per second")
+    freeze: float = spec(
+        0.1,
+        unit="s",
+        lo=0.0,
+        doc="DESIGN: with less time than this to the crossing the last plan plays out open loop",
+    )
+    deadline: float = spec(
+        0.05,
+        unit="s",
+        lo=0.0,
+        lo_open=True,
+        doc="DESIGN (one re-solve period): a solve that takes longer is dropped online (the "
+        "previous plan kept) and counted; counted only in lockstep",
+    )
+    max_iter: int = spec(100, lo=1, doc="ASSUMED: IPOPT iterations before a solve fails")
+    terminal_velocity_weight: float = spec(
+        10.0, lo=0.0, doc="DESIGN: weight of the squared joint speed at the crossing"
+    )
+    effort_weight: float = spec(
+        0.001, lo=0.0, lo_open=True, doc="ASSUMED: weight of the squared jerk (the effort)"
+    )
+    predictor: str = spec(
+        "filter",
+        choices=("filter", "fit"),
+        doc="where the crossing comes from: the project's filter (delta method), or the "
+        "design's own least-squares fit (x, y linear, z quadratic) over the recent estimates",
+    )
+    fit_window: float = spec(
+        0.15, unit="s", lo=0.0, lo_open=True, doc="DESIGN: the fit's observation window"
+    )
+
+
+@dataclass(frozen=True)
+class JplConfig:
+    """``jpl``: EKF estimates, a cubic-polynomial predictor, a receding-horizon sequential
+    convex program (OSQP)."""
+
+    window: int = spec(
+        10, lo=4, hi=200, doc="ASSUMED: L, the filter estimates the cubic polynomials are fit to"
+    )
+    time_base: str = spec(
+        "latest",
+        choices=("latest", "first"),
+        doc="the fit's time origin: the latest estimate's stamp (well conditioned as the "
+        "window slides), or the window's first",
+    )
+    intervals: int = spec(20, lo=4, hi=28, doc="ASSUMED: control intervals over the horizon")
+    scp_iterations: int = spec(
+        8, lo=1, hi=100, doc="ASSUMED: QPs per solve at most (then it is counted failed)"
+    )
+    scp_tolerance: float = spec(
+        1e-3,
+        unit="m",
+        lo=0.0,
+        lo_open=True,
+        doc="ASSUMED: the SCP stops when the terminal wrist-centre point moves less than this",
+    )
+    deadline: float = spec(
+        0.02,
+        unit="s",
+        lo=0.0,
+        lo_open=True,
+        doc="ASSUMED (one estimate at 50 Hz): a solve that takes longer is dropped online (the "
+        "previous plan kept) and counted; counted only in lockstep",
+    )
+    freeze: float = spec(
+        0.1,
+        unit="s",
+        lo=0.0,
+        doc="ASSUMED: with less time than this to the crossing the last plan plays out",
+    )
+    terminal_velocity_weight: float = spec(
+        10.0, lo=0.0, doc="ASSUMED: weight of the squared joint speed at the crossing"
+    )
+    effort_weight: float = spec(
+        0.001, lo=0.0, lo_open=True, doc="ASSUMED: weight of the squared jerk (the effort)"
+    )
