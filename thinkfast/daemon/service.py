@@ -101,6 +101,7 @@ class Daemon:
         )  # first: a record target that cannot be written stops the start, before serving
         parts = CoreAssembly(tree, robot, cfg)
         self.executor = parts.executor(planner)
+        self.executor.planner.realtime = True  # on the wall clock: a late solve is dropped
         self.executor.home_on_start = False  # the way home is checked first (--go-home)
         way = functools.partial(parts.executor, "naive")  # plans the way home
         self.home = HomeWatch(robot, modes.go_home, cfg.safety.dt, way, self._event)

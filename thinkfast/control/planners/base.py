@@ -113,6 +113,7 @@ class Planner:
         self.n_arm = robot.n_arm  # the timeline's joints, q[:n_arm]
         self.lag = cfg.execution.controller_lag
         self.decision: Decision | None = None  # the at-rest backup of the last belief
+        self.realtime = False  # the daemon's: a decision late on the wall clock may be dropped
 
     def decide(self, b: Belief, ep: EpisodeLog) -> Act:
         """Plan on the belief ``b`` (module doc); returns what the executor records."""

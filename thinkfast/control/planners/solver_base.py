@@ -148,7 +148,6 @@ class SolverPlanner(Planner):
         self.j_max = LIMIT_SHARE * np.asarray(robot.j_max[:n], dtype=float)
         self.normal = np.array([1.0, 0.0, 0.0])  # the plane's normal in its own frame
         self.stats = SolveStats()
-        self.realtime = False
         self._t_solved = -math.inf  # plans' clock time of the last solve
         self._goal_q: np.ndarray | None = None  # joints 1-3 at the crossing of the plan
 
