@@ -1,15 +1,20 @@
-"""docs/CELL.md section 0, rehearsed as written: the two command blocks are read from the doc and
-every line is run as a process (``thinkfast-run --foxglove``, ``thinkfast-sim controller``,
+"""docs/CELL.md section 0, rehearsed as written: the four command blocks are read from the doc
+and every line is run as a process (``thinkfast-run --foxglove``, ``thinkfast-sim controller``,
 ``thinkfast-cell``, ``thinkfast-run status``), from first light in shadow to the first simulated
-block. The doc cannot drift from what runs.
+block, and that block again on a secured cell (``thinkfast-cell certs``, mutual TLS). The doc
+cannot drift from what runs.
 
 What the test changes in the doc's lines, and only that: the cell's ports (6510, 8080, 7447,
-8765) become free ones; programs that open zenoh sessions on their own get the loopback zenoh
-configuration (no multicast scouting: other daemons on a shared host stay out); the live
+8765) become free ones, and so do the zenoh ports in the configurations ``thinkfast-cell certs``
+writes (the daemon's 7447, the camera node's 7448 for its bridge): the test rewrites those
+files' endpoints after the line that writes them (no endpoint option is added to a line);
+programs that open zenoh sessions on their own without a ``--zenoh-config`` get the loopback
+zenoh configuration (no multicast scouting: other daemons on a shared host stay out); the live
 ``thinkfast-run status`` draws once (``--once``) so that its output can be read; the default tree
 is the compiled ``trees/irb1600_default.h5`` when the checkout has it, else the tests' small tree
 (``trees/*.h5`` is not in the repository). Of the doc's three simulated throws at least one must
-be blocked (both trees blocked all three on a loaded 2-core host).
+be blocked (both trees blocked all three on a loaded 2-core host), on the secured cell too.
+Every block runs in the test's temporary directory (its ``cal.h5``, ``patch.toml``, ``cell/``).
 
 Waits are for conditions, with generous time limits (a host 3x slower than an idle one): the
 controller starts once the daemon logs ``serving EGM on`` (its loop runs: before it, the
@@ -17,7 +22,9 @@ simulated IRC5's session would be lost after the program's 2 s ``comm_timeout`` 
 answer), the RWS once ``thinkfast-cell state`` answers, the throws once the daemon answers EGM
 and zenoh routes both ways (:meth:`thinkfast.sim.watchdog.Watchdog.wait_ready`). Every
 process's output (the daemon's log, the controller's lines, each command's stdout and stderr)
-is printed at the end of each test, so a failure shows it.
+is printed at the end of each test, so a failure shows it. The secured cell's status is read
+through its viewer node's configuration (the test's own reads too), once while the throws run
+(the camera's node is linked only while the thrower's session is open) and once after.
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -55,12 +63,17 @@ def rehearsal_blocks() -> list[list[str]]:
 
 def test_the_doc_has_the_rehearsal_blocks():
     blocks = rehearsal_blocks()
-    assert len(blocks) == 3
+    assert len(blocks) == 4
     progs = [{shlex.split(line)[0] for line in b} for b in blocks]
-    assert progs[0] == progs[2] == {"thinkfast-run", "thinkfast-sim", "thinkfast-cell"}
+    assert progs[0] == progs[2] == progs[3] == {"thinkfast-run", "thinkfast-sim", "thinkfast-cell"}
     assert progs[1] == progs[0] | {"thinkfast-calib"}
     assert all(any("--foxglove" in line for line in blocks[i]) for i in (0, 2))
-    assert all(any("--throws" in line for line in blocks[i]) for i in (1, 2))
+    assert all(any("--throws" in line for line in blocks[i]) for i in (1, 2, 3))
+    secured = blocks[3]
+    assert secured[0].startswith("thinkfast-cell certs ")
+    assert all("--zenoh-config" in ln for ln in secured if ln.startswith("thinkfast-run"))
+    assert any("tls/" in ln and "--zenoh-config" in ln for ln in secured)  # the camera node
+    assert not any("tcp/" in ln or "--insecure-zenoh" in ln for ln in secured)
 
 
 class Cell:
@@ -69,7 +82,8 @@ class Cell:
     def __init__(self, tree: Path, cwd: Path):
         self.cwd = cwd  # where the doc's relative files (cal.h5, patch.toml) go
         self.ports = {"6510": str(free_port()), "8080": str(free_tcp_port()),
-                      "7447": str(free_tcp_port()), "8765": str(free_tcp_port())}  # fmt: skip
+                      "7447": str(free_tcp_port()), "8765": str(free_tcp_port()),
+                      "7448": str(free_tcp_port())}  # fmt: skip
         self.tree = tree
         self.procs: list[tuple[subprocess.Popen, list[str]]] = []
         self.daemon: subprocess.Popen | None = None
@@ -77,24 +91,32 @@ class Cell:
         self.done: list[subprocess.CompletedProcess] = []  # the commands run, with their output
         self.log = ""  # the daemon's log, once stopped
 
+    def free(self, text: str) -> str:
+        """``text`` with the cell's ports replaced by this test's."""
+        for port, mine in self.ports.items():
+            text = re.sub(rf"(?<=:){port}\b|(?<= ){port}\b", mine, text)
+        return text
+
     def args(self, line: str) -> list[str]:
         """The doc's line with this test's changes (module doc)."""
-        for port, mine in self.ports.items():
-            line = re.sub(rf"(?<=:){port}\b|(?<= ){port}\b", mine, line)
-        args = [str(self.tree) if a == DEFAULT_TREE else a for a in shlex.split(line)]
+        args = [str(self.tree) if a == DEFAULT_TREE else a for a in shlex.split(self.free(line))]
         if args[:2] == ["thinkfast-run", "status"]:
-            args += ["--once", "--timeout", "15", "--zenoh-config", str(LOOPBACK_ZENOH)]
-        elif args[0] == "thinkfast-run":
+            args += ["--once", "--timeout", "15"]
+        if args[0] == "thinkfast-run" and "--zenoh-config" not in args:
             args += ["--zenoh-config", str(LOOPBACK_ZENOH)]
         return [str(BIN / args[0]), *args[1:]]
 
     def run(self, line: str) -> subprocess.CompletedProcess:
-        """Start the daemon (``thinkfast-run --tree``) or the controller; run anything else."""
+        """Start the daemon (``thinkfast-run --tree``) or the controller; run anything else
+        (after ``thinkfast-cell certs DIR``, the ports in DIR's zenoh configurations)."""
         args = self.args(line)
         if "--tree" in args or args[1:2] == ["controller"]:
             return self._start(args)
         done = subprocess.run(args, capture_output=True, text=True, timeout=START, cwd=self.cwd)
         self.done.append(done)
+        if args[1:2] == ["certs"] and done.returncode == 0:
+            for conf in (self.cwd / args[2]).glob("*.json5"):
+                conf.write_text(self.free(conf.read_text()))
         return done
 
     def _start(self, args: list[str]) -> subprocess.CompletedProcess:
@@ -119,16 +141,25 @@ class Cell:
         for line in p.stdout:
             self.controller_lines.append(line.rstrip())
 
-    def throw(self, lines: list[str]) -> subprocess.CompletedProcess:
+    def throw(
+        self, lines: list[str], during: Callable[[], object] | None = None
+    ) -> subprocess.CompletedProcess:
         """The block's daemon and throwing controller (its first two lines), then its
-        ``thinkfast-cell start`` (the third); returns that once the throws are judged."""
+        ``thinkfast-cell start`` (the third); returns that once the throws are judged
+        (``during()`` is called while they run, until then)."""
         self.run(lines[0])
         self.run(lines[1])
         self.url_ready()
         started = self.run(lines[2])
         assert started.returncode == 0, started.stderr
         ends = ("blocked ", "throws stopped")  # the summary, or the thrower's failure
-        assert until(lambda: any(ln.startswith(ends) for ln in self.controller_lines), 4 * START)
+
+        def judged() -> bool:
+            if during is not None:
+                during()
+            return any(ln.startswith(ends) for ln in self.controller_lines)
+
+        assert until(judged, 4 * START)
         assert any(ln.startswith("blocked ") for ln in self.controller_lines), "no summary"
         return started
 
@@ -137,10 +168,16 @@ class Cell:
         state = [str(BIN / "thinkfast-cell"), "state", "--url", url]
         assert until(lambda: subprocess.run(state, capture_output=True).returncode == 0, START)
 
-    def status(self) -> dict:
+    def status(self, viewer: Path | None = None) -> dict:
+        """The daemon's status over zenoh (``{}`` when none came): on loopback TCP, or as the
+        secured cell's viewer node whose configuration is ``viewer``."""
+        if viewer is None:
+            how = ["--zenoh-connect", f"tcp/127.0.0.1:{self.ports['7447']}",
+                   "--zenoh-config", str(LOOPBACK_ZENOH)]  # fmt: skip
+        else:
+            how = ["--zenoh-config", str(viewer)]
         out = subprocess.run(
-            [str(BIN / "thinkfast-run"), "status", "--json", "--timeout", "5", "--zenoh-connect",
-             f"tcp/127.0.0.1:{self.ports['7447']}", "--zenoh-config", str(LOOPBACK_ZENOH)],
+            [str(BIN / "thinkfast-run"), "status", "--json", "--timeout", "5", *how],
             capture_output=True, text=True, timeout=START,
         )  # fmt: skip
         return json.loads(out.stdout)["thinkfast"]["status"] if out.returncode == 0 else {}
@@ -272,3 +309,41 @@ def test_the_first_simulated_block_as_the_doc_says(tree, tmp_path):
     assert re.search(r"throws [123], node", flat), view
     assert re.search(r"intervened \d+ of \d+ ticks; last throw \d+ of \d+", flat), view
     assert re.search(r"EGM received [1-9]\d*, replied [1-9]\d*", flat), view
+
+
+def test_the_first_block_on_a_secured_cell_as_the_doc_says(tree, tmp_path):
+    lines, cell = rehearsal_blocks()[3], Cell(tree, tmp_path)
+    viewer = tmp_path / "cell" / "viewer-status.json5"
+    during: list[dict] = []  # statuses read while the throws run
+
+    def watch() -> None:
+        if not any("camera-base" in s.get("zenoh", {}).get("linked", ()) for s in during):
+            during.append(cell.status(viewer))
+
+    try:
+        made = cell.run(lines[0])  # thinkfast-cell certs cell --viewer status
+        assert made.returncode == 0, made.stderr
+        cell.throw(lines[1:], during=watch)  # the TLS daemon, the camera node's throws, start
+        for line in lines[4:]:
+            r = cell.run(line)
+            assert r.returncode == 0, (line, r.stdout, r.stderr)
+        after = cell.status(viewer)
+    finally:
+        codes, log = cell.stop()
+        cell.print_output()
+    assert codes == [0, 0], log
+    throws = [ln for ln in cell.controller_lines if ln.startswith("throw ")]
+    assert len(throws) == 3, cell.controller_lines
+    assert any("BLOCKED" in ln for ln in throws), throws  # the first block, secured
+    # the status through the viewer node: a TLS session, the camera's node linked while it
+    # threw, every detection admitted (none refused by the sender gate)
+    linked = [s["zenoh"] for s in during if "camera-base" in s.get("zenoh", {}).get("linked", ())]
+    assert linked, during
+    assert linked[0]["auth"] == "tls" and "viewer-status" in linked[0]["linked"], linked[0]
+    zen = after["zenoh"]
+    assert zen["auth"] == "tls" and zen["links_opened"].get("camera-base", 0) >= 1, zen
+    assert not zen["rejected"], zen
+    assert "camera-base" in log and "throw_start" in log
+    view = next(r.stdout for r in cell.done if r.args[1:2] == ["status"])
+    flat = " ".join(re.sub(r"[│|╭╮╰╯─]", " ", view).split())
+    assert re.search(r"throws [123], node", flat), view

@@ -127,11 +127,15 @@ def daemon_acl(prefix: str, cameras: list[str], viewers: list[str]) -> dict:
 
 def camera_acl(prefix: str, camera: str) -> dict:
     """A camera detector's access control: it puts detections to the daemon and takes its own
-    bridge's frames; it believes no one else's puts."""
+    bridge's frames and the daemon's status; it believes no one else's puts. The status comes
+    in so that a camera node can tell the daemon is there (the simulated IRC5 throwing as the
+    camera waits for it, and stops on its silence: :class:`thinkfast.sim.watchdog.Watchdog`)."""
     return _acl(
         rules=[
             {"id": "detections_out", "messages": ["put"], "flows": ["egress"],
              "permission": "allow", "key_exprs": detection_keys(prefix)},
+            {"id": "status_in", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
+             "key_exprs": [keys.status(prefix)]},
             {"id": "frames_in", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
              "key_exprs": [f"{prefix}/camera/**"]},
             {"id": "declarations", "messages": _DECLARE, "flows": ["ingress", "egress"],
@@ -139,7 +143,8 @@ def camera_acl(prefix: str, camera: str) -> dict:
         ],
         subjects=[{"id": "daemon", "cert_common_names": [DAEMON]},
                   {"id": "bridge", "cert_common_names": [bridge_identity(camera)]}],
-        policies=[{"rules": ["detections_out", "declarations"], "subjects": ["daemon"]},
+        policies=[{"rules": ["detections_out", "status_in", "declarations"],
+                   "subjects": ["daemon"]},
                   {"rules": ["frames_in", "declarations"], "subjects": ["bridge"]}],
     )  # fmt: skip
 

@@ -168,9 +168,18 @@ def session_security(conf: zenoh.Config) -> SessionSecurity:
     return security_of(config_dict(conf))
 
 
-def open_peer(*, listen: Sequence[str] = (), connect: Sequence[str] = ()) -> zenoh.Session:
-    """A peer session on explicit endpoints with multicast scouting off (tests and tools)."""
-    return open_session(session_config(listen=listen, connect=connect, multicast=False))
+def open_peer(
+    *,
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: str | Path | None = None,
+) -> zenoh.Session:
+    """A peer session on explicit endpoints with multicast scouting off (tests and tools);
+    ``config_file``: a zenoh JSON5 configuration under them (e.g. a secured cell node's, whose
+    TLS and access control it keeps; the endpoints given replace the file's)."""
+    return open_session(
+        session_config(listen=listen, connect=connect, config_file=config_file, multicast=False)
+    )
 
 
 def free_tcp_port(host: str = "127.0.0.1") -> int:

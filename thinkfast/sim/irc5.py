@@ -128,18 +128,21 @@ class SimIrc5:
             time.sleep(0.01)
 
     def throw_in_session(
-        self, robot, throws, zenoh_endpoint: str, prefix: str, seed: int, extrinsic, report, stop
-    ) -> list:
+        self, robot, throws, zenoh_endpoint: str, prefix: str, seed: int, extrinsic, report, stop,
+        zenoh_config=None,
+    ) -> list:  # fmt: skip
         """Once an EGM session runs and the daemon has answered for a second, throw ``throws``
-        at the daemon (detections on ``zenoh_endpoint``) and judge each from this arm's
-        wall-clock history (:func:`~thinkfast.sim.realtime.run_throws`); [] when ``stop()``
-        came first. Runs beside :meth:`run` (another thread)."""
+        at the daemon (detections on ``zenoh_endpoint``, in a session configured by the JSON5
+        file ``zenoh_config`` when given: a secured cell's camera node) and judge each from this
+        arm's wall-clock history (:func:`~thinkfast.sim.realtime.run_throws`); [] when
+        ``stop()`` came first. Runs beside :meth:`run` (another thread)."""
         from thinkfast.sim.realtime import run_throws
 
         while not stop():
             runner = self.runner
             if runner is not None and runner.stats.answered >= 250:
                 return run_throws(robot, throws, self.target, zenoh_endpoint, prefix, seed,
-                                  extrinsic, report, controller=(self.sim, runner))  # fmt: skip
+                                  extrinsic, report, controller=(self.sim, runner),
+                                  zenoh_config=zenoh_config)  # fmt: skip
             time.sleep(0.05)
         return []

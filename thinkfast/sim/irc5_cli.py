@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from thinkfast.cli_util import ZENOH_CONFIG, ZenohConfigFile
+
 
 def controller(
     egm: str = typer.Option(
@@ -18,8 +20,12 @@ def controller(
         0, "--throws", help="once a session runs, throw this many simulated balls (--zenoh)"
     ),
     zenoh: str | None = typer.Option(
-        None, "--zenoh", help="with --throws: the daemon's zenoh endpoint (tcp/HOST:PORT)"
+        None,
+        "--zenoh",
+        help="with --throws: the daemon's zenoh endpoint to connect to (tcp/HOST:PORT; "
+        "tls/HOST:PORT with a secured --zenoh-config)",
     ),
+    zenoh_config: ZenohConfigFile = ZENOH_CONFIG,
     key_prefix: str = typer.Option("thinkfast", "--key-prefix", help="zenoh key prefix"),
     seed: int = typer.Option(1, "--seed", help="with --throws: throw and camera-noise seed"),
     config: str | None = typer.Option(
@@ -45,7 +51,9 @@ def controller(
     """A simulated IRC5 on this machine: RWS over HTTP (thinkfast-cell) and EGM over UDP to the
     daemon while the kit's RAPID program is in a session (docs/CELL.md, rehearsal); with
     --throws, simulated balls thrown at the daemon once a session runs, each judged from the
-    simulated arm (one line per throw, then a summary)."""
+    simulated arm (one line per throw, then a summary). On a secured cell (docs/SECURITY.md)
+    the throws go out as the camera's node: --zenoh-config its camera-<id>.json5 (thinkfast-cell
+    certs), --zenoh the daemon's TLS endpoint."""
     import logging
     import signal
     import threading
@@ -58,6 +66,10 @@ def controller(
     host, port = parse_hostport(rws, "--rws")
     if throws < 0 or (throws > 0 and zenoh is None):
         raise ConfigError("--throws", None, "a count >= 0; with throws, give --zenoh")
+    if zenoh_config is not None:  # a bad file: one line now, not once a session runs
+        from thinkfast.contract.zenoh_session import session_config
+
+        session_config(config_file=zenoh_config)
     robot, cfg, plane = controller_cell(tree, config, servo, kit)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     logging.getLogger("thinkfast.sim.controller").setLevel(logging.ERROR)  # overrun chatter
@@ -78,7 +90,8 @@ def controller(
     if throws > 0:
         thrower = threading.Thread(
             target=_throw,
-            args=(irc5, robot, throws, zenoh, key_prefix, seed, config, plane, stopping),
+            args=(irc5, robot, throws, zenoh, zenoh_config, key_prefix, seed, config, plane,
+                  stopping),
             daemon=True,
         )  # fmt: skip
         thrower.start()
@@ -166,7 +179,9 @@ def _with_kit(robot, servo, kit: Path, tree: Path | None):
     return dataclasses.replace(servo, v_max=tuple(min(float(v), cap) for v in servo.v_max))
 
 
-def _throw(irc5, robot, n, zenoh: str, prefix: str, seed: int, config, plane, stopping) -> None:
+def _throw(
+    irc5, robot, n, zenoh: str, zenoh_config, prefix: str, seed: int, config, plane, stopping
+) -> None:
     """The thrower beside the controller's loop: waits for a session, throws, prints."""
     from thinkfast.control.config import load_run_config
     from thinkfast.sim.cli_options import throw_config
@@ -177,7 +192,7 @@ def _throw(irc5, robot, n, zenoh: str, prefix: str, seed: int, config, plane, st
     report = lambda line: print(line, flush=True)  # noqa: E731
     try:
         res = irc5.throw_in_session(robot, balls, zenoh, prefix, seed, cam, report,
-                                    lambda: bool(stopping))  # fmt: skip
+                                    lambda: bool(stopping), zenoh_config)  # fmt: skip
     except Exception as exc:  # the thrower's failure ends the throws, not the controller
         print(f"throws stopped: {exc}", flush=True)
         return

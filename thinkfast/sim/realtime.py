@@ -156,6 +156,7 @@ def run_throws(
     camera: CameraModelConfig | None = None,
     frames=None,
     controller: tuple[WallClockSim, ControllerRunner] | None = None,
+    zenoh_config: Path | None = None,
 ) -> list[RealtimeResult]:
     """Throw every ball at a running daemon and judge it; ``report`` gets one line per throw.
 
@@ -165,7 +166,9 @@ def run_throws(
     ``frames``: a :class:`~thinkfast.sim.frame_stream.FrameStream` to publish rendered camera
     frames (for a detector) instead of detections. ``controller``: the simulated controller
     already talking EGM to the daemon, and its runner (the simulated IRC5's; kept running);
-    None: one is started at the home pose on ``egm`` and stopped at the end.
+    None: one is started at the home pose on ``egm`` and stopped at the end. ``zenoh_config``:
+    the throws' zenoh configuration (a secured cell's camera node, ``camera-<id>.json5`` of
+    ``thinkfast-cell certs``), connecting to ``zenoh_endpoint``; None: a plain peer.
     """
     if camera is None:
         setup = extrinsic if isinstance(extrinsic, CameraSetup) else CameraSetup()
@@ -178,7 +181,7 @@ def run_throws(
         runner = ControllerRunner(sim, egm).start()
     else:
         sim, runner = controller
-    session = open_peer(connect=[zenoh_endpoint])
+    session = open_peer(connect=[zenoh_endpoint], config_file=zenoh_config)
     results = []
     try:
         dog = Watchdog(runner, session, prefix, egm, SILENCE)
