@@ -148,7 +148,7 @@ def test_a_log_line_the_package_never_writes_is_caught():
     made_up = [
         'INFO egm_missed {"peer": "192.168.125.1:..."}',  # no such event
         'INFO brake {"reason": "signal", "brake_cause_text": "..."}',  # no such key
-        "WARNING detection refused (stale: ...)",  # not the message's words
+        "WARNING detection rejected (stale: ...)",  # not the message's words
         "ERROR the way home collides (...): braking",  # not how it ends
     ]
     assert unmatched_quotes(made_up) == made_up
