@@ -55,7 +55,9 @@ def _within_limits(planner, states: np.ndarray, jerk: np.ndarray) -> None:
     assert np.all(np.abs(states[:, n : 2 * n]) <= planner.v_max * (1 + TOL))
     assert np.all(np.abs(states[:, 2 * n :]) <= planner.a_max * (1 + TOL))
     assert np.all(np.abs(jerk) <= planner.j_max * (1 + TOL))
-    assert np.all(states[:, :n] >= planner.q_lo - TOL) and np.all(states[:, :n] <= planner.q_hi + TOL)
+    assert np.all(states[:, :n] >= planner.q_lo - TOL) and np.all(
+        states[:, :n] <= planner.q_hi + TOL
+    )
 
 
 def _ball(yz, tau: float, plane_x: float, x: float = 4.0) -> np.ndarray:
@@ -182,7 +184,9 @@ def test_the_fit_predicts_a_ballistic_crossing_from_five_estimates(rtree, robot)
     assert all(x is None for x in preds[:4])  # fewer than five estimates: no fit
     last = preds[-1]
     want = crossing_point(s0, rtree.plane_x, G)
-    assert np.allclose(last.yz, want[:2], atol=1e-6) and math.isclose(last.t_cross, want[2], abs_tol=1e-9)
+    assert np.allclose(last.yz, want[:2], atol=1e-6) and math.isclose(
+        last.t_cross, want[2], abs_tol=1e-9
+    )
     p.reset()
     assert p.predict(b) is None  # the window is the throw's: gone with it
 

@@ -1,25 +1,25 @@
-"""``mpc``: the fixed-time MPC interceptor (aceofspades07/3dof-mpc-interceptor, the design in
-its author's words: /work/shared/seeds/fixed_time_mpc_interceptor.txt) on this arm.
+"""``mpc``: the fixed-time MPC interceptor ("Real-Time Projectile Interception with a 3-DOF
+Robotic Arm and Fixed-Time MPC", github.com/aceofspades07/3dof-mpc-interceptor) on this arm.
 
-The crossing time is fixed by the prediction, not optimised: at 20 Hz, one nonlinear program
-over ``N`` equal intervals up to it (CasADi, IPOPT), built once and re-parameterised, warm
-started from the previous solution shifted in time. Minimum effort plus a terminal speed
-penalty, a hard terminal constraint, box constraints at every node
-(:class:`~.solver_base.SolverPlanner` does the timing, the freeze, the segment and the counts).
-What differs from the design, and why:
+The crossing time is the prediction's, not a decision variable: at each re-solve (20 Hz) one
+nonlinear program over ``N`` equal intervals up to it (CasADi ``nlpsol``, IPOPT), built once and
+re-parameterised (goal, interval length), warm started from the last solution shifted in time;
+minimum effort plus the terminal speed, a hard terminal constraint, box constraints at every
+node. :class:`~.solver_base.SolverPlanner` does the timing, the freeze, the segment and the
+counts; an unreachable crossing is a failed solve (the arm stays, as the design skips it).
+Where it differs from the design, and why:
 
-- **A triple integrator with jerk as the control** (exact under piecewise-constant jerk,
-  :func:`~.solver_base.integrate`), not the design's double integrator: the IRB 1600's jerk
-  limits are real, and the executed pieces are then exactly the solution.
-- **The terminal constraint is the wrist centre** (:mod:`thinkfast.robot.arm_reach`): joints
-  1-3 put the wrist centre where the coplanar shield covers the predicted point; the wrist
-  holds the shield coplanar, as for every planner.
+- **Jerk-limited triple integrator** (jerk the control, discretised exactly as
+  :func:`~.solver_base.integrate`), not a double integrator: the IRB 1600's jerk limits are
+  real, and the executed pieces are then exactly the solution.
+- **The wrist centre is the terminal constraint** (:mod:`thinkfast.robot.arm_reach`): the point
+  that puts the coplanar shield's centre on the predicted crossing (no wrist angle unknown).
 - **The plan arrives ``controller_lag`` early** (the arm follows its commands that late), and
   **a time-optimal stop follows the crossing** (the design leaves the arm where it arrives).
-- **The prediction** is the project's filter crossing by default (``predictor = "filter"``);
-  ``"fit"`` is the design's least-squares fit (x, y linear, z quadratic with gravity free, as
-  the design; ``fit_gravity`` fixes it), but over the filter's estimates of the last
-  ``fit_window`` seconds: a planner sees beliefs, never the raw detections the design fits.
+- **Prediction**: the project's filter crossing (``predictor = "filter"``, default) or the
+  design's least-squares fit (``"fit"``: x, y linear, z quadratic, gravity free as the design's
+  or fixed with ``fit_gravity``), fitted to the filter's estimates of the last ``fit_window``
+  seconds: a planner sees beliefs, not the raw detections the design fits.
 - **No hedge** (``hedges`` False): nothing moves before the executor's confirm gate.
 """
 
@@ -43,8 +43,6 @@ OK_STATUS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 INFEASIBLE_STATUS = (
     "Infeasible_Problem_Detected",
     "Restoration_Failed",
-    "Search_Direction_Becomes_Too_Small",
-    "Not_Enough_Degrees_Of_Freedom",
 )
 ITERATION_STATUS = ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded")
 
@@ -116,7 +114,7 @@ class MpcPlanner(SolverPlanner):
                 "sb": "yes",
                 "tol": s.tolerance,
                 "acceptable_tol": 10 * s.tolerance,
-                "acceptable_constr_viol_tol": 1e-4,  # m at the terminal: as IPOPT's own
+                "acceptable_constr_viol_tol": 1e-4,  # m at the terminal: as constr_viol_tol
             },
         }
         self._solver = ca.nlpsol("mpc", "ipopt", nlp, opts)  # cold: IPOPT's own mu_init
@@ -126,8 +124,6 @@ class MpcPlanner(SolverPlanner):
         hi = np.r_[self.q_hi, np.ones(2 * n)]
         self._lbx = np.r_[np.tile(lo, N + 1), -np.ones(n * N)]
         self._ubx = np.r_[np.tile(hi, N + 1), np.ones(n * N)]
-        self._ng = nx * N + 3
-        self._nw = nx * (N + 1) + n * N
 
     # -- prediction ----------------------------------------------------------------------
     def predict(self, b: Belief) -> Prediction | None:
@@ -238,7 +234,7 @@ class MpcPlanner(SolverPlanner):
         for k in range(N + 1):
             t = shift + k * dt
             if t >= end:
-                X[k] = np.r_[Xp[-1, :n], Xp[-1, n:] * 0.0]
+                X[k] = np.r_[Xp[-1, :n], np.zeros(2 * n)]  # held at its end
                 continue
             i = min(int(t / dt_prev), Np - 1)
             X[k] = _propagate(Xp[i], Up[i], t - i * dt_prev, n)
