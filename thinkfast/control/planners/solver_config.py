@@ -36,6 +36,22 @@ class MpcConfig:
     effort_weight: float = spec(
         0.001, lo=0.0, lo_open=True, doc="ASSUMED: weight of the squared jerk (the effort)"
     )
+    terminal_acceleration_weight: float = spec(
+        0.0,
+        lo=0.0,
+        doc="ASSUMED: weight of the squared joint acceleration at the crossing (not the "
+        "design's: 0 leaves it out)",
+    )
+    tolerance: float = spec(
+        1e-6, lo=0.0, lo_open=True, doc="ASSUMED: IPOPT's convergence tolerance (tol)"
+    )
+    warm_mu_init: float = spec(
+        1e-3,
+        lo=0.0,
+        lo_open=True,
+        doc="ASSUMED: IPOPT's initial barrier parameter from a warm start (a cold start keeps "
+        "IPOPT's 0.1): a start near the solution needs less of the barrier",
+    )
     predictor: str = spec(
         "filter",
         choices=("filter", "fit"),
@@ -44,6 +60,11 @@ class MpcConfig:
     )
     fit_window: float = spec(
         0.15, unit="s", lo=0.0, lo_open=True, doc="DESIGN: the fit's observation window"
+    )
+    fit_gravity: bool = spec(
+        False,
+        doc="the fit's z quadratic with its curvature fixed at the filter's gravity (False: "
+        "free, as the design fits it)",
     )
 
 
