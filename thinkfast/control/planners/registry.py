@@ -63,6 +63,7 @@ BUILTIN = (
     Entry("tree-rest", f"{_HERE}.tree_rest:TreeRestPlanner", "the paper's at-rest values"),
     Entry("naive", f"{_HERE}.naive:NaivePlanner", "baseline: the nearest goal"),
     Entry("naive-paper", f"{_HERE}.naive_paper:NaivePaperPlanner", "the paper's baseline"),
+    Entry("jpl", f"{_HERE}.jpl:JplPlanner", "EKF + cubic prediction + SCP (OSQP)"),
     Entry("tree-hedge-none", TREE, "tree, [hedge] mode none", False, (("hedge.mode", "none"),)),
     Entry("tree-hedge-mean", TREE, "tree, [hedge] mode mean", False, (("hedge.mode", "mean"),)),
     Entry("tree-hedge-tree", TREE, "tree, [hedge] mode tree", False, (("hedge.mode", "tree"),)),
