@@ -63,7 +63,7 @@ def test_names_are_unique_and_builtins_stay():
         registry.register(registry.Entry("tree", FirstGuess))
     with pytest.raises(ValueError, match="built in"):
         registry.unregister("naive")
-    assert registry.names(online=True) == ("tree", "tree-rest", "naive", "naive-paper")
+    assert registry.names(online=True)[:4] == ("tree", "tree-rest", "naive", "naive-paper")
 
 
 def test_builtin_entries_load_planners_and_the_hedge_variants_set_each_mode():
