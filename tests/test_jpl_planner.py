@@ -110,6 +110,15 @@ def test_the_cubic_predicts_an_exact_ballistic_crossing(rtree, robot, time_base)
     assert pl.predict(belief(rtree, state, stamps[-1] + FRAME)) is None
 
 
+def test_the_filter_predictor_is_the_beliefs_crossing(rtree, robot):
+    pl = planner(rtree, robot, predictor="filter")
+    state, t_cross = ballistic((0.2, 1.1), 0.6, rtree.plane_x)
+    b = belief(rtree, state, RELEASE + FRAME)
+    p = pl.predict(b)  # from the first estimate on: no window to fill
+    assert np.allclose(p.yz, b.crossing.mean[:2]) and p.t_cross == b.stamp + b.crossing.mean[2]
+    assert abs(p.t_cross - t_cross) < 1e-9
+
+
 def test_solve_reaches_a_goal_near_home_within_the_limits(rtree, robot):
     pl = planner(rtree, robot)
     n = pl.n_arm
