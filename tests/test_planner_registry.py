@@ -63,7 +63,14 @@ def test_names_are_unique_and_builtins_stay():
         registry.register(registry.Entry("tree", FirstGuess))
     with pytest.raises(ValueError, match="built in"):
         registry.unregister("naive")
-    assert registry.names(online=True) == ("tree", "tree-rest", "naive", "naive-paper", "mpc")
+    assert registry.names(online=True) == (
+        "tree",
+        "tree-rest",
+        "naive",
+        "naive-paper",
+        "mpc",
+        "jpl",
+    )
 
 
 def test_builtin_entries_load_planners_and_the_hedge_variants_set_each_mode():

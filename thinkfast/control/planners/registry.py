@@ -64,6 +64,7 @@ BUILTIN = (
     Entry("naive", f"{_HERE}.naive:NaivePlanner", "baseline: the nearest goal"),
     Entry("naive-paper", f"{_HERE}.naive_paper:NaivePaperPlanner", "the paper's baseline"),
     Entry("mpc", f"{_HERE}.mpc:MpcPlanner", "fixed-time MPC (CasADi + IPOPT)"),
+    Entry("jpl", f"{_HERE}.jpl:JplPlanner", "EKF + cubic prediction + SCP (OSQP)"),
     Entry("tree-hedge-none", TREE, "tree, [hedge] mode none", False, (("hedge.mode", "none"),)),
     Entry("tree-hedge-mean", TREE, "tree, [hedge] mode mean", False, (("hedge.mode", "mean"),)),
     Entry("tree-hedge-tree", TREE, "tree, [hedge] mode tree", False, (("hedge.mode", "tree"),)),

@@ -73,6 +73,12 @@ class JplConfig:
     """``jpl``: EKF estimates, a cubic-polynomial predictor, a receding-horizon sequential
     convex program (OSQP)."""
 
+    predictor: str = spec(
+        "cubic",
+        choices=("cubic", "filter"),
+        doc="where the crossing comes from: the design's cubic polynomials over the last "
+        "``window`` estimates, or the project's filter (delta method; for comparison)",
+    )
     window: int = spec(
         10, lo=4, hi=200, doc="ASSUMED: L, the filter estimates the cubic polynomials are fit to"
     )
@@ -112,4 +118,12 @@ class JplConfig:
     )
     effort_weight: float = spec(
         0.001, lo=0.0, lo_open=True, doc="ASSUMED: weight of the squared jerk (the effort)"
+    )
+    trust_region: float = spec(
+        0.3,
+        unit="rad",
+        lo=0.0,
+        lo_open=True,
+        doc="ASSUMED: an SCP iteration moves each joint's angle at the crossing at most this far "
+        "from the previous iterate's (where the terminal constraint is linearised)",
     )
