@@ -10,7 +10,9 @@ whole handling of a detection that ends in a decision (filter, launch fit, cross
 the planner's choice), on the same simulated detections (default throw mix, camera model, as
 ``thinkfast-sim`` draws them) for ``tree-rest`` (the paper's at-rest tree values and backup),
 ``tree`` (the re-rooted choice by the moving shield's block probability), ``tree+branches``
-(the same with ``[choice] branches = true``: the compiled child edges scored too) and ``naive``.
+(the same with ``[choice] branches = true``: the compiled child edges scored too) and ``naive``;
+``mpc`` and ``jpl`` when named (``--planners tree,mpc,jpl``): their decisions, and each solve's
+time with the share over the planner's deadline and the share that failed.
 The tree planner's hedge stage (``[hedge]``, before the launch is confirmed: early belief,
 target and checked move) is timed on the same detections as ``<planner> hedge stage``, the
 calls that ran it; ``hedge_over_commit_p99`` is its p99 over the committed decisions' p99.
@@ -207,6 +209,42 @@ def time_planners(tree_path: Path, planners, n_throws: int = 60, seed: int = 1) 
     return {p: np.array(v) for p, v in out.items() if v or p in planners}
 
 
+SOLVES: dict[str, dict] = {}  # per optimisation planner: its solves' times and failures
+
+
+def _keep_solves(planner: str, ex, cfg, keep: dict) -> None:
+    """An optimisation planner's solves of one throw into :data:`SOLVES` (timed passes only)."""
+    stats = getattr(ex.planner, "stats", None)
+    if stats is None or keep is None:
+        return
+    deadline = getattr(ex.planner.settings, "deadline", float("inf"))
+    acc = SOLVES.setdefault(planner, {"times": [], "failed": {}, "deadline": deadline})
+    acc["times"].extend(stats.times)
+    for reason, n in stats.failed.items():
+        acc["failed"][reason] = acc["failed"].get(reason, 0) + n
+
+
+def solve_rows() -> list[dict]:
+    """Per optimisation planner: solves, their time [ms] (median, p99, max), the share that
+    failed (by reason) and the share that took longer than the planner's deadline."""
+    rows = []
+    for planner, acc in SOLVES.items():
+        ms = np.asarray(acc["times"]) * 1e3
+        n = len(ms)
+        failed = sum(acc["failed"].values())
+        rows.append({
+            "planner": planner, "solves": n,
+            "solve_p50_ms": round(float(np.percentile(ms, 50)), 3) if n else None,
+            "solve_p99_ms": round(float(np.percentile(ms, 99)), 3) if n else None,
+            "solve_max_ms": round(float(ms.max()), 3) if n else None,
+            "deadline_ms": round(1e3 * acc["deadline"], 1),
+            "over_deadline": round(float(np.mean(ms > 1e3 * acc["deadline"])), 4) if n else None,
+            "failed": round(failed / n, 4) if n else None,
+            "failed_by_reason": {k: v for k, v in acc["failed"].items() if v},
+        })  # fmt: skip
+    return rows
+
+
 def _fly(passes, world, cfg, planners, seed: int) -> None:
     """Every pass's throw through each planner's executor, the decisions timed into ``keep``."""
     from thinkfast.control.executor import Executor
@@ -242,6 +280,7 @@ def _fly(passes, world, cfg, planners, seed: int) -> None:
                     gc_rule.collect_due()
                 ex.setpoint(t)
                 t += DT
+            _keep_solves(planner, ex, cfg, keep if keep is not passes[0][2] else None)
 
 
 def _watch_hedge(ex) -> list[bool]:
@@ -337,6 +376,8 @@ def main(argv=None) -> int:
         names = [p.strip() for p in args.planners.split(",") if p.strip()]
         rows = planner_rows(time_planners(args.tree, names, args.planner_throws))
         result["planners"] = rows
+        if SOLVES:
+            result["solves"] = solve_rows()
         by = {r["planner"]: r for r in rows}
         if by.get("tree-rest", {}).get("p99_ms") and by.get("tree", {}).get("p99_ms"):
             result["tree_over_tree_rest_p99"] = round(
@@ -406,6 +447,13 @@ def main(argv=None) -> int:
         if "branches_over_tree_rest_p99" in result:
             ratio = result["branches_over_tree_rest_p99"]
             print(f"  p99 tree+branches / tree-rest: {ratio:.2f}")
+    for r in result.get("solves", []):
+        print(
+            f"  {r['planner']} solves: {r['solves']}, {r['solve_p50_ms']} / {r['solve_p99_ms']} / "
+            f"{r['solve_max_ms']} ms (median / p99 / max); over its {r['deadline_ms']} ms "
+            f"deadline {100 * r['over_deadline']:.1f} %; failed {100 * r['failed']:.1f} % "
+            f"{r['failed_by_reason']}"
+        )
     print(f"  load average at the end: {result['load_average']}")
     return 0
 
