@@ -60,10 +60,14 @@ def test_everything_published_arrives_in_order_and_on_time(sessions, detections)
 
 
 class _FakeBus:
-    """A stand-in session recording (clock, payload) at each put, with a clock that sleep moves."""
+    """A session whose puts are recorded (clock, payload, source) on a clock that sleep moves.
 
-    def __init__(self, work=0.003):
-        self.now, self.work, self.sent, self.sleeps = 100.0, work, [], []
+    Each publisher is declared on a real loopback session too, for its real entity id: the
+    publisher attaches that id as every sample's source (what a secured daemon checks).
+    """
+
+    def __init__(self, session, work=0.003):
+        self.session, self.now, self.work, self.sent, self.sleeps = session, 100.0, work, [], []
 
     def clock(self):
         return self.now
@@ -73,34 +77,40 @@ class _FakeBus:
         self.now += s
 
     def declare_publisher(self, key):
-        bus = self
+        bus, real = self, self.session.declare_publisher(key)
 
         class _Pub:
-            def put(self, payload):
-                bus.sent.append((bus.now, payload))
+            id = real.id
+
+            def put(self, payload, source_info=None):
+                bus.sent.append((bus.now, payload, source_info))
                 bus.now += bus.work  # each put costs time: an absolute schedule absorbs it
 
             def undeclare(self):
-                pass
+                real.undeclare()
 
         return _Pub()
 
 
-def test_schedule_is_absolute_so_slow_puts_do_not_accumulate_drift(detections):
-    bus = _FakeBus(work=0.003)
+def test_schedule_is_absolute_so_slow_puts_do_not_accumulate_drift(sessions, detections):
+    bus = _FakeBus(sessions[0], work=0.003)
     publish_detections(bus, KEY, detections, t0_wall=100.5, clock=bus.clock, sleep=bus.sleep)
     due = 100.5 + np.array([sd.delivery_time for sd in detections])
-    sent = np.array([t for t, _ in bus.sent])
+    sent = np.array([t for t, _, _ in bus.sent])
     expect = [due[0]]  # each sample at its due time, or right after the previous put if later
     for d in due[1:]:
         expect.append(max(d, expect[-1] + bus.work))
     np.testing.assert_allclose(sent, expect, rtol=0, atol=1e-9)
-    stamps = [json.loads(p)["stamp"] for _, p in bus.sent]
+    stamps = [json.loads(p)["stamp"] for _, p, _ in bus.sent]
     np.testing.assert_allclose(stamps, 100.5 + np.array([d.capture_stamp for d in detections]))
+    # every sample names its publisher (this session's id) and is numbered in order
+    sources = [info for _, _, info in bus.sent]
+    assert {str(info.source_id.zid) for info in sources} == {str(sessions[0].info.zid())}
+    assert [info.source_sn for info in sources] == list(range(len(detections)))
 
 
-def test_samples_already_due_go_out_at_once_and_stop_is_honoured(detections):
-    bus = _FakeBus(work=0.0)
+def test_samples_already_due_go_out_at_once_and_stop_is_honoured(sessions, detections):
+    bus = _FakeBus(sessions[0], work=0.0)
     bus.now = 1e6  # far behind schedule
     report = publish_detections(bus, KEY, detections, clock=bus.clock, sleep=bus.sleep)
     assert report.sent == len(detections) and not bus.sleeps

@@ -213,9 +213,9 @@ def run(
         config_file=zenoh_config,
         multicast=None if zenoh_config else False,
     )
-    refuse_open_zenoh(conf, insecure_zenoh)
     t = load_tree(tree)
     robot = robot_for_tree(t.meta, str(tree), cfg.robot)  # the tree's robot, or refused
+    refuse_open_zenoh(conf, insecure_zenoh)  # after the config errors, before any socket
     robot = scale_limits(robot, speed_scale)
     ends = Endpoints(
         egm_bind, egm_controller, egm_handover, key_prefix, record, ros_domain, insecure_zenoh
