@@ -83,12 +83,12 @@ def test_an_exposed_plain_endpoint_is_refused_naming_it():
     assert "listens on tcp/0.0.0.0:7447" in why and "connects to tcp/10.0.0.2:7447" in why
 
 
-def _tls_conf(tmp_path, **tls_overrides) -> zenoh.Config:
+def _tls_conf(tmp_path, acl: bool = True, **tls_overrides) -> zenoh.Config:
     tls = za.tls_section("ca.pem", "n.pem", "n.key")
     tls.update(tls_overrides)
     conf = za.node_config(
         tls={k: v for k, v in tls.items() if v is not None},
-        acl=za.daemon_acl("thinkfast", ["base"], []),
+        acl=za.daemon_acl("thinkfast", ["base"], []) if acl else {"enabled": False},
         listen=["tls/0.0.0.0:7447"],
     )
     path = tmp_path / "c.json5"
@@ -100,6 +100,15 @@ def test_mutual_tls_on_every_exposed_endpoint_is_authenticated(tmp_path):
     sec = session_security(_tls_conf(tmp_path))
     assert sec.mode == "tls" and sec.acl and sec.refusal() is None
     assert sec.as_dict()["auth"] == "tls"
+
+
+def test_mutual_tls_without_access_control_is_refused(tmp_path):
+    """The gate reads a source id the sender writes: only the access control stops a viewer's
+    certificate from putting detections in a camera's name, so TLS alone does not do."""
+    sec = session_security(_tls_conf(tmp_path, acl=False))
+    assert sec.mode == "tls" and not sec.acl
+    why = sec.refusal()
+    assert why is not None and "without access control" in why and "--insecure-zenoh" in why
 
 
 @pytest.mark.parametrize(

@@ -298,7 +298,19 @@ class SessionSecurity:
 
     def refusal(self) -> str | None:
         """Why a session that moves the arm must not open with this configuration (one line
-        naming the override), or None when it may."""
+        naming the override), or None when it may.
+
+        Mutual TLS without access control is refused too: the daemon's sender gate reads a
+        sample's source id, which the sender writes, so only zenoh's access control (puts on
+        the detection keys from camera certificates only) keeps a node holding any cell
+        certificate from putting detections in a camera's name."""
+        if self.mode == "tls" and not self.acl:
+            return (
+                "the session uses mutual TLS without access control (access_control enabled "
+                "with default_permission deny): any node with a cell certificate could put "
+                "detections in a camera's name. Use the daemon configuration thinkfast-cell "
+                "certs writes (docs/SECURITY.md), or --insecure-zenoh"
+            )
         if self.mode != "open":
             return None
         what = []

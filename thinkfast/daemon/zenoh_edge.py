@@ -183,12 +183,19 @@ class ZenohIO:
         if self._closed:
             return
         sec = self.security
-        open_to = [*sec.exposed, *(["multicast scouting"] if sec.multicast else [])]
-        log.warning(
-            "--insecure-zenoh: the zenoh session is open to other hosts without "
-            "authentication (%s): anyone on the network can move the arm (docs/SECURITY.md)",
-            ", ".join(open_to),
-        )
+        if sec.mode == "tls":  # authenticated, but access control is off
+            log.warning(
+                "--insecure-zenoh: the zenoh session uses mutual TLS without access control: "
+                "any node with a cell certificate can put detections in a camera's name "
+                "(docs/SECURITY.md)"
+            )
+        else:
+            open_to = [*sec.exposed, *(["multicast scouting"] if sec.multicast else [])]
+            log.warning(
+                "--insecure-zenoh: the zenoh session is open to other hosts without "
+                "authentication (%s): anyone on the network can move the arm (docs/SECURITY.md)",
+                ", ".join(open_to),
+            )
         self._nag = threading.Timer(INSECURE_WARN_EVERY, self._warn_insecure)
         self._nag.daemon = True
         self._nag.start()
