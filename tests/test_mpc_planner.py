@@ -105,6 +105,34 @@ def test_an_unreachable_goal_is_a_failed_solution(planner, yz, horizon):
     assert sol.jerk.shape == (0, planner.n_arm)
 
 
+def test_the_soft_terminal_goes_as_near_as_the_limits_allow_where_the_hard_one_fails(
+    rtree, robot
+):
+    """mpc-soft: a crossing 0.9 m aside in 0.3 s is out of reach (the hard terminal fails, as
+    above); the soft one solves, within every limit, and ends nearer the goal than home is."""
+    import dataclasses
+
+    cfg = registry.get("mpc-soft").configure(CFG)
+    assert cfg.mpc.terminal == "soft" and CFG.mpc.terminal == "hard"
+    soft = MpcPlanner(rtree, robot, cfg, Timeline(robot, cfg.execution))
+    x0 = _home_state(soft)
+    goal = soft.wc_goal(np.array([0.9, 0.3]))
+    sol = soft.solve(x0, goal, 0.3, t0=0.0)
+    assert sol.ok, sol
+    states = integrate(x0, sol.jerk, sol.dt)
+    _within_limits(soft, states, sol.jerk)
+    start = np.linalg.norm(soft.reach.position(x0[:3]) - goal)
+    end = np.linalg.norm(soft.reach.position(states[-1, :3]) - goal)
+    assert end < 0.8 * start, (start, end)
+    # and a reachable goal is still reached (the penalty is not a looser target)
+    near = soft.wc_goal(np.array([0.1, 1.1]))
+    sol = soft.solve(x0, near, 0.4, t0=0.0)
+    assert sol.ok
+    states = integrate(x0, sol.jerk, sol.dt)
+    assert np.linalg.norm(soft.reach.position(states[-1, :3]) - near) < 0.005
+    assert dataclasses.replace(cfg.mpc, terminal="hard") == CFG.mpc
+
+
 def test_a_horizon_that_is_no_time_is_an_error_not_an_exception(planner):
     sol = planner.solve(_home_state(planner), planner.wc_goal(np.array([0.1, 1.0])), 0.0, 0.0)
     assert not sol.ok and sol.reason == "error"

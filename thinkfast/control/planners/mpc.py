@@ -21,6 +21,8 @@ Where it differs from the design, and why:
   or fixed with ``fit_gravity``), fitted to the filter's estimates of the last ``fit_window``
   seconds: a planner sees beliefs, not the raw detections the design fits.
 - **No hedge** (``hedges`` False): nothing moves before the executor's confirm gate.
+- ``mpc-soft`` (``[mpc] terminal = "soft"``, not the design): the terminal point as a penalty,
+  so that a crossing out of reach in the time left is approached instead of skipped.
 """
 
 from __future__ import annotations
@@ -64,6 +66,7 @@ class MpcPlanner(SolverPlanner):
     def __init__(self, tree: RuntimeTree, robot: Robot, cfg: RunConfig, timeline: Timeline):
         super().__init__(tree, robot, cfg, timeline)
         self.settings = cfg.mpc
+        self.terminal = self.settings.terminal
         self.gravity = cfg.filter.gravity
         self._window: deque[tuple[float, np.ndarray]] = deque()  # (stamp, position) for "fit"
         self._warm: tuple[float, float, np.ndarray, np.ndarray] | None = None  # t0, dt, X, U
@@ -99,9 +102,13 @@ class MpcPlanner(SolverPlanner):
                 a + dt * j,
             )  # exactly solver_base.integrate
             g.append((nxt - X[:, k + 1]) * inv_sx)
-        g.append(self.reach.casadi(X[:n, N]) - goal)
+        miss = self.reach.casadi(X[:n, N]) - goal
+        if self.terminal == "hard":
+            g.append(miss)
         effort = s.effort_weight * dt * ca.sumsqr(U)
         terminal = s.terminal_velocity_weight * ca.sumsqr(X[n : 2 * n, N])
+        if self.terminal == "soft":
+            terminal += s.terminal_position_weight * ca.sumsqr(miss)
         terminal += s.terminal_acceleration_weight * ca.sumsqr(X[2 * n :, N])
         w = ca.vertcat(ca.vec(Xs), ca.vec(Us))
         nlp = {"x": w, "p": P, "f": effort + terminal, "g": ca.vertcat(*g)}
@@ -256,3 +263,4 @@ def _propagate(x: np.ndarray, j: np.ndarray, tau: float, n: int) -> np.ndarray:
     return np.r_[
         p + tau * (v + tau * (a / 2 + tau * j / 6)), v + tau * (a + tau * j / 2), a + tau * j
     ]
+

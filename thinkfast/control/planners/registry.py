@@ -58,13 +58,16 @@ class Entry(NamedTuple):
 
 
 TREE = f"{_HERE}.tree:TreePlanner"
+MPC, JPL = f"{_HERE}.mpc:MpcPlanner", f"{_HERE}.jpl:JplPlanner"
 BUILTIN = (
     Entry("tree", TREE, "belief-space: the re-rooted choice"),
     Entry("tree-rest", f"{_HERE}.tree_rest:TreeRestPlanner", "the paper's at-rest values"),
     Entry("naive", f"{_HERE}.naive:NaivePlanner", "baseline: the nearest goal"),
     Entry("naive-paper", f"{_HERE}.naive_paper:NaivePaperPlanner", "the paper's baseline"),
-    Entry("mpc", f"{_HERE}.mpc:MpcPlanner", "fixed-time MPC (CasADi + IPOPT)"),
-    Entry("jpl", f"{_HERE}.jpl:JplPlanner", "EKF + cubic prediction + SCP (OSQP)"),
+    Entry("mpc", MPC, "fixed-time MPC (CasADi + IPOPT)"),
+    Entry("mpc-soft", MPC, "mpc, [mpc] terminal soft", True, (("mpc.terminal", "soft"),)),
+    Entry("jpl", JPL, "EKF + cubic prediction + SCP (OSQP)"),
+    Entry("jpl-filter", JPL, "jpl, [jpl] predictor filter", True, (("jpl.predictor", "filter"),)),
     Entry("tree-hedge-none", TREE, "tree, [hedge] mode none", False, (("hedge.mode", "none"),)),
     Entry("tree-hedge-mean", TREE, "tree, [hedge] mode mean", False, (("hedge.mode", "mean"),)),
     Entry("tree-hedge-tree", TREE, "tree, [hedge] mode tree", False, (("hedge.mode", "tree"),)),

@@ -30,6 +30,20 @@ class MpcConfig:
         "previous plan kept) and counted; counted only in lockstep",
     )
     max_iter: int = spec(100, lo=1, doc="ASSUMED: IPOPT iterations before a solve fails")
+    terminal: str = spec(
+        "hard",
+        choices=("hard", "soft"),
+        doc="DESIGN (hard): the wrist centre at the predicted crossing is a constraint, so an "
+        "unreachable crossing is a failed solve and the arm keeps its plan; soft (the planner "
+        "mpc-soft, not the design's): a penalty, so the arm goes as near as it can in time",
+    )
+    terminal_position_weight: float = spec(
+        1e4,
+        unit="1/m^2",
+        lo=0.0,
+        lo_open=True,
+        doc="ASSUMED: with terminal = soft, the weight of the squared wrist-centre miss",
+    )
     terminal_velocity_weight: float = spec(
         10.0, lo=0.0, doc="DESIGN: weight of the squared joint speed at the crossing"
     )
