@@ -105,9 +105,7 @@ def test_an_unreachable_goal_is_a_failed_solution(planner, yz, horizon):
     assert sol.jerk.shape == (0, planner.n_arm)
 
 
-def test_the_soft_terminal_goes_as_near_as_the_limits_allow_where_the_hard_one_fails(
-    rtree, robot
-):
+def test_the_soft_terminal_goes_as_near_as_the_limits_allow_where_the_hard_one_fails(rtree, robot):
     """mpc-soft: a crossing 0.9 m aside in 0.3 s is out of reach (the hard terminal fails, as
     above); the soft one solves, within every limit, and ends nearer the goal than home is."""
     import dataclasses

@@ -263,4 +263,3 @@ def _propagate(x: np.ndarray, j: np.ndarray, tau: float, n: int) -> np.ndarray:
     return np.r_[
         p + tau * (v + tau * (a / 2 + tau * j / 6)), v + tau * (a + tau * j / 2), a + tau * j
     ]
-
