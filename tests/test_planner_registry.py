@@ -69,7 +69,9 @@ def test_names_are_unique_and_builtins_stay():
         "naive",
         "naive-paper",
         "mpc",
+        "mpc-soft",
         "jpl",
+        "jpl-filter",
     )
 
 
