@@ -11,7 +11,8 @@ from thinkfast.estimate import early_belief as eb
 from thinkfast.estimate.launch import fit_free_flight
 
 G = 9.81
-CFG = eb.EarlyConfig()
+CFG = eb.EarlyConfig(depart_lateral=0.0, max_drop=0)  # the approach alone: the x-only rule
+DEFAULT = eb.EarlyConfig()
 PLANE_X = 0.8
 YZ_LO, YZ_HI = np.array([-0.9, 0.25]), np.array([0.9, 1.6])
 HAND = np.array([7.5, 0.2, 1.4])
@@ -280,3 +281,87 @@ def test_with_prior_age_a_fast_throw_fits_the_prior_better():
     fit = eb.early_fit(pts, aged, PLANE_X, YZ_LO, YZ_HI, G)
     assert fit.n == plain.n == 4 and fit.chi2 < 0.6 * plain.chi2
     assert abs(fit.mean[3] - v0[0]) < abs(plain.mean[3] - v0[0])
+
+
+# the base camera's noise at 7 m: 15 cm along its viewing ray (from the base, slightly below
+# the ball), 7 mm across it; a held ball moves 3 mm in the hand
+_RAY = np.array([7.5, 0.2, 0.9]) / np.linalg.norm([7.5, 0.2, 0.9])
+R_RAY = 0.15**2 * np.outer(_RAY, _RAY) + 0.007**2 * (np.eye(3) - np.outer(_RAY, _RAY))
+ACROSS = dataclasses.replace(CFG, depart_lateral=3.0)
+assert DEFAULT.depart_lateral == ACROSS.depart_lateral  # the tests below read the default
+
+
+def _departure_reference(points, cfg):
+    """The definition with ``depart_lateral``: the longest run of newest points, each nearer
+    the plane than the median hold by depart_sigmas of its depth noise, or that far from it in
+    Mahalanobis distance (its noise plus hand_motion on each axis) and nearer the plane, the
+    latter only after a still hold (the min_hold points before the run all within that
+    distance of the hold)."""
+    n = len(points)
+
+    def m2(p, r, hold):
+        d = p - hold
+        return d @ np.linalg.solve(r + cfg.hand_motion**2 * np.eye(3), d)
+
+    for k in range(n - cfg.min_hold, 0, -1):
+        hold = np.median(np.array([p[1] for p in points[: n - k]]), axis=0)
+        before = points[n - k - cfg.min_hold : n - k]
+        still = all(m2(p, r, hold) <= cfg.depart_lateral**2 for _, p, r in before)
+        ok = True
+        for _, p, r in points[n - k :]:
+            back = cfg.depart_sigmas * np.sqrt(r[0, 0])
+            across = still and m2(p, r, hold) > cfg.depart_lateral**2 and p[0] < hold[0]
+            ok &= hold[0] - p[0] > back or across
+        if ok:
+            return k
+    return 0
+
+
+def test_flight_run_with_depart_lateral_is_the_longest_run_that_left_bit_for_bit():
+    rng = np.random.default_rng(9)
+    runs = set()
+    for _ in range(2000):
+        n = int(rng.integers(0, 16))
+        flying = int(rng.integers(0, n + 1))
+        pts = []
+        for i in range(n):
+            p = HAND + rng.normal(0.0, [0.1, 0.01, 0.01])
+            if i >= n - flying:
+                p += rng.uniform([-0.6, -0.08, -0.08], [0.3, 0.08, 0.08])
+            a = rng.normal(size=(3, 3)) * rng.uniform(0.002, 0.05)
+            pts.append((0.02 * i, p, a @ a.T + 1e-5 * np.eye(3)))
+        assert eb.flight_run(pts, ACROSS)[0] == _departure_reference(pts, ACROSS)
+        runs.add(eb.flight_run(pts, ACROSS)[0])
+    assert len(runs) > 5
+
+
+def test_a_still_release_leaves_the_hold_across_the_ray_a_frame_before_along_it():
+    """A throw rising at 2.5 m/s, seen along the viewing ray: 20 ms after the release it is 22
+    cm nearer (within 2 depth stds, 30 cm: not left) but 5 cm higher (7 stds across the ray).
+    Counting the departure across the ray makes the launch likely one frame earlier."""
+    flight = [HAND] * 10 + list(_flight(V0, 0.02 * np.arange(1, 5)))
+    pts = [(0.02 * i, np.asarray(p, dtype=float), R_RAY) for i, p in enumerate(flight)]
+
+    def first_likely(cfg):
+        return next(k for k in range(CFG.min_hold, len(pts) + 1) if _likely(pts[:k], cfg))
+
+    assert first_likely(ACROSS) == 12 and first_likely(CFG) == 13  # 2nd and 3rd in flight
+    assert first_likely(DEFAULT) == 12
+    assert eb.flight_run(pts[:11], CFG)[0] == 0 and eb.flight_run(pts[:11], ACROSS)[0] == 1
+
+
+def test_a_held_ball_or_one_moving_away_does_not_leave_across_the_ray():
+    rng = np.random.default_rng(12)
+    t = 0.02 * np.arange(400)
+    held = HAND + 0.003 * np.sin(2 * np.pi * 1.3 * t)[:, None] * [1.0, 0.7, 1.0]
+    noise = rng.multivariate_normal(np.zeros(3), R_RAY, len(t))
+    pts = [(s, p + e, R_RAY) for s, p, e in zip(t, held, noise, strict=True)]
+    fired = sum(_likely(pts[max(0, k - 20) : k + 1], ACROSS) for k in range(CFG.min_hold, 400))
+    assert fired <= 2  # 400 detections of a ball in the hand
+    # 10 cm up, but further from the plane (a wind-up's back swing): not left, even 50 cm,
+    # within 2 depth stds
+    away = [(0.02 * i, HAND, R_RAY) for i in range(10)]
+    away.append((0.2, HAND + [0.5, 0.0, 0.1], R_RAY))
+    assert eb.flight_run(away, ACROSS)[0] == 0
+    away[-1] = (0.2, HAND + [-0.02, 0.0, 0.1], R_RAY)  # 10 cm up and 2 cm nearer: left
+    assert eb.flight_run(away, ACROSS)[0] == 1

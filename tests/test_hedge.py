@@ -217,8 +217,11 @@ def test_with_several_cameras_the_early_belief_takes_the_fusion_settings():
     from thinkfast.control.config import early_config
     from thinkfast.estimate.fusion import SIDE_CAMERA
 
-    assert early_config(CFG) is CFG.early and CFG.early.max_drop == 0
-    two = dataclasses.replace(CFG, cameras=(SIDE_CAMERA,))
+    assert early_config(CFG) is CFG.early and not CFG.early.prior_age
+    fusion = dataclasses.replace(CFG.fusion, early_max_drop=1 - CFG.early.max_drop)
+    two = dataclasses.replace(CFG, cameras=(SIDE_CAMERA,), fusion=fusion)
     early = early_config(two)
-    assert (early.max_drop, early.prior_age) == (1, True)
-    assert dataclasses.replace(early, max_drop=0, prior_age=False) == CFG.early
+    assert (early.max_drop, early.prior_age) == (1 - CFG.early.max_drop, True)
+    assert early.depart_lateral == two.fusion.early_depart_lateral != CFG.early.depart_lateral
+    back = {k: getattr(CFG.early, k) for k in ("max_drop", "prior_age", "depart_lateral")}
+    assert dataclasses.replace(early, **back) == CFG.early

@@ -217,12 +217,18 @@ def launch_window(cfg: RunConfig) -> int:
 
 def early_config(cfg: RunConfig) -> EarlyConfig:
     """The early belief's parameters: ``[early]``; with several cameras fused, its
-    ``max_drop`` and ``prior_age`` are ``[fusion] early_max_drop`` and ``early_prior_age``
-    (as ``[fusion] launch_window`` takes the place of ``[launch] window``)."""
+    ``max_drop``, ``prior_age`` and ``depart_lateral`` are ``[fusion] early_max_drop``,
+    ``early_prior_age`` and ``early_depart_lateral`` (as ``[fusion] launch_window`` takes the
+    place of ``[launch] window``)."""
     if not cfg.cameras:
         return cfg.early
     f = cfg.fusion
-    return dataclasses.replace(cfg.early, max_drop=f.early_max_drop, prior_age=f.early_prior_age)
+    return dataclasses.replace(
+        cfg.early,
+        max_drop=f.early_max_drop,
+        prior_age=f.early_prior_age,
+        depart_lateral=f.early_depart_lateral,
+    )
 
 
 def check_lags(cfg: RunConfig, source: str) -> RunConfig:

@@ -76,6 +76,20 @@ class EarlyConfig:
         lo=0.0,
         doc="a flight detection is nearer the plane than the hold by this many depth stds",
     )
+    depart_lateral: float = spec(
+        3.0,
+        unit="sigma",
+        lo=0.0,
+        doc="a flight detection has also left the hold when its Mahalanobis distance from it "
+        "(its noise and the hand's allowance) is this many stds (0: only the approach counts)",
+    )
+    hand_motion: float = spec(
+        0.01,
+        unit="m",
+        lo=0.0,
+        doc="ASSUMED: a held ball's own motion (tremor, drift over a few frames), added on "
+        "every axis to the noise of the depart_lateral test",
+    )
     trigger_points: int = spec(
         2, lo=1, hi=6, doc="detections of the flight run that must have left the hold (launch "
         "likely; with one camera the newest ones)",
@@ -86,7 +100,7 @@ class EarlyConfig:
         0.001, lo=1e-9, hi=0.5, doc="false-rejection rate of the fit's chi-square test"
     )
     max_drop: int = spec(
-        0,
+        1,
         lo=0,
         hi=1,
         doc="gross outliers the early fit may leave out (of 3 or more points; one is when "
@@ -206,23 +220,56 @@ def _run(points: list, cfg: EarlyConfig) -> tuple[int, list[bool]]:
     xs = [float(p[1][0]) for p in points]
     gap = [cfg.depart_sigmas * math.sqrt(p[2][0, 0]) for p in points]  # to leave the hold
     cams = [p[3] if len(p) > 3 else None for p in points]
+    side = _Lateral(points, cfg) if cfg.depart_lateral > 0.0 else None
     for k in range(n - cfg.min_hold, 0, -1):  # the longest run first: a flight is a few points
-        # only the hold's x decides: the median of the x before the run (as np.median)
+        # the hold: the median of the detections before the run (as np.median), per axis
         hold_x = _median(sorted(xs[: n - k]))
-        flags = _left(xs[n - k :], gap[n - k :], cams[n - k :], hold_x)
+        across = None if side is None else side.flags(n - k)
+        flags = _left(xs[n - k :], gap[n - k :], cams[n - k :], hold_x, across)
         if flags is not None:
             return k, flags
     return 0, []
 
 
-def _left(xs: list, gaps: list, cams: list, hold_x: float) -> list[bool] | None:
+class _Lateral:
+    """The second departure test of :func:`_run` (``depart_lateral`` > 0): a detection has left
+    the hold when ``d^T (C + h^2 I)^-1 d > depart_lateral^2`` for its offset ``d`` from the
+    hold's median, its noise ``C`` (3, 3) and the hand's allowance ``h`` (``hand_motion``),
+    it is nearer the plane than the hold, and the ``min_hold`` detections before it were all
+    that close to the hold (a still hold). Across the camera's viewing ray the noise is
+    millimetres, along it decimetres: a throw's rise and sideways motion show a frame or two
+    before its approach does. A wind-up's back swing goes away from the plane."""
+
+    def __init__(self, points: list, cfg: EarlyConfig):
+        self.pos = np.array([p[1] for p in points], dtype=float).reshape(-1, 3)
+        h2 = cfg.hand_motion * cfg.hand_motion
+        covs = np.array([p[2] for p in points], dtype=float).reshape(-1, 3, 3) + h2 * np.eye(3)
+        self.info = inv(covs) if len(points) else covs
+        self.limit = cfg.depart_lateral * cfg.depart_lateral
+        self.still = cfg.min_hold
+
+    def flags(self, start: int) -> list[bool]:
+        """Per detection from ``start`` on, whether it left the hold of the ones before."""
+        hold = np.median(self.pos[:start], axis=0)
+        d = self.pos - hold
+        d2 = np.einsum("ni,nij,nj->n", d, self.info, d)
+        if np.any(d2[max(start - self.still, 0) : start] > self.limit):
+            return [False] * (len(d2) - start)  # the ball was moving: no still hold to leave
+        d, d2 = d[start:], d2[start:]
+        return [bool(q > self.limit) and float(e[0]) < 0.0 for q, e in zip(d2, d, strict=True)]
+
+
+def _left(
+    xs: list, gaps: list, cams: list, hold_x: float, across: list | None = None
+) -> list[bool] | None:
     """Per detection (x [m], gap to leave the hold [m], camera), whether it left the hold at
-    ``hold_x`` [m]; None when they are no flight run: the first has not left, or a camera's
-    detection that has not left comes after one of that camera's that has."""
+    ``hold_x`` [m] (towards the plane, or across it where ``across`` says so); None when they
+    are no flight run: the first has not left, or a camera's detection that has not left comes
+    after one of that camera's that has."""
     flags: list[bool] = []
     gone = set()  # cameras that have shown the ball leave
-    for x, g, cam in zip(xs, gaps, cams, strict=True):
-        left = hold_x - x > g
+    for i, (x, g, cam) in enumerate(zip(xs, gaps, cams, strict=True)):
+        left = hold_x - x > g or (across is not None and across[i])
         if left:
             gone.add(cam)
         elif not flags or cam in gone:

@@ -146,6 +146,15 @@ class FusionConfig:
     early_prior_age: bool = spec(
         True, doc="TUNED: [early] prior_age when several cameras are fused (same section)"
     )
+    early_depart_lateral: float = spec(
+        0.0,
+        unit="sigma",
+        lo=0.0,
+        doc="TUNED: [early] depart_lateral when several cameras are fused (0: off; a side "
+        "camera sees the approach across its ray already, and at 3 a held ball before two "
+        "cameras started three times the hedges; docs/RESULTS.md, the hedge trigger across "
+        "the viewing ray)",
+    )
     check_alpha: float = spec(
         0.001, lo=1e-9, hi=0.5, doc="false-failure rate of one consistency test (3 dof)"
     )
