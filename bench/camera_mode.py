@@ -65,7 +65,7 @@ def _run(a) -> None:
     stop = len(balls) if a.stop is None else min(a.stop, len(balls))
     planners, make = a.planners.split(","), _WorldFactory(Path(a.tree), cfg)
     with open(a.out, "w", encoding="utf-8") as f:
-        if a.start or stop < len(balls):  # a piece, written throw by throw (stop it any time)
+        if a.start or a.stop is not None:  # a piece, written throw by throw (stop it any time)
             world, rows = make(), []
             for i in range(a.start, stop):  # throw i keeps its camera seed
                 rows += _write(f, run_chunk(world, balls[i : i + 1], planners, a.seed, i), label)

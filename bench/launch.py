@@ -10,6 +10,9 @@ detection reaches the daemon 30-60 ms later).
 The hedge stage's trigger (``[early]``, :func:`thinkfast.estimate.early_belief.likely_launch` on
 the same detections) is counted beside it: hedges begun while the ball is held (each time the
 test turns true), per minute of holding, and the delay from release to the first one after it.
+The default camera runs in the run config's ``[camera] mode`` and at its ``fps``, and the launch
+detector fits as the throw gate's does (the mode's stereo model, ``launch_window`` detections at
+that rate).
 With ``--executor N``, the first N balls are also flown through the tree planner's executor
 (``--hedge`` mode, default mean; detections delivered with the camera's latency, a setpoint
 every 4 ms, until the release): the largest shield displacement from home its commanded joints
@@ -37,11 +40,23 @@ from pathlib import Path
 
 import numpy as np
 
-from thinkfast.control.config import RunConfig, early_config, load_run_config
+from thinkfast.control.config import (
+    RunConfig,
+    default_camera_filter,
+    early_config,
+    launch_window,
+    load_run_config,
+)
 from thinkfast.estimate import early_belief as eb
 from thinkfast.estimate.launch import LaunchDetector
 from thinkfast.machine import machine_info
-from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe, observe_cameras
+from thinkfast.sim.camera import (
+    CameraModelConfig,
+    detection_payload,
+    mode_model,
+    observe,
+    observe_cameras,
+)
 from thinkfast.sim.cli import _throw_config, with_cameras
 from thinkfast.sim.lockstep import sim_cameras
 from thinkfast.sim.throws import sample_throws
@@ -82,13 +97,14 @@ def main() -> None:
     held, false_launches, delays, missed = 0, 0, [], 0
     hedges, hedge_delays, held_s, false_confirmations = 0, [], 0.0, 0
     rt = _runtime_tree(tree, cfg)[0] if cfg.cameras else None
+    rate = mode_model(cfg.camera, cam).rate  # the default camera's frames per second
     for i, th in enumerate(throws):
         feed = _GateFeed(rt, cfg) if cfg.cameras else None
-        det = feed.launch if feed else LaunchDetector(cfg.launch, cfg.filter, cfg.camera.xyz)
+        det = feed.launch if feed else _detector(cfg)
         launched, likely, hedged = False, False, False
         for d in _detections(th, cfg, cam, args.seed * 1000 + i):
             t = d.capture_stamp - _wall(cfg)  # after the release [s]
-            held_s += (d.camera is None and t < 0.0) / cam.rate
+            held_s += (d.camera is None and t < 0.0) / rate
             if feed is None:
                 fit = det.add(d.capture_stamp, rot @ d.position_camera + pos)
             else:
@@ -204,8 +220,9 @@ def _detections(th, cfg: RunConfig, cam: CameraModelConfig, seed: int) -> list:
     """Detections of one ball: the default camera's in capture order, or with ``[[cameras]]``
     every camera's in delivery order (the default camera's are the same either way), released
     at :func:`_wall`."""
-    if not cfg.cameras:
-        dets = observe(th, cam, cfg.camera, np.random.default_rng(seed), 0.0)
+    if not cfg.cameras:  # in [camera]'s mode and at its rate, as sim_cameras makes it
+        model = mode_model(cfg.camera, cam)
+        dets = observe(th, model, cfg.camera, np.random.default_rng(seed), 0.0)
         return sorted(dets, key=lambda d: d.capture_stamp)
     return observe_cameras(th, sim_cameras(cfg, cam), seed, _wall(cfg))
 
@@ -246,6 +263,13 @@ class _GateFeed:
             self.false_confirmations += held
             gate.drop()
         return True if fused.launched else None
+
+
+def _detector(cfg: RunConfig) -> LaunchDetector:
+    """The default camera's launch detector as the throw gate builds it: the stereo model of
+    ``[camera]``'s mode and the fit's detections at its frame rate (``launch_window``)."""
+    own = default_camera_filter(cfg)
+    return LaunchDetector(cfg.launch, own, cfg.camera.xyz, 1, launch_window(cfg))
 
 
 def _likely(det: LaunchDetector, cfg: RunConfig, plane) -> bool:
