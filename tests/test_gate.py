@@ -222,3 +222,20 @@ def test_with_two_cameras_the_hedge_trigger_comes_before_the_launch_confirmation
     trigger, confirmed = _trigger_and_confirmation(gate, dets, 10.0, rtree)
     assert confirmed is not None and trigger is not None and trigger < confirmed
     assert {p[3] for p in gate.launch.points} == {None, "side"}
+
+
+def test_a_low_central_throw_with_a_dropout_and_an_outlier_is_confirmed_by_the_launch(rtree):
+    """tests/test_launch.py's low, central flight (nearly along the base camera's ray) with a
+    dropout and a gross outlier early in flight: the launch detector confirms it, the filter
+    restarted from its fit, by the eighth flight frame."""
+    from tests.test_launch import _low_central_flight
+
+    gate = ThrowGate(rtree, CFG)
+    confirmed = None
+    for t, p in _low_central_flight(10.0, 20, drop={1, 3}, outlier=4):
+        fused = gate.fuse(t, p, None, armed=True)
+        if gate.belief.n_meas >= 2 and gate.confirms(gate.crossing(), fused.launched, True):
+            confirmed = (t, fused.launched)
+            break
+    assert confirmed is not None and confirmed[1], confirmed  # by the launch detector
+    assert confirmed[0] <= 10.0 + 0.16 + 1e-9, confirmed

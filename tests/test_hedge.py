@@ -14,9 +14,10 @@ import math
 import numpy as np
 import pytest
 
-from tests.test_executor_modes import CFG, DT, HELD, RELEASE, THROW, Run, feed
+from tests.test_executor_modes import CFG, DT, END, HELD, RELEASE, THROW, Run, feed
 from thinkfast.control.executor import EXECUTING, IDLE, Executor
 from thinkfast.control.hedge import COMMIT
+from thinkfast.daemon.status_text import episode_end, episode_text
 from thinkfast.decide.tree_view import runtime_tree
 from thinkfast.robot.shield_path import ShieldSampler
 from thinkfast.tree.file import load_tree
@@ -112,6 +113,26 @@ def test_no_hedge_mode_is_todays_executor(rtree, robot):
     b.run(THROW, RELEASE + 0.5)
     assert a.ex.hedge is None
     np.testing.assert_array_equal(np.array(a.states), np.array(b.states))
+
+
+def test_an_episode_hedged_on_but_never_confirmed_ends_with_its_own_figures(rtree, robot):
+    """A throw confirmed and flown, then a ball seen for three flight frames only: a hedge
+    begins, the launch is never confirmed, the arm comes home. The end of that episode tells
+    of it (not confirmed, one hedge), never the previous throw's figures."""
+    ex = Executor(rtree, robot, CFG, "tree")
+    run = Run(ex, 7)
+    feed(THROW, END + 1.5)(run)
+    assert ex.mode == IDLE and ex.episodes == 1 and ex.last_episode.decisions > 0
+    release = run.t + 1.0
+    glimpse = THROW._replace(release=release, t_seen=release - 0.6, t_lost=release + 0.07)
+    feed(glimpse, release + 1.5)(run)
+    assert ex.mode == IDLE and ex.episodes == 1  # the glimpse was never a confirmed throw
+    text = episode_text(ex)
+    assert text == {"throws": 1, "executed": False, "confirmed": False, "hedges": 1,
+                    "hedge_end": ex.hedge_end}  # fmt: skip
+    assert ex.hedge_end in ("no_launch", "silence", "timeout")
+    kind, detail = episode_end(ex)
+    assert kind == "episode_end" and detail == text
 
 
 @pytest.fixture(scope="module")

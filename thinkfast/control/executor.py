@@ -45,7 +45,8 @@ the segment timeline (:mod:`thinkfast.control.timeline`) and the wrist tracker. 
   :meth:`recover` drops the throw and returns home from where the arm was stopped.
 
 A confirmed throw is counted in ``episodes`` (and kept as ``last_episode``) when its episode is
-dropped: back at ``idle``, at a fault, a recovery or a restart.
+dropped: back at ``idle``, at a fault, a recovery or a restart. Every dropped episode, confirmed
+or not (a ball tracked, perhaps hedged on, never confirmed), is kept as ``ended``.
 """
 
 from __future__ import annotations
@@ -118,6 +119,7 @@ class Executor:
         self.mode = IDLE
         self.episode = EpisodeLog()
         self.last_episode: EpisodeLog | None = None  # the last confirmed throw, once it ended
+        self.ended: EpisodeLog | None = None  # the last episode dropped, confirmed or not
         self.episodes = 0
         self.wrist.reset(robot.home[self.n_arm :], -np.inf)
         self.home_on_start = True  # away from home at start: go home at once (module doc)
@@ -299,9 +301,12 @@ class Executor:
         self.timeline.hold_at(self.robot.home[: self.n_arm], t)
 
     def _reset_episode(self, mode: str) -> None:
+        if self.episode.hedges:
+            self.episode.hedge_end = self.hedge_end
         if not math.isnan(self.episode.t_confirmed):
             self.episodes += 1
             self.last_episode = self.episode
+        self.ended = self.episode
         self.mode = mode
         self.gate.drop()
         self.planner.reset()

@@ -66,6 +66,7 @@ class HedgeStage:
         if self.stage != HEDGE:
             self.stage, self.hedge_t0 = HEDGE, t_now
             self.hedges += 1
+            ep.hedges += 1
             if math.isnan(ep.t_hedge):
                 ep.t_hedge = t_now
         tl.segment = seg

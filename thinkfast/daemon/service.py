@@ -49,7 +49,7 @@ from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.home_watch import HomeWatch
 from thinkfast.daemon.options import Endpoints, Modes
 from thinkfast.daemon.rt_thread import pin_thread, set_fifo
-from thinkfast.daemon.status_text import episode_text, peer_text, status_message, summary
+from thinkfast.daemon.status_text import episode_end, peer_text, status_message, summary
 from thinkfast.daemon.zenoh_edge import ZenohIO
 from thinkfast.record.recorder import Recorder
 from thinkfast.record.tables import plane_json
@@ -221,7 +221,8 @@ class Daemon:
                 "ticks": sup.ticks - ticks0,
                 "intervened": sup.intervened - intervened0,
             }
-            self._event(t, "throw_end", {**episode_text(self.executor), **self.last_throw})
+            kind, detail = episode_end(self.executor)  # throw_end, or one never confirmed
+            self._event(t, kind, {**detail, **self.last_throw})
 
     def _watch_stage(self, t: float) -> None:
         """A ``stage`` event (log and record) whenever the executor's stage of commitment

@@ -3,7 +3,8 @@
 :func:`status_message` is what ``thinkfast-run`` publishes at ``status_rate`` on
 ``<prefix>/status`` (docs/INTERFACES.md "Status"; read back by ``thinkfast-run status``,
 :mod:`thinkfast.daemon.status_view`); :func:`summary` is logged (and recorded) at start-up;
-:func:`episode_text` ends a throw's ``throw_end`` event. Plain JSON-able data; nothing here
+:func:`episode_text` ends a throw's ``throw_end`` event (:func:`episode_end`: or an
+``episode_end`` for an episode never confirmed). Plain JSON-able data; nothing here
 changes the daemon.
 """
 
@@ -117,10 +118,20 @@ def summary(d: Daemon) -> dict:
 
 
 def episode_text(ex) -> dict:
-    """What the daemon knows of the throw that just ended (whether it was blocked, it cannot)."""
-    ep = ex.last_episode
+    """What the daemon knows of the episode that just ended (``ex.ended``; whether it was
+    blocked, it cannot): ``throws`` confirmed so far, whether this one was ``confirmed``, its
+    ``hedges`` (and why the last ended), and for a throw that moved the arm its figures. An
+    episode never confirmed (a ball tracked, perhaps hedged on) has figures of its own, never
+    the previous throw's."""
+    ep = ex.ended
     out: dict = {"throws": ex.episodes, "executed": False}
-    if ep is None or math.isnan(ep.t_start):
+    if ep is None:
+        return out
+    out["confirmed"] = not math.isnan(ep.t_confirmed)
+    out["hedges"] = ep.hedges
+    if ep.hedges:
+        out["hedge_end"] = ep.hedge_end
+    if math.isnan(ep.t_start):
         return out
     value = None if math.isnan(ep.chosen_value) else round(ep.chosen_value, 3)
     return {
@@ -132,6 +143,13 @@ def episode_text(ex) -> dict:
         "decisions": ep.decisions,
         "end": ep.end,
     }
+
+
+def episode_end(ex) -> tuple[str, dict]:
+    """The event that closes the episode that just ended and its detail (:func:`episode_text`):
+    ``throw_end`` for a confirmed throw, ``episode_end`` for one never confirmed."""
+    detail = episode_text(ex)
+    return ("throw_end" if detail.get("confirmed") else "episode_end"), detail
 
 
 def way_text(result) -> str:

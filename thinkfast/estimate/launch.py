@@ -27,7 +27,10 @@ dropped point (the 3-dof ``1 - alpha`` quantile) wins. A launch is declared when
   median of the detections before the window) by ``sigmas`` of its depth noise: a burst of
   outliers away from the camera followed by the held ball looks like an approach to the fit,
   but not to this test;
-* the window without its newest point passes the same tests (one point never decides).
+* the window without its newest point passes the same tests (one point never decides); when
+  a dropout leaves it four points, too few for the fit to leave a gross outlier out, the
+  window the detector had before the newest point came (the newest others within
+  ``max_span`` of the one before it) may pass instead.
 
 Requiring two windows in a row means a single gross outlier (which can fake any velocity when it
 is the newest point, where the fit is least able to see it) must also pass the next window, in
@@ -343,5 +346,16 @@ class LaunchDetector:
             return False
         if not self.cfg.check_without_newest:
             return True
-        older = self._robust_fit(self._window(list(self.points)[:-1], fit.t))
+        rest = list(self.points)[:-1]
+        older = self._window(rest, fit.t)
+        if self._flight(older):
+            return True
+        # too few to leave a gross outlier out (the fit keeps four): a dropout in the span
+        # would hold a real flight back until the outlier has left; the window the detector
+        # had before the newest point came (within max_span of the one before it) decides
+        return len(older) <= 4 and self._flight(self._window(rest, rest[-1][0]) if rest else [])
+
+    def _flight(self, window: list) -> bool:
+        """The robust fit of ``window`` is consistent and approaches the plane."""
+        older = self._robust_fit(window)
         return older is not None and self.consistent(older) and self._approaching(older)

@@ -55,6 +55,8 @@ class EpisodeLog:
     chosen_value: float = math.nan
     decisions: int = 0
     t_hedge: float = math.nan  # when the first hedge of the throw began (nan: none)
+    hedges: int = 0  # hedges begun in this episode
+    hedge_end: str = ""  # why its last hedge ended, once the episode ended ("": none)
     end: str = ""  # why the throw's motion ended (Executor.throw_end; "": not yet)
 
 
