@@ -53,6 +53,7 @@ from thinkfast.errors import ConfigError
 from thinkfast.robot import kernels
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+BACKUPS = ("qmdp", "lookahead")  # [value] backup
 _BLAS_ONE_THREAD = 250_000  # m n k below OpenBLAS's threading threshold (4 * 65536)
 
 
@@ -83,6 +84,21 @@ class ValueConfig:
         6.5, doc="integration and pruning range across the plane", unit="sigma", lo=3.0, hi=12.0
     )
     k_time: float = spec(5.0, doc="half-width of the time grid", unit="sigma", lo=3.0, hi=12.0)
+    backup: str = spec(
+        "qmdp",
+        choices=BACKUPS,
+        doc="qmdp: every node valued under today's crossing belief (max backup); lookahead: the "
+        "children of the node where the arm next chooses valued under the belief it will have "
+        "when their edges end, averaged over what the coming detections may show (preposterior, "
+        "docs/DESIGN.md)",
+    )
+    lookahead_min_std: float = spec(
+        0.005,
+        unit="m",
+        lo=0.0,
+        doc="the look-ahead runs only when the coming detections move the crossing point's "
+        "expected position by at least this std on the plane (else qmdp)",
+    )
 
     def __post_init__(self) -> None:
         if self.max_nodes < self.min_nodes:

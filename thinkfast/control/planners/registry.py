@@ -59,9 +59,10 @@ class Entry(NamedTuple):
 
 TREE = f"{_HERE}.tree:TreePlanner"
 MPC, JPL = f"{_HERE}.mpc:MpcPlanner", f"{_HERE}.jpl:JplPlanner"
+REST = f"{_HERE}.tree_rest:TreeRestPlanner"
 BUILTIN = (
     Entry("tree", TREE, "belief-space: the re-rooted choice"),
-    Entry("tree-rest", f"{_HERE}.tree_rest:TreeRestPlanner", "the paper's at-rest values"),
+    Entry("tree-rest", REST, "the paper's at-rest values"),
     Entry("naive", f"{_HERE}.naive:NaivePlanner", "baseline: the nearest goal"),
     Entry("naive-paper", f"{_HERE}.naive_paper:NaivePaperPlanner", "the paper's baseline"),
     Entry("mpc", MPC, "fixed-time MPC (CasADi + IPOPT)"),
@@ -71,6 +72,22 @@ BUILTIN = (
     Entry("tree-hedge-none", TREE, "tree, [hedge] mode none", False, (("hedge.mode", "none"),)),
     Entry("tree-hedge-mean", TREE, "tree, [hedge] mode mean", False, (("hedge.mode", "mean"),)),
     Entry("tree-hedge-tree", TREE, "tree, [hedge] mode tree", False, (("hedge.mode", "tree"),)),
+    Entry(
+        "tree-hedge-lookahead", TREE, "tree, [hedge] mode tree, [value] backup lookahead", False,
+        (("hedge.mode", "tree"), ("value.backup", "lookahead")),
+    ),  # fmt: skip
+    Entry(
+        "tree-hedge-edges", TREE, "tree, [hedge] mode tree with terminals", False,
+        (("hedge.mode", "tree"), ("hedge.terminals", True)),
+    ),  # fmt: skip
+    Entry(
+        "tree-hedge-edges-lookahead", TREE, "tree-hedge-edges, [value] backup lookahead", False,
+        (("hedge.mode", "tree"), ("hedge.terminals", True), ("value.backup", "lookahead")),
+    ),  # fmt: skip
+    Entry(
+        "tree-rest-lookahead", REST, "tree-rest, [value] backup lookahead", False,
+        (("value.backup", "lookahead"),),
+    ),  # fmt: skip
 )
 _ENTRIES: dict[str, Entry] = {e.name: e for e in BUILTIN}
 
