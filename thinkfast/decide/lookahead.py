@@ -15,6 +15,7 @@ expectation of a fixed action's probability is today's). Pure kernels.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import NamedTuple
 
@@ -179,16 +180,44 @@ def lookahead_backup(
     """
     lo = int(blay.child_start[node])
     hi = lo + int(blay.child_count[node])
-    acc = np.zeros(hi - lo)
     offsets, weights, cov = sigma_points(ahead.spread, ahead.cov)
-    for d, w in zip(offsets, weights, strict=True):
-        tv = vl.terminal_values(vlay, mean + d, cov, remaining)
-        acc += w * bk.backup(blay, tv.value, tv.goal_mass).value[lo:hi]
+    acc = np.zeros(hi - lo)
+    if len(weights) == 1:  # nothing to learn about the mean: today's layout, one table
+        tv = vl.terminal_values(vlay, mean + offsets[0], cov, remaining)
+        acc += bk.backup(blay, tv.value, tv.goal_mass).value[lo:hi]
+    else:  # every point's goals in one table under N(mean, cov), on the coarser layout
+        g = len(vlay.goal_yz)
+        shifted = (vlay.goal_yz[None, :, :] - offsets[:, None, :2]).reshape(-1, 2)
+        lay = coarse(vlay)._replace(goal_yz=shifted)
+        table, mass, t0, step = vl.value_table(lay, mean, cov)
+        for k, (d, w) in enumerate(zip(offsets, weights, strict=True)):
+            rows = table[:, k * g : (k + 1) * g]
+            value = vl.table_lookup(lay, rows, t0 + float(d[2]), step, remaining)
+            acc += w * bk.backup(blay, value, mass[k * g : (k + 1) * g]).value[lo:hi]
     value, cv = back.value.copy(), back.child_value.copy()
     value[lo:hi] = acc
     cv[node] = acc.max(initial=0.0)
     value[node] = max(float(back.term_value[node]), float(cv[node]))
     return back._replace(value=value, child_value=cv)
+
+
+COARSE = {"time_points": 24, "min_nodes": 4, "max_nodes": 16, "nodes_per_sigma": 1.0,
+          "k_sigma": 4.5}  # the look-ahead's tables: the sigma points' goals in one table, at
+# about a third of today's cost per point (docs/DESIGN.md, "Preposterior values")
+
+
+_COARSE: dict[int, tuple[vl.ValueLayout, vl.ValueLayout]] = {}  # id -> (layout, coarse)
+
+
+def coarse(vlay: vl.ValueLayout) -> vl.ValueLayout:
+    """``vlay`` on the look-ahead's coarser value parameters (:data:`COARSE`; its margin),
+    built once per layout."""
+    hit = _COARSE.get(id(vlay))
+    if hit is None or hit[0] is not vlay:
+        cfg = dataclasses.replace(vlay.cfg, **COARSE)
+        hit = (vlay, vl.layout(vlay.goal_yz, vlay.term_goal, vlay.radius, cfg))
+        _COARSE[id(vlay)] = hit
+    return hit[1]
 
 
 def sigma_points(spread: np.ndarray, future: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -216,6 +216,31 @@ def terminal_values_numpy(
     return TerminalValues(value, mass)
 
 
+def table_lookup(
+    lay: ValueLayout, table: np.ndarray, t0: float, step: float, term_remaining: np.ndarray
+) -> np.ndarray:
+    """Terminal values (T,) read from a :func:`value_table` ``(table, _, t0, step)`` whose
+    rows are ``lay``'s goals (``table`` may be rows of a larger table: a view of (2, G, K));
+    the lookup of :func:`terminal_values`, compiled or in numpy as the kernels say."""
+    f, df = table[0].reshape(-1), table[1].reshape(-1)
+    if kernels.compiled():
+        from thinkfast.decide.tree_jit import terminal_lookup
+
+        rem = np.ascontiguousarray(term_remaining, dtype=float)
+        top = lay.cfg.time_points - 1.0 - 1e-9
+        return terminal_lookup(rem, lay.cfg.margin - t0, 1.0 / step, top, lay.flat, f, df)
+    pos = np.asarray(term_remaining, dtype=float) + (lay.cfg.margin - t0)
+    pos *= 1.0 / step
+    np.clip(pos, 0.0, lay.cfg.time_points - 1.0 - 1e-9, out=pos)
+    i = pos.astype(np.intp)
+    pos -= i
+    i += lay.flat
+    value = df.take(i)
+    value *= pos
+    value += f.take(i)
+    return value
+
+
 def value_table(
     lay: ValueLayout, o_mean: np.ndarray, o_cov: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float, float]:
