@@ -156,7 +156,9 @@ def test_on_a_compiled_tree_the_values_stay_probabilities(rtree, spread, y):
     mean, cov = _ball(spread)
     mean[1] = y
     c = rtree.crossing(mean, cov, 9.81)
-    model = foresight(rtree, dataclasses.replace(RunConfig(), value=vl.ValueConfig(backup="lookahead")))
+    model = foresight(
+        rtree, dataclasses.replace(RunConfig(), value=vl.ValueConfig(backup="lookahead"))
+    )
     a = lk.ahead(mean, cov, c.cov, rtree.commit_horizon(0, 0.0, 0.0), model, rtree.plane_x)
     assert a is not None
     d = rtree.decide(c, 0.0, 0.0, 0.004, a)

@@ -201,9 +201,9 @@ def lookahead_backup(
     return back._replace(value=value, child_value=cv)
 
 
-COARSE = {"time_points": 24, "min_nodes": 4, "max_nodes": 16, "nodes_per_sigma": 1.0,
-          "k_sigma": 4.5}  # the look-ahead's tables: the sigma points' goals in one table, at
-# about a third of today's cost per point (docs/DESIGN.md, "Preposterior values")
+# the look-ahead's value parameters: the sigma points' goals in one table at about a third of
+# today's cost per point, values within 0.005 of today's parameters (docs/DESIGN.md)
+COARSE = dict(time_points=24, min_nodes=4, max_nodes=16, nodes_per_sigma=1.0, k_sigma=4.5)
 
 
 _COARSE: dict[int, tuple[vl.ValueLayout, vl.ValueLayout]] = {}  # id -> (layout, coarse)
@@ -220,7 +220,9 @@ def coarse(vlay: vl.ValueLayout) -> vl.ValueLayout:
     return hit[1]
 
 
-def sigma_points(spread: np.ndarray, future: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sigma_points(
+    spread: np.ndarray, future: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The crossing means to come and the covariance around them: (offsets (K, 3), weights
     (K,), covariance (3, 3)).
 

@@ -60,6 +60,9 @@ class Entry(NamedTuple):
 TREE = f"{_HERE}.tree:TreePlanner"
 MPC, JPL = f"{_HERE}.mpc:MpcPlanner", f"{_HERE}.jpl:JplPlanner"
 REST = f"{_HERE}.tree_rest:TreeRestPlanner"
+# settings of the look-ahead variants (docs/DESIGN.md, "Preposterior values")
+HT, TERMS = ("hedge.mode", "tree"), ("hedge.terminals", True)
+LOOK = ("value.backup", "lookahead")
 BUILTIN = (
     Entry("tree", TREE, "belief-space: the re-rooted choice"),
     Entry("tree-rest", REST, "the paper's at-rest values"),
@@ -72,22 +75,16 @@ BUILTIN = (
     Entry("tree-hedge-none", TREE, "tree, [hedge] mode none", False, (("hedge.mode", "none"),)),
     Entry("tree-hedge-mean", TREE, "tree, [hedge] mode mean", False, (("hedge.mode", "mean"),)),
     Entry("tree-hedge-tree", TREE, "tree, [hedge] mode tree", False, (("hedge.mode", "tree"),)),
+    Entry("tree-hedge-lookahead", TREE, "tree-hedge-tree, [value] lookahead", False, (HT, LOOK)),
+    Entry("tree-hedge-edges", TREE, "tree-hedge-tree, [hedge] terminals", False, (HT, TERMS)),
     Entry(
-        "tree-hedge-lookahead", TREE, "tree, [hedge] mode tree, [value] backup lookahead", False,
-        (("hedge.mode", "tree"), ("value.backup", "lookahead")),
-    ),  # fmt: skip
-    Entry(
-        "tree-hedge-edges", TREE, "tree, [hedge] mode tree with terminals", False,
-        (("hedge.mode", "tree"), ("hedge.terminals", True)),
-    ),  # fmt: skip
-    Entry(
-        "tree-hedge-edges-lookahead", TREE, "tree-hedge-edges, [value] backup lookahead", False,
-        (("hedge.mode", "tree"), ("hedge.terminals", True), ("value.backup", "lookahead")),
-    ),  # fmt: skip
-    Entry(
-        "tree-rest-lookahead", REST, "tree-rest, [value] backup lookahead", False,
-        (("value.backup", "lookahead"),),
-    ),  # fmt: skip
+        "tree-hedge-edges-lookahead",
+        TREE,
+        "tree-hedge-edges, [value] lookahead",
+        False,
+        (HT, TERMS, LOOK),
+    ),
+    Entry("tree-rest-lookahead", REST, "tree-rest, [value] backup lookahead", False, (LOOK,)),
 )
 _ENTRIES: dict[str, Entry] = {e.name: e for e in BUILTIN}
 
