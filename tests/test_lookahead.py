@@ -183,3 +183,11 @@ def test_foresight_is_off_with_qmdp_and_follows_the_camera(rtree):
     model = foresight(rtree, cfg)
     assert model.period == pytest.approx(0.025)
     assert np.allclose(model.sensor, rtree.plane.to_plane(np.array(cfg.camera.xyz)))
+
+
+def test_the_table_lookup_is_the_terminal_values_lookup():
+    vlay, _, arrival = _two_goal_tree()
+    mean, cov = np.array([0.1, 1.0, 0.4]), np.diag([0.04, 0.01, 0.003])
+    table, _, t0, step = vl.value_table(vlay, mean, cov)
+    got = vl.table_lookup(vlay, table, t0, step, arrival)
+    assert np.array_equal(got, vl.terminal_values(vlay, mean, cov, arrival).value)
