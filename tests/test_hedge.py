@@ -77,6 +77,43 @@ def test_an_unconfirmed_hedge_stays_within_the_bound_and_ends_at_home(mode, rtre
     assert np.allclose(trace.states[-1][3:], 0.0, atol=1e-9)  # at rest (Ruckig: within 1e-8)
 
 
+def _edges_cfg(backup: str, **launch):
+    cfg = _cfg("tree", **launch)
+    return dataclasses.replace(
+        cfg,
+        hedge=dataclasses.replace(cfg.hedge, terminals=True),
+        value=dataclasses.replace(cfg.value, backup=backup),
+    )
+
+
+def test_a_look_ahead_hedge_on_the_trees_edges_stays_within_the_bound(rtree, robot):
+    cfg = _edges_cfg("lookahead", min_speed=100.0)
+    ex = Executor(rtree, robot, cfg, "tree")
+    assert ex.hedge.hedger.foresight is not None
+    trace = Trace(ex, robot)
+    trace.run(THROW, RELEASE + 1.8)
+    assert ex.hedges >= 1 and trace.displacement().max() <= cfg.hedge.bound + 1e-9
+    assert ex.mode == IDLE and np.allclose(trace.states[-1][:3], robot.home[:3], atol=1e-6)
+
+
+def test_with_terminals_the_tree_hedge_heads_for_homes_best_terminal_edge(rtree, robot):
+    cfg = _edges_cfg("qmdp")
+    h = Executor(rtree, robot, cfg, "tree").hedge.hedger
+    mean = np.array([5.8, 0.35, 1.1, -10.0, 0.0, 2.0])  # a ball 5 m out, wide across the plane
+    c = rtree.crossing(mean, np.diag([0.1**2] * 3 + [1.0] * 3), cfg.filter.gravity)
+    d = rtree.decide(c, 0.0, 0.0, h.lag)
+    assert d.backup.term_value[0] >= d.backup.child_value[0]  # a direct move is worth the most
+    goal = rtree.compiled.term_goal[rtree.best_terminal(d, 0)]
+    q = h.target(c, 0.0, 0.0)
+    assert np.array_equal(q, h.truncate(rtree.goal_q[goal, :3]))
+    assert h.displacement(q) <= cfg.hedge.bound
+    no_terms = dataclasses.replace(cfg, hedge=dataclasses.replace(cfg.hedge, terminals=False))
+    h0 = Executor(rtree, robot, no_terms, "tree").hedge.hedger
+    child = rtree.best_child(d, 0)
+    want = rtree.subgoal_q[rtree.compiled.edge_target[child], :3]
+    assert np.array_equal(h0.target(c, 0.0, 0.0), h0.truncate(want))  # today's: a child edge
+
+
 def test_the_commit_takes_over_from_the_hedge_without_a_jump(rtree, robot):
     cfg = _cfg("mean")
     ex = Executor(rtree, robot, cfg, "tree")

@@ -213,7 +213,8 @@ class Executor:
                 self._leave(t_now)  # the arm has left home: the episode's end brings it back
         ep.decisions += 1
         executing = self.mode == EXECUTING
-        b = Belief(t_now, stamp, c, gate.belief.mean, executing, ep.t_start)
+        fb = gate.belief
+        b = Belief(t_now, stamp, c, fb.mean, executing, ep.t_start, fb.cov, fb.r)
         act = self.planner.decide(b, ep)
         if act.leave and self.mode == TRACKING:
             self._leave(t_now)

@@ -14,8 +14,11 @@ the arm may start earlier:
   progress. Each new detection re-plans (the belief narrows). Targets:
   ``mean``: the goal nearest the early crossing mean (a direct move, no tree);
   ``tree``: the compiled tree's best first edge from home under the early belief (the at-rest
-  QMDP backup of :meth:`~thinkfast.decide.tree_view.RuntimeTree.decide`), its sub-goal; a best
-  edge that stays home keeps the arm home.
+  backup of :meth:`~thinkfast.decide.tree_view.RuntimeTree.decide`: QMDP, or with ``[value]
+  backup = "lookahead"`` the first edges valued under the belief the coming detections make
+  when they end), its sub-goal; a best edge that stays home keeps the arm home. With
+  ``[hedge] terminals`` home's terminal edges compete too: the best one, when worth at least
+  the best child edge, makes the target its goal.
 - **commit**: once the launch detector confirms, the re-rooted choice takes over from the
   commanded state (continuous in position, velocity and acceleration: the executor's plans
   always start from ``segment.state(t)``).
@@ -34,6 +37,7 @@ import numpy as np
 
 from thinkfast.config import spec
 from thinkfast.control.segments import STEER, Segment
+from thinkfast.decide import lookahead as lk
 from thinkfast.decide.tree_view import RuntimeTree
 from thinkfast.estimate import early_belief as eb
 from thinkfast.estimate.crossing import Crossing
@@ -66,6 +70,11 @@ class HedgeConfig:
         lo_open=True,
         doc="largest shield-centre displacement from home before the launch is confirmed",
     )
+    terminals: bool = spec(
+        False,
+        doc="mode tree: home's terminal edges (direct moves to goals) are first motions too; "
+        "one is taken when worth at least the best child edge",
+    )
     timeout: float = spec(
         0.25,
         unit="s",
@@ -88,9 +97,11 @@ class Hedger:
     """
 
     def __init__(self, tree: RuntimeTree, robot, steer: Steering, cfg: HedgeConfig,
-                 early: eb.EarlyConfig, gravity: float, lag: float):  # fmt: skip
+                 early: eb.EarlyConfig, gravity: float, lag: float,
+                 foresight: lk.Foresight | None = None, min_std: float = 0.0):  # fmt: skip
         self.tree, self.steer, self.cfg, self.early = tree, steer, cfg, early
         self.gravity, self.lag = gravity, lag
+        self.foresight, self.min_std = foresight, min_std  # mode tree: the look-ahead's
         self.sampler = ShieldSampler(robot)
         self.n_arm = robot.n_arm  # the joints it moves, q[:n_arm]
         self.home = np.array(robot.home[: self.n_arm], dtype=float)
@@ -109,18 +120,33 @@ class Hedger:
         c = self.tree.crossing(fit.mean, fit.cov, self.gravity)
         return (fit, c) if c.ok else (None, None)
 
-    def target(self, c: Crossing, stamp: float, t_now: float) -> np.ndarray:
+    def target(
+        self, c: Crossing, stamp: float, t_now: float, fit: eb.EarlyFit | None = None
+    ) -> np.ndarray:
         """Joint 1-3 target [rad] (n_arm,) of the hedge under the crossing ``c`` (belief at
-        ``stamp``, planned at ``t_now``), truncated to the bound; home to stay."""
+        ``stamp``, planned at ``t_now``; ``fit``: the early belief, for the look-ahead),
+        truncated to the bound; home to stay."""
         if self.cfg.mode == "mean":
             q = self.tree.goal_q[self.tree.nearest_goal(c.mean[:2]), : self.n_arm]
         else:
-            d = self.tree.decide(c, stamp, t_now, self.lag)
-            child = -1 if d.backup is None else self.tree.best_child(d, 0)
-            if child < 0:
+            ahead = None
+            if self.foresight is not None and fit is not None:
+                ahead = lk.ahead_or_none(
+                    fit.mean, fit.cov, c.cov, self.tree.commit_horizon(0, t_now, t_now),
+                    self.foresight, self.tree.plane_x, self.min_std,
+                )  # fmt: skip
+            d = self.tree.decide(c, stamp, t_now, self.lag, ahead)
+            if d.backup is None:
                 return self.home.copy()
             t = self.tree.compiled
-            q = self.tree.subgoal_q[t.edge_target[child], : self.n_arm]
+            child = self.tree.best_child(d, 0)
+            term = self.tree.best_terminal(d, 0) if self.cfg.terminals else -1
+            if term >= 0 and (child < 0 or d.backup.term_value[0] >= d.backup.child_value[0]):
+                q = self.tree.goal_q[t.term_goal[term], : self.n_arm]  # a move to a goal
+            elif child < 0:
+                return self.home.copy()
+            else:
+                q = self.tree.subgoal_q[t.edge_target[child], : self.n_arm]
         return self.truncate(np.asarray(q, dtype=float))
 
     def displacement(self, q: np.ndarray) -> np.ndarray:

@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from thinkfast.control.config import RunConfig, early_config
+from thinkfast.control.foresight import foresight
 from thinkfast.control.hedge import COMMIT, HEDGE, Hedger
 from thinkfast.control.planners.base import EpisodeLog, Planner
 from thinkfast.control.timeline import Timeline
@@ -59,7 +60,8 @@ class HedgeStage:
                 self.end(t_now, "no_launch")
             return
         tl = self.timeline
-        seg = self.hedger.plan(tl.state(t_now), self.hedger.target(c, stamp, t_now), t_now)
+        target = self.hedger.target(c, stamp, t_now, fit)
+        seg = self.hedger.plan(tl.state(t_now), target, t_now)
         if seg is None:
             return  # the move in progress stays (it is within the bound)
         self.home_after = False
@@ -123,5 +125,8 @@ def hedge_stage(
     if not planner.hedges or cfg.hedge.mode == "none" or not cfg.launch.enabled:
         return None
     h, lag = cfg.hedge, cfg.execution.controller_lag
-    hedger = Hedger(tree, robot, timeline.steer, h, early_config(cfg), cfg.filter.gravity, lag)
+    hedger = Hedger(
+        tree, robot, timeline.steer, h, early_config(cfg), cfg.filter.gravity, lag,
+        foresight(tree, cfg), cfg.value.lookahead_min_std,
+    )  # fmt: skip
     return HedgeStage(hedger, timeline, h.timeout)

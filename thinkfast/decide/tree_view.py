@@ -8,6 +8,10 @@ Pure computation over the tree arrays; the clocks come in as arguments:
 
 A terminal edge arrives (physically) at ``t_start + lag + term_arrival``; its remaining time from
 the belief's time is compared with the crossing time tau (plus the value margin).
+
+Values are QMDP's (every node under today's belief, max backup) or, given the belief the
+coming detections make (:class:`~thinkfast.decide.lookahead.Ahead`), the one-step look-ahead
+at the children of the node where the arm next chooses (:mod:`thinkfast.decide.lookahead`).
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from thinkfast.decide import backup as bk
+from thinkfast.decide import lookahead as lk
 from thinkfast.decide import values as vl
 from thinkfast.errors import RobotModelError
 from thinkfast.estimate import crossing as delta
@@ -77,13 +82,33 @@ class RuntimeTree:
         """Plane crossing of the ball belief N(mean, cov)."""
         return delta.crossing(mean, cov, self.plane_distance, gravity)
 
-    def decide(self, c: delta.Crossing, t_belief: float, t_start: float, lag: float) -> Decision:
-        """Values of every branch for the crossing ``c`` (see the module doc for the clocks)."""
+    def decide(
+        self, c: delta.Crossing, t_belief: float, t_start: float, lag: float,
+        ahead: lk.Ahead | None = None, node: int = 0,
+    ) -> Decision:  # fmt: skip
+        """Values of every branch for the crossing ``c`` (see the module doc for the clocks).
+
+        With ``ahead`` (the crossing belief when the children of ``node`` end), those children
+        are valued by the look-ahead (:func:`~thinkfast.decide.lookahead.lookahead_backup`) and
+        ``node`` by the best of them and
+        its own terminal edges; every other node keeps its QMDP value.
+        """
         if not c.ok:
             return Decision(c, None, None, t_belief)
         remaining = self.compiled.term_arrival + (t_start + lag - t_belief)
         tv = vl.terminal_values(self.vlay, c.mean, c.cov, remaining)
-        return Decision(c, bk.backup(self.blay, tv.value, tv.goal_mass), tv.value, t_belief)
+        back = bk.backup(self.blay, tv.value, tv.goal_mass)
+        if ahead is not None and self.blay.child_count[node] > 0:
+            back = lk.lookahead_backup(self.vlay, self.blay, back, c.mean, ahead, remaining, node)
+        return Decision(c, back, tv.value, t_belief)
+
+    def commit_horizon(self, node: int, t_start: float, t_now: float) -> float:
+        """Time [s] from ``t_now`` until the children of ``node`` end (the arm chooses their
+        continuations then) for a motion that left home at ``t_start``; 0 without children."""
+        t = self.compiled
+        if t.child_count[node] == 0:
+            return 0.0
+        return float(t_start + t.node_ttc[t.child_start[node]] - t_now)
 
     def best_child(self, d: Decision, node: int) -> int:
         """Child of ``node`` with the highest value under ``d`` (-1 if none)."""

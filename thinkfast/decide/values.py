@@ -53,6 +53,7 @@ from thinkfast.errors import ConfigError
 from thinkfast.robot import kernels
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+BACKUPS = ("qmdp", "lookahead")  # [value] backup
 _BLAS_ONE_THREAD = 250_000  # m n k below OpenBLAS's threading threshold (4 * 65536)
 
 
@@ -83,6 +84,21 @@ class ValueConfig:
         6.5, doc="integration and pruning range across the plane", unit="sigma", lo=3.0, hi=12.0
     )
     k_time: float = spec(5.0, doc="half-width of the time grid", unit="sigma", lo=3.0, hi=12.0)
+    backup: str = spec(
+        "qmdp",
+        choices=BACKUPS,
+        doc="qmdp: every node valued under today's crossing belief (max backup); lookahead: the "
+        "children of the node where the arm next chooses valued under the belief it will have "
+        "when their edges end, averaged over what the coming detections may show (preposterior, "
+        "docs/DESIGN.md)",
+    )
+    lookahead_min_std: float = spec(
+        0.005,
+        unit="m",
+        lo=0.0,
+        doc="the look-ahead runs only when the coming detections move the crossing point's "
+        "expected position by at least this std on the plane (else qmdp)",
+    )
 
     def __post_init__(self) -> None:
         if self.max_nodes < self.min_nodes:
@@ -198,6 +214,31 @@ def terminal_values_numpy(
     value *= pos
     value += table[0].ravel().take(i)
     return TerminalValues(value, mass)
+
+
+def table_lookup(
+    lay: ValueLayout, table: np.ndarray, t0: float, step: float, term_remaining: np.ndarray
+) -> np.ndarray:
+    """Terminal values (T,) read from a :func:`value_table` ``(table, _, t0, step)`` whose
+    rows are ``lay``'s goals (``table`` may be rows of a larger table: a view of (2, G, K));
+    the lookup of :func:`terminal_values`, compiled or in numpy as the kernels say."""
+    f, df = table[0].reshape(-1), table[1].reshape(-1)
+    if kernels.compiled():
+        from thinkfast.decide.tree_jit import terminal_lookup
+
+        rem = np.ascontiguousarray(term_remaining, dtype=float)
+        top = lay.cfg.time_points - 1.0 - 1e-9
+        return terminal_lookup(rem, lay.cfg.margin - t0, 1.0 / step, top, lay.flat, f, df)
+    pos = np.asarray(term_remaining, dtype=float) + (lay.cfg.margin - t0)
+    pos *= 1.0 / step
+    np.clip(pos, 0.0, lay.cfg.time_points - 1.0 - 1e-9, out=pos)
+    i = pos.astype(np.intp)
+    pos -= i
+    i += lay.flat
+    value = df.take(i)
+    value *= pos
+    value += f.take(i)
+    return value
 
 
 def value_table(

@@ -34,8 +34,10 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 
 from thinkfast.control.config import RunConfig
-from thinkfast.control.segments import STEER
+from thinkfast.control.foresight import foresight
+from thinkfast.control.segments import EDGE, STEER
 from thinkfast.control.timeline import Timeline
+from thinkfast.decide import lookahead as lk
 from thinkfast.decide.tree_view import Decision, RuntimeTree
 from thinkfast.estimate.crossing import Crossing
 from thinkfast.robot.model import Robot
@@ -70,6 +72,8 @@ class Belief(NamedTuple):
         mean: belief mean (6,): ball position [m] and velocity [m/s] in ``base``.
         executing: the arm has left home in this throw.
         t_start: when it left [s] (nan while it has not).
+        cov: belief covariance (6, 6) (None: not given; the look-ahead then values by QMDP).
+        r: the filter's adapted measurement noise [m^2] (3, 3), or None.
     """
 
     t_now: float
@@ -78,6 +82,8 @@ class Belief(NamedTuple):
     mean: np.ndarray
     executing: bool
     t_start: float
+    cov: np.ndarray | None = None
+    r: np.ndarray | None = None
 
 
 class Act(NamedTuple):
@@ -115,6 +121,7 @@ class Planner:
         self.n_arm = robot.n_arm  # the timeline's joints, q[:n_arm]
         self.lag = cfg.execution.controller_lag
         self.decision: Decision | None = None  # the at-rest backup of the last belief
+        self.foresight = foresight(tree, cfg)  # the look-ahead's camera model (None: QMDP)
         self.realtime = False  # the daemon's: a decision late on the wall clock may be dropped
 
     def decide(self, b: Belief, ep: EpisodeLog) -> Act:
@@ -148,8 +155,27 @@ class Planner:
         """The at-rest backup of the tree under ``b`` (from where the arm left home, or from
         now while it has not), kept as :attr:`decision`."""
         t_start = b.t_start if b.executing else b.t_now
-        self.decision = self.tree.decide(b.crossing, b.stamp, t_start, self.lag)
+        node, ahead = 0, None
+        if self.foresight is not None and b.cov is not None and b.crossing.ok:
+            node = self.choice_node(b)
+            if node >= 0:
+                h = self.tree.commit_horizon(node, t_start, b.t_now)
+                ahead = lk.ahead_or_none(
+                    b.mean, b.cov, b.crossing.cov, h, self.foresight, self.tree.plane_x,
+                    self.cfg.value.lookahead_min_std, b.r,
+                )  # fmt: skip
+        self.decision = self.tree.decide(
+            b.crossing, b.stamp, t_start, self.lag, ahead, max(node, 0)
+        )
         return self.decision
+
+    def choice_node(self, b: Belief) -> int:
+        """The tree node where the arm chooses its next edge: home (0) before it leaves, the
+        end of the compiled edge in progress, -1 off the tree (a move to a goal)."""
+        if not b.executing:
+            return 0
+        seg = self.timeline.segment
+        return int(seg.ref) if seg.kind == EDGE else -1
 
     def rush(self, b: Belief) -> Act:
         """To the goal nearest the most likely crossing point, from the commanded state (kept

@@ -59,9 +59,13 @@ class Entry(NamedTuple):
 
 TREE = f"{_HERE}.tree:TreePlanner"
 MPC, JPL = f"{_HERE}.mpc:MpcPlanner", f"{_HERE}.jpl:JplPlanner"
+REST = f"{_HERE}.tree_rest:TreeRestPlanner"
+# settings of the look-ahead variants (docs/DESIGN.md, "Preposterior values")
+HT, TERMS = ("hedge.mode", "tree"), ("hedge.terminals", True)
+LOOK = ("value.backup", "lookahead")
 BUILTIN = (
     Entry("tree", TREE, "belief-space: the re-rooted choice"),
-    Entry("tree-rest", f"{_HERE}.tree_rest:TreeRestPlanner", "the paper's at-rest values"),
+    Entry("tree-rest", REST, "the paper's at-rest values"),
     Entry("naive", f"{_HERE}.naive:NaivePlanner", "baseline: the nearest goal"),
     Entry("naive-paper", f"{_HERE}.naive_paper:NaivePaperPlanner", "the paper's baseline"),
     Entry("mpc", MPC, "fixed-time MPC (CasADi + IPOPT)"),
@@ -71,6 +75,16 @@ BUILTIN = (
     Entry("tree-hedge-none", TREE, "tree, [hedge] mode none", False, (("hedge.mode", "none"),)),
     Entry("tree-hedge-mean", TREE, "tree, [hedge] mode mean", False, (("hedge.mode", "mean"),)),
     Entry("tree-hedge-tree", TREE, "tree, [hedge] mode tree", False, (("hedge.mode", "tree"),)),
+    Entry("tree-hedge-lookahead", TREE, "tree-hedge-tree, [value] lookahead", False, (HT, LOOK)),
+    Entry("tree-hedge-edges", TREE, "tree-hedge-tree, [hedge] terminals", False, (HT, TERMS)),
+    Entry(
+        "tree-hedge-edges-lookahead",
+        TREE,
+        "tree-hedge-edges, [value] lookahead",
+        False,
+        (HT, TERMS, LOOK),
+    ),
+    Entry("tree-rest-lookahead", REST, "tree-rest, [value] backup lookahead", False, (LOOK,)),
 )
 _ENTRIES: dict[str, Entry] = {e.name: e for e in BUILTIN}
 
