@@ -27,11 +27,11 @@ os.environ.setdefault("THINKFAST_KERNELS", "numpy")
 # The parallel step's longest modules (setup and calls, docs/BENCHMARKS.md "The test suite"),
 # collected first: with `--no-loadscope-reorder` (Makefile) xdist hands them out first and the
 # many short modules fill both workers to the end, instead of a long one running alone last.
-LONG_MODULES = (  # measured with --durations=0 on 2026-11-28
+LONG_MODULES = (  # the longest under --durations=0
     "test_sim_sweep.py",
     "test_sim_lockstep.py",
     "test_tree_cli.py",
-    "test_tree_checksums.py",  # 2026-12-02: its every-byte test alone takes 20-30 s
+    "test_tree_checksums.py",  # its every-byte test alone takes 20-30 s
     "test_cameras.py",
     "test_safety.py",
     "test_perception_acceptance.py",

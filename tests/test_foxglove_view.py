@@ -18,7 +18,7 @@ pytest.importorskip("websocket")
 from tests.daemon_harness import DaemonRun, ballistic_throw, publish_throw  # noqa: E402
 from tests.foxglove_client import listen, protobuf_class, ros2_decoder  # noqa: E402
 from thinkfast.contract.zenoh_session import free_tcp_port  # noqa: E402
-from thinkfast.daemon.foxglove_view import parse_hostport  # noqa: E402
+from thinkfast.daemon.foxglove_view import foxglove_address  # noqa: E402
 from thinkfast.errors import ConfigError  # noqa: E402
 
 AIM = (0.25, 1.25)  # y, z [m] on the plane where the simulated ball crosses
@@ -119,7 +119,10 @@ def _enough(got: dict, t_cross: float) -> bool:
 
 
 def test_the_option_names_host_and_port():
-    assert parse_hostport("8765") == ("127.0.0.1", 8765)
-    assert parse_hostport("0.0.0.0:8766") == ("0.0.0.0", 8766)
-    with pytest.raises(ConfigError, match="--foxglove"):
-        parse_hostport("host:port")
+    assert foxglove_address("8765") == ("127.0.0.1", 8765)
+    assert foxglove_address("0.0.0.0:8766") == ("0.0.0.0", 8766)
+    assert foxglove_address("[::1]:8767") == ("::1", 8767)
+    assert foxglove_address(":8765") == ("127.0.0.1", 8765)
+    for bad in ("host:port", "99999", "", "[::1]8765"):
+        with pytest.raises(ConfigError, match="--foxglove"):
+            foxglove_address(bad)

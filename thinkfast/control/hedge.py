@@ -1,6 +1,6 @@
 """The hedge stage: a bounded start on the early belief, before the launch is confirmed.
 
-Two stages of commitment (issue 24). The executor's launch gate (``[launch]``) confirms a throw
+Two stages of commitment. The executor's launch gate (``[launch]``) confirms a throw
 some frames after the first flight detection is delivered (docs/RESULTS.md, "Feints, held balls,
 starts before release"); until then nothing moved. With ``[hedge] mode`` other than ``none``,
 the arm may start earlier:

@@ -173,7 +173,7 @@ def run(
 
         parse_sink(rerun)
     if foxglove is not None:
-        from thinkfast.daemon.foxglove_view import parse_hostport as parse_fox
+        from thinkfast.daemon.foxglove_view import foxglove_address as parse_fox
 
         if rerun is not None:
             raise ConfigError("--foxglove", None, "not with --rerun: one live view at a time")

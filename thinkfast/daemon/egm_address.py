@@ -12,24 +12,34 @@ class EgmAddressError(ThinkfastError):
     """A ``HOST:PORT`` or controller IP string is unusable; the message shows the expected form."""
 
 
-def parse_hostport(text: str, what: str = "--egm-bind") -> tuple[str, int]:
-    """``"HOST:PORT"`` (or ``"[IPv6]:PORT"``) -> ``(host, port)``.
+def parse_hostport(
+    text: str,
+    what: str = "--egm-bind",
+    default_host: str | None = None,
+    example: str = "0.0.0.0:6510, 127.0.0.1:6511, [::1]:6510",
+) -> tuple[str, int]:
+    """``"HOST:PORT"`` (or ``"[IPv6]:PORT"``; ``"PORT"`` or ``":PORT"`` with ``default_host``) ->
+    ``(host, port)``: the one parser of the command lines' socket addresses.
 
     Args:
         text: the address string; port 0 asks the OS for a free port.
         what: name of the option, for the error message.
+        default_host: the host of a bare ``PORT`` (None: a host is required).
+        example: valid forms shown in the error message.
 
     Raises:
-        EgmAddressError: no colon, empty host, or a port that is not an integer in 0..65535.
+        EgmAddressError: no colon (without ``default_host``), empty host, or a port that is not
+            an integer in 0..65535.
     """
     text = str(text).strip()
     host, sep, port_s = text.rpartition(":")
     if host.startswith("[") and host.endswith("]"):
         host = host[1:-1]
+    if default_host is not None and not host:
+        host, sep = default_host, ":"  # "PORT" or ":PORT"
     if not sep or not host or not port_s.isdigit() or not 0 <= int(port_s) <= 65535:
-        raise EgmAddressError(
-            f"{what}: {text!r} is not HOST:PORT (e.g. 0.0.0.0:6510, 127.0.0.1:6511, [::1]:6510)"
-        )
+        form = "HOST:PORT" if default_host is None else "[HOST:]PORT"
+        raise EgmAddressError(f"{what}: {text!r} is not {form} (e.g. {example})")
     return host, int(port_s)
 
 

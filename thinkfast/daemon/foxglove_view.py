@@ -21,22 +21,23 @@ from __future__ import annotations
 
 import threading
 
+from thinkfast.daemon.egm_address import EgmAddressError, parse_hostport
 from thinkfast.daemon.live_view import DaemonView
 from thinkfast.errors import ConfigError
 
 BACKLOG = 4096  # messages queued per client before a slow one is dropped (the SDK's policy)
 
 
-def parse_hostport(text: str) -> tuple[str, int]:
-    """``[HOST:]PORT`` -> (host, port); the host defaults to 127.0.0.1 (loopback)."""
-    host, _, port = text.rpartition(":")
+def foxglove_address(text: str) -> tuple[str, int]:
+    """``--foxglove`` ``[HOST:]PORT`` -> (host, port); the host defaults to 127.0.0.1 (loopback).
+
+    Raises:
+        ConfigError: not ``[HOST:]PORT`` (:func:`~thinkfast.daemon.egm_address.parse_hostport`).
+    """
     try:
-        n = int(port)
-    except ValueError:
-        n = -1
-    if not 0 <= n <= 65535:
-        raise ConfigError("--foxglove", None, f"{text!r}: expected [HOST:]PORT")
-    return host or "127.0.0.1", n
+        return parse_hostport(text, "--foxglove", "127.0.0.1", "8765, 0.0.0.0:8766")
+    except EgmAddressError as exc:
+        raise ConfigError("--foxglove", None, str(exc).removeprefix("--foxglove: ")) from None
 
 
 class FoxgloveSink:

@@ -17,8 +17,8 @@ noise model and ``check_floor``). It is tested only while the reference filter i
 last ``check_settle`` updates all inliers) and its ball slower than ``check_speed``: the ball in
 the hand, or a slow wind-up. At a release the reference filter lags the ball for a few frames
 while still calling them inliers, and a good camera would look wrong (found on simulated
-wind-ups: docs/RESULTS.md, "Two cameras (issue 16)", "The camera check in flight"). A camera is
-fused once ``trust_after`` of its detections passed; it is inconsistent while ``check_fail`` of
+wind-ups: docs/RESULTS.md, the sections on two cameras, "The camera check in flight"). A camera
+is fused once ``trust_after`` of its detections passed; it is inconsistent while ``check_fail`` of
 its last ``check_window`` tests failed, and every detection of it is then counted
 ``inconsistent_camera`` and dropped (it is still tested: a camera whose detections agree again
 is fused again). While the reference camera has no track (it lost the ball, or never saw it)

@@ -304,13 +304,13 @@ def replay(
 
 def _foxglove_replay_address(text: str, zenoh_connect) -> tuple[str, int]:
     """``--foxglove`` of replay: (host, port); not with ``--zenoh-connect``."""
-    from thinkfast.daemon.foxglove_view import parse_hostport
+    from thinkfast.daemon.foxglove_view import foxglove_address
     from thinkfast.errors import ConfigError
 
     if zenoh_connect:
         raise ConfigError("--foxglove", None, "not with --zenoh-connect: the daemon receiving "
                           "the detections draws them, with its own --foxglove")  # fmt: skip
-    return parse_hostport(text)
+    return foxglove_address(text)
 
 
 app.command("controller")(controller_cmd)  # the simulated IRC5 (EGM + RWS), thinkfast/sim/irc5.py

@@ -46,10 +46,10 @@ def live_view_args(rerun: str | None, foxglove: str | None) -> tuple[str, ...]:
         parse_sink(rerun)
     if foxglove is None:
         return () if rerun is None else ("--rerun", rerun)
-    from thinkfast.daemon.foxglove_view import parse_hostport
+    from thinkfast.daemon.foxglove_view import foxglove_address
     from thinkfast.errors import ConfigError
 
-    parse_hostport(foxglove)
+    foxglove_address(foxglove)
     if rerun is not None:
         raise ConfigError("--foxglove", None, "not with --rerun: one live view at a time")
     return ("--foxglove", foxglove)

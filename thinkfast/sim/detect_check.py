@@ -1,5 +1,5 @@
 """The detector against rendered frames: detection rate, 3-D error against the noise model, false
-detections on frames without a ball (issue 7's acceptance; bench/detect.py and the tests).
+detections on frames without a ball (bench/detect.py and the tests).
 
 Balls are drawn uniformly in depth, anywhere in the image (kept a radius plus 10 px inside its
 edges, so that the motion-blurred ball is whole) above the floor of the scene,
