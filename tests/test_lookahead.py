@@ -94,7 +94,7 @@ def test_the_coming_frames_split_todays_crossing_into_spread_and_future():
     assert lk.lateral_std(a.spread) > 0.01  # 5 frames at 5 m tell a wide belief much
     faster = lk.ahead(mean, cov, today, 0.1, _model(100.0), PLANE)  # more frames, more told
     assert lk.lateral_std(faster.spread) > lk.lateral_std(a.spread)
-    assert lk.ahead_or_none(mean, cov, today, 0.1, _model(), PLANE, 10.0) is None
+    assert lk.ahead(mean, cov, today, 0.1, _model(), PLANE, 10.0) is None
 
 
 def _two_goal_tree():

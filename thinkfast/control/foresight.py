@@ -4,7 +4,7 @@ The preposterior values of :mod:`thinkfast.decide.lookahead` need what the comin
 will be worth: the default camera's frame rate (``[camera] fps``), its position and stereo
 noise in its mode (the filter parameters of ``[camera]``), and when the arm must choose next.
 :func:`foresight` builds that once per planner or hedge stage;
-:func:`thinkfast.decide.lookahead.ahead_or_none` turns a belief into the crossing belief at the
+:func:`thinkfast.decide.lookahead.ahead` turns a belief into the crossing belief at the
 commit time, or None where the look-ahead would not change the values (no frame comes before
 the commit, or the coming frames move the crossing point's expected position by less than
 ``[value] lookahead_min_std``: QMDP then). Several cameras: the default camera's frames alone

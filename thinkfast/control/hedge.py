@@ -131,7 +131,7 @@ class Hedger:
         else:
             ahead = None
             if self.foresight is not None and fit is not None:
-                ahead = lk.ahead_or_none(
+                ahead = lk.ahead(
                     fit.mean, fit.cov, c.cov, self.tree.commit_horizon(0, t_now, t_now),
                     self.foresight, self.tree.plane_x, self.min_std,
                 )  # fmt: skip

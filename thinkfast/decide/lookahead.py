@@ -100,16 +100,19 @@ def ahead(
     horizon: float,
     model: Foresight,
     plane_x: float,
+    min_std: float = 0.0,
     r_extra: np.ndarray | None = None,
 ) -> Ahead | None:
     """The crossing belief ``horizon`` [s] from the newest detection, or None when no frame
-    comes before it (or the predicted ball no longer crosses the plane).
+    comes before it, the predicted ball no longer crosses the plane, or the coming frames
+    move the crossing point's expected position by less than ``min_std`` [m] on the plane
+    (the look-ahead would be QMDP).
 
     Args:
         mean, cov: the ball belief now (6,), (6, 6) [m, m/s].
         today: today's crossing covariance S (3, 3) (the delta method at ``mean``).
         horizon: time to the commit [s]. model: the camera and the filter. plane_x: [m].
-        r_extra: the filter's adapted measurement noise (3, 3), or None.
+        min_std: [m], see above. r_extra: the filter's adapted measurement noise (3, 3), or None.
 
     The frames' share is taken where the delta method puts the predicted state, without them
     (P) and with them (P_c): whitened by P's Cholesky factor, ``M = Lp^-1 P_c Lp^-T`` has its
@@ -139,25 +142,10 @@ def ahead(
     left = (vec * np.clip(lam, 0.0, 1.0)) @ vec.T  # 0 <= M <= I: an update only removes
     future = lt @ left @ lt.T
     spread = lt @ (np.eye(3) - left) @ lt.T
-    return Ahead(0.5 * (future + future.T), 0.5 * (spread + spread.T), n)
-
-
-def ahead_or_none(
-    mean: np.ndarray,
-    cov: np.ndarray,
-    today: np.ndarray,
-    horizon: float,
-    model: Foresight,
-    plane_x: float,
-    min_std: float,
-    r_extra: np.ndarray | None = None,
-) -> Ahead | None:
-    """:func:`ahead`, or None also when the coming frames move the crossing point's expected
-    position by less than ``min_std`` [m] on the plane (the look-ahead would be QMDP)."""
-    a = ahead(mean, cov, today, horizon, model, plane_x, r_extra)
-    if a is None or lateral_std(a.spread) < min_std:
+    spread = 0.5 * (spread + spread.T)
+    if lateral_std(spread) < min_std:
         return None
-    return a
+    return Ahead(0.5 * (future + future.T), spread, n)
 
 
 def lookahead_backup(

@@ -182,21 +182,8 @@ def terminal_values(
     Returns:
         :class:`TerminalValues` with the (T,) values and the (G,) goal disk masses.
     """
-    if not kernels.compiled():
-        return terminal_values_numpy(lay, o_mean, o_cov, term_remaining)
-    from thinkfast.decide.tree_jit import terminal_lookup
-
     table, mass, t0, step = value_table(lay, o_mean, o_cov)
-    value = terminal_lookup(  # compiled: one pass over the edges (tree_jit)
-        np.ascontiguousarray(term_remaining, dtype=float),
-        lay.cfg.margin - t0,
-        1.0 / step,
-        lay.cfg.time_points - 1.0 - 1e-9,
-        lay.flat,
-        table[0].ravel(),
-        table[1].ravel(),
-    )
-    return TerminalValues(value, mass)
+    return TerminalValues(table_lookup(lay, table, t0, step, term_remaining), mass)
 
 
 def terminal_values_numpy(
@@ -204,16 +191,7 @@ def terminal_values_numpy(
 ) -> TerminalValues:
     """:func:`terminal_values` in numpy (the reference of the compiled lookup)."""
     table, mass, t0, step = value_table(lay, o_mean, o_cov)
-    pos = np.asarray(term_remaining, dtype=float) + (lay.cfg.margin - t0)
-    pos *= 1.0 / step
-    np.clip(pos, 0.0, lay.cfg.time_points - 1.0 - 1e-9, out=pos)
-    i = pos.astype(np.intp)
-    pos -= i
-    i += lay.flat
-    value = table[1].ravel().take(i)
-    value *= pos
-    value += table[0].ravel().take(i)
-    return TerminalValues(value, mass)
+    return TerminalValues(_lookup_numpy(lay, table, t0, step, term_remaining), mass)
 
 
 def table_lookup(
@@ -221,23 +199,35 @@ def table_lookup(
 ) -> np.ndarray:
     """Terminal values (T,) read from a :func:`value_table` ``(table, _, t0, step)`` whose
     rows are ``lay``'s goals (``table`` may be rows of a larger table: a view of (2, G, K));
-    the lookup of :func:`terminal_values`, compiled or in numpy as the kernels say."""
-    f, df = table[0].reshape(-1), table[1].reshape(-1)
-    if kernels.compiled():
-        from thinkfast.decide.tree_jit import terminal_lookup
+    compiled (one pass over the edges, tree_jit) or in numpy as the kernels say."""
+    if not kernels.compiled():
+        return _lookup_numpy(lay, table, t0, step, term_remaining)
+    from thinkfast.decide.tree_jit import terminal_lookup
 
-        rem = np.ascontiguousarray(term_remaining, dtype=float)
-        top = lay.cfg.time_points - 1.0 - 1e-9
-        return terminal_lookup(rem, lay.cfg.margin - t0, 1.0 / step, top, lay.flat, f, df)
+    return terminal_lookup(
+        np.ascontiguousarray(term_remaining, dtype=float),
+        lay.cfg.margin - t0,
+        1.0 / step,
+        lay.cfg.time_points - 1.0 - 1e-9,
+        lay.flat,
+        table[0].reshape(-1),
+        table[1].reshape(-1),
+    )
+
+
+def _lookup_numpy(
+    lay: ValueLayout, table: np.ndarray, t0: float, step: float, term_remaining: np.ndarray
+) -> np.ndarray:
+    """:func:`table_lookup` in numpy: linear interpolation of F_g at ``remaining + margin``."""
     pos = np.asarray(term_remaining, dtype=float) + (lay.cfg.margin - t0)
     pos *= 1.0 / step
     np.clip(pos, 0.0, lay.cfg.time_points - 1.0 - 1e-9, out=pos)
     i = pos.astype(np.intp)
     pos -= i
     i += lay.flat
-    value = df.take(i)
+    value = table[1].reshape(-1).take(i)
     value *= pos
-    value += f.take(i)
+    value += table[0].reshape(-1).take(i)
     return value
 
 

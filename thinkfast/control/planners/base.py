@@ -160,7 +160,7 @@ class Planner:
             node = self.choice_node(b)
             if node >= 0:
                 h = self.tree.commit_horizon(node, t_start, b.t_now)
-                ahead = lk.ahead_or_none(
+                ahead = lk.ahead(
                     b.mean, b.cov, b.crossing.cov, h, self.foresight, self.tree.plane_x,
                     self.cfg.value.lookahead_min_std, b.r,
                 )  # fmt: skip
