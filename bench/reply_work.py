@@ -6,7 +6,7 @@ without the wall clock, so that every run of the same arguments makes the same r
 * a simulated controller whose arm follows every command exactly sends each cycle's
   ``EgmRobot`` (real protobuf EGM over real UDP on loopback, ``seqno`` and ``tm`` exact);
 * the reply loop (:class:`~thinkfast.daemon.reply_process.ReplyLoop` with its
-  :class:`~thinkfast.daemon.egm_server.EgmServer`) answers it; its clock is the simulated one;
+  :class:`~thinkfast.link.egm_server.EgmServer`) answers it; its clock is the simulated one;
 * the planner side, as the planner process: an executor of the tree that makes the reply loop's
   replans and steps at each reply's controller time (the rows of the shared ring), takes the
   throws' detections as they are delivered and publishes its plan (shared memory) when it
@@ -52,10 +52,12 @@ from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
 from thinkfast.control.plan import SIZE, executor_plan
 from thinkfast.daemon import reply_process
-from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.reply_process import ReplyLoop
 from thinkfast.daemon.reply_rows import CALL, COL, REPLY, WIDTH
 from thinkfast.daemon.shared_plan import RowRing, Seqlock
+from thinkfast.link.egm import open_egm
+from thinkfast.link.egm_server import EgmServer
+from thinkfast.link.registry import LinkSpec
 from thinkfast.robot.model import default_robot_path, load_robot
 from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe_cameras
 from thinkfast.sim.lockstep import sim_cameras
@@ -139,12 +141,12 @@ def run(args) -> dict:
     clock = SimTime()
     reply_process.time = clock  # the loop's clock is the simulated one
     loop = ReplyLoop(robot, cfg, block, ring, os.getppid())
-    loop.egm = EgmServer(("127.0.0.1", 0), loop.reply, timing=True)
+    loop.link = open_egm(LinkSpec("127.0.0.1:0"), loop.reply)
     planner = Planner(parts, args.planner, block, ring)
     ctl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ctl.bind(("127.0.0.1", 0))
     ctl.settimeout(2.0)
-    target = loop.egm.address
+    target = loop.link.address
     throws = sample_throws(ThrowConfig(), args.throws, args.seed)
     cameras = sim_cameras(cfg, CameraModelConfig())
     dets = []
@@ -198,11 +200,11 @@ def run(args) -> dict:
         p = loop.core._prepared
         ahead = p.ahead if p is not None and p.t == loop.core.t_next else None
         c0 = time.thread_time_ns()
-        sent = functools.reduce(_poll, (loop.egm,), 0)
+        sent = functools.reduce(_poll, (loop.link,), 0)
         cpu[k] = 1e-9 * (time.thread_time_ns() - c0)
         if not sent:
             raise SystemExit(f"packet {k}: no reply")
-        timing = loop.egm.timing
+        timing = loop.link.timing
         work[k] = timing.work_s[(timing.count - 1) % len(timing.work_s)]
         prepared[k] = (
             ahead is not None and ahead.result is not None and (loop.core.last.q is ahead.result[0])
@@ -214,7 +216,7 @@ def run(args) -> dict:
         if gc.get_count()[0] >= gc.get_threshold()[0]:
             gc.collect(0)
     gc.enable()
-    loop.egm.close()
+    loop.link.close()
     ctl.close()
     block.close()
     ring.close()
@@ -228,7 +230,7 @@ def run(args) -> dict:
         "cpu_us_unprepared": _stats(cpu_us[~prepared[skip:]]),
         "work_us": _stats(work_us),
         "supervisor_changes": int(loop.core.sup.intervened), "epoch": loop.follower.epoch,
-        "behind": loop.egm.counters.behind, "catch_ups": loop.core.catch_ups,
+        "behind": loop.link.counters.behind, "catch_ups": loop.core.catch_ups,
         "mode": loop.core.mode(),
         "machine": platform.machine(), "python": platform.python_version(),
         "load_1min": round(os.getloadavg()[0], 2),

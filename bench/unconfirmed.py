@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from thinkfast.control.config import load_run_config
+from thinkfast.control.link import Feedback
 from thinkfast.estimate import early_belief as eb
 from thinkfast.sim.bench import throw_seed
 from thinkfast.sim.camera import detection_payload, observe_cameras
@@ -81,7 +82,7 @@ def fly(world, throw, seed: int, planner: str = "tree") -> dict:
             core.on_detection(detection_payload(dets[k]), None, t)
             k += 1
             watch(t)
-        reply = core.on_feedback(round(t * 1000.0), sim.q, t)
+        reply = core.on_feedback(Feedback(round(t * 1000.0), sim.q), t)
         watch(t)
         if not math.isnan(ex.episode.t_confirmed):
             confirmed_at = ex.episode.t_confirmed - t_rel

@@ -125,7 +125,7 @@ def publisher_lateness(throws: int) -> dict:
 def egm_serve_rtt(n: int) -> dict:
     """Round trips [ms] through the EGM server's serve thread on loopback."""
     from thinkfast.contract import egm
-    from thinkfast.daemon.egm_server import EgmServer
+    from thinkfast.link.egm_server import EgmServer
 
     def hold(fb, before=None):
         return fb.q_rad, np.zeros(6)

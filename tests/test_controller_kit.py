@@ -246,8 +246,8 @@ def test_position_and_speed_with_hold(consts, mod_text):
 
 def test_udp_port_is_the_daemon_default(udpuc):
     from thinkfast.daemon import cli
-    from thinkfast.daemon.egm_address import parse_hostport
     from thinkfast.daemon.service import Endpoints
+    from thinkfast.link.egm_address import parse_hostport
 
     option = inspect.signature(cli.run).parameters["egm_bind"].default
     assert option.default == cli.EGM_BIND_DEFAULT, "--egm-bind no longer uses EGM_BIND_DEFAULT"

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from thinkfast.contract import egm
-from thinkfast.daemon.egm_server import EgmServer
+from thinkfast.link.egm_server import EgmServer
 from thinkfast.sim.controller import ServoConfig, SimController
 from thinkfast.sim.controller_runner import ControllerRunner
 

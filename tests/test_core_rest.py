@@ -15,6 +15,7 @@ from tests.conftest import compile_small_tree
 from thinkfast.control.config import RunConfig
 from thinkfast.control.core import ControlCore
 from thinkfast.control.executor import IDLE, RETURNING, Executor
+from thinkfast.control.link import Feedback
 from thinkfast.control.plan import PlanFollower, decode_plan, executor_plan, plan_key
 from thinkfast.control.safety import SafetySupervisor, robot_limits
 from thinkfast.decide.tree_view import runtime_tree
@@ -79,7 +80,7 @@ class _Split:
             tm = (round(self.wall * 1000) + int(rng.integers(-1, 2))) % (1 << 32)
             now = self.wall + 0.0002
             q = self.q0 if self.core.last is None else self.core.sup.q
-            r = self.core.on_feedback(tm, q, now, seqno=1000 + k)
+            r = self.core.on_feedback(Feedback(tm, q, 1000 + k), now)
             assert r is not None
             if k == 0:
                 self.ex.start_from(self.q0, r.tick.t)

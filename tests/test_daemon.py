@@ -210,15 +210,15 @@ def test_a_failing_planner_still_answers_every_packet_and_brakes(tree_file, robo
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.settimeout(1.0)
             for k in range(5):
-                s.sendto(encode_robot(k + 1, 4 * k, robot.home), d.egm.address)
-                d.egm.poll()
+                s.sendto(encode_robot(k + 1, 4 * k, robot.home), d.link.address)
+                d.link.poll()
                 reply = decode_sensor(s.recv(1024))
                 assert np.all(np.isfinite(reply.q_rad))
         # the first packet starts the stream from the feedback: the executor is asked 4 times
         assert d.planner_errors == 4 and d.supervisor.braking
-        assert d.egm.counters.replied == 5 and d.egm.counters.reply_errors == 0
+        assert d.link.counters.replied == 5 and d.link.counters.reply_errors == 0
     finally:
-        d.egm.close()
+        d.link.close()
         d.zio.close()
 
 
@@ -257,8 +257,8 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
     try:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.settimeout(1.0)
-            s.sendto(encode_robot(1, 1000, robot.home), d.egm.address)
-            d.egm.poll()
+            s.sendto(encode_robot(1, 1000, robot.home), d.link.address)
+            d.link.poll()
             decode_sensor(s.recv(1024))
             d.control.prepare()
             prepared = d.control._prepared
@@ -270,8 +270,8 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
             monkeypatch.setattr(d.executor, "setpoint", lambda t: calls.append(t) or 1 / 0)
             q_prev, qd_prev = d.supervisor.q, d.supervisor.qd
             time.sleep(0.005)  # on time or late: the arm at rest re-anchors on early packets
-            s.sendto(encode_robot(2, 1004, robot.home), d.egm.address)
-            d.egm.poll()
+            s.sendto(encode_robot(2, 1004, robot.home), d.link.address)
+            d.link.poll()
             reply = decode_sensor(s.recv(1024))
             assert not calls and d.planner_errors == 0 and d.control._prepared is None
             want = filter_step(q_prev, qd_prev, q_req, qd_req, d.limits, d.cfg.safety.dt)
@@ -284,7 +284,7 @@ def test_a_prepared_reply_is_the_setpoint_for_the_next_cycle_through_the_supervi
             d._take(json.dumps(det).encode(), time.time())
             assert d.control._prepared is None  # the plan may have changed: prepared again later
     finally:
-        d.egm.close()
+        d.link.close()
         d.zio.close()
 
 

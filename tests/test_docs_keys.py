@@ -9,7 +9,7 @@ import json
 import re
 from pathlib import Path
 
-from thinkfast.daemon.egm_server import EgmCounters
+from thinkfast.link.egm_server import EgmCounters
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = json.loads((ROOT / "docs/schemas/status.schema.json").read_text())

@@ -2,7 +2,7 @@
 
 import pytest
 
-from thinkfast.daemon.egm_address import EgmAddressError, parse_controller, parse_hostport
+from thinkfast.link.egm_address import EgmAddressError, parse_controller, parse_hostport
 
 
 @pytest.mark.parametrize(

@@ -14,6 +14,7 @@ from thinkfast.control.config import RunConfig
 from thinkfast.control.core import ControlCore
 from thinkfast.control.egm_clock import ControllerClock
 from thinkfast.control.executor import FAULT, IDLE, RETURNING, Executor
+from thinkfast.control.link import Feedback
 from thinkfast.control.safety import SafetySupervisor, robot_limits
 from thinkfast.decide.tree_view import runtime_tree
 from thinkfast.tree.file import load_tree
@@ -52,12 +53,14 @@ def _assert_admissible_over_the_controller_clock(t, q, qd, robot, tol=1e-6):
 
 def test_a_duplicated_packet_gets_the_same_setpoint_and_time_does_not_advance(rtree, robot):
     ctl = _control(rtree, robot)
-    ctl.on_feedback(1000, _away(robot), T0)
+    ctl.on_feedback(Feedback(1000, _away(robot)), T0)
     t, q, qd = [], [], []
     for k in range(1, 200):
         tm = 1000 + 4 * k
-        r = ctl.on_feedback(tm, ctl.sup.q, T0 + 0.004 * k)
-        again = ctl.on_feedback(tm, ctl.sup.q, T0 + 0.004 * k + 0.0003)  # the same EgmRobot
+        r = ctl.on_feedback(Feedback(tm, ctl.sup.q), T0 + 0.004 * k)
+        again = ctl.on_feedback(
+            Feedback(tm, ctl.sup.q), T0 + 0.004 * k + 0.0003
+        )  # the same EgmRobot
         assert again.q is r.q and again.qd is r.qd and again.tick.repeat
         t.append(tm / 1000), q.append(r.q), qd.append(r.qd)
     assert ctl.repeats == 199 and ctl.sup.ticks == 199  # one supervisor tick per cycle
@@ -80,12 +83,12 @@ def test_missed_cycles_the_reply_moves_on_one_cycle_from_the_reference_the_contr
     from it. Over the controller's clock the applied positions move within ``v_max`` and
     ``speedRef`` changes within ``a_max``, holds included (before: up to 3x ``v_max``)."""
     ctl = _control(rtree, robot)
-    ctl.on_feedback(0, _away(robot), T0, seqno=0)
+    ctl.on_feedback(Feedback(0, _away(robot), 0), T0)
     rng = np.random.default_rng(4)
     tm, t, q, qd = 0, [0.0], [ctl.sup.q], [ctl.sup.qd]
     for _ in range(150):
         tm += 4 * int(rng.choice([1, 1, 1, 2, 3]))  # skipped cycles
-        r = ctl.on_feedback(tm, ctl.sup.q, T0 + tm / 1000, seqno=tm // 4)
+        r = ctl.on_feedback(Feedback(tm, ctl.sup.q, tm // 4), T0 + tm / 1000)
         t.append(tm / 1000), q.append(r.q), qd.append(r.qd)
     assert ctl.sup.ticks == 150 and ctl.held == tm // 4 - 150 and ctl.catch_ups > 0
     assert np.ptp(np.array(q), axis=0).max() > 0.2  # the arm really moved
@@ -99,46 +102,50 @@ def test_replies_that_stay_a_cycle_late_are_repeated_once_not_frozen(rtree, robo
     it); when every reply stays late the controller takes one per cycle, a cycle later, so the
     stream moves on after one repeat instead of standing still."""
     ctl = _control(rtree, robot)
-    ctl.on_feedback(0, _away(robot), T0, seqno=0)
+    ctl.on_feedback(Feedback(0, _away(robot), 0), T0)
     for k in range(1, 40):
-        r = ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k, seqno=k)
+        r = ctl.on_feedback(Feedback(4 * k, ctl.sup.q, k), T0 + 0.004 * k)
     q = [r.q]
     for k in range(40, 60):
-        q.append(ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k, seqno=k, late=True).q)
+        q.append(ctl.on_feedback(Feedback(4 * k, ctl.sup.q, k), T0 + 0.004 * k, late=True).q)
     moved = np.abs(np.diff(q, axis=0)).max(axis=1) > 0
     assert not moved[0] and moved[1:].all() and ctl.held == 1
 
 
 def test_a_stale_packet_or_a_reordered_one_gets_the_last_setpoint(rtree, robot):
     ctl = _control(rtree, robot)
-    ctl.on_feedback(400, _away(robot), T0)
-    r = ctl.on_feedback(404, ctl.sup.q, T0 + 0.004)
-    stale = ctl.on_feedback(396, ctl.sup.q, T0 + 0.0045)
+    ctl.on_feedback(Feedback(400, _away(robot)), T0)
+    r = ctl.on_feedback(Feedback(404, ctl.sup.q), T0 + 0.004)
+    stale = ctl.on_feedback(Feedback(396, ctl.sup.q), T0 + 0.0045)
     assert stale.q is r.q and stale.tick.repeat and ctl.sup.ticks == 1
 
 
 def test_after_a_silence_in_motion_the_stream_restarts_at_the_measured_state(rtree, robot):
     events = []
     ctl = _control(rtree, robot, events)
-    ctl.on_feedback(0, _away(robot), T0)
+    ctl.on_feedback(Feedback(0, _away(robot)), T0)
     for k in range(1, 60):
-        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+        ctl.on_feedback(Feedback(4 * k, ctl.sup.q), T0 + 0.004 * k)
     assert np.abs(ctl.sup.qd).max() > 0.3  # moving
     q_meas = ctl.sup.q + 0.03  # the arm went on a little during 0.5 s of silence
     tm = 4 * 59 + 500
-    assert ctl.on_feedback(tm, q_meas, T0 + tm / 1000) is None  # one packet: no velocity yet
-    assert ctl.on_feedback(tm, q_meas, T0 + tm / 1000 + 3e-4) is None  # the same one again
-    assert ctl.on_feedback(tm + 4, q_meas, T0 + (tm + 4) / 1000) is None  # two: not yet
+    assert (
+        ctl.on_feedback(Feedback(tm, q_meas), T0 + tm / 1000) is None
+    )  # one packet: no velocity yet
+    assert (
+        ctl.on_feedback(Feedback(tm, q_meas), T0 + tm / 1000 + 3e-4) is None
+    )  # the same one again
+    assert ctl.on_feedback(Feedback(tm + 4, q_meas), T0 + (tm + 4) / 1000) is None  # two: not yet
     assert ctl.deferred == 3 and ctl.resyncs == 0 and events == []
     tm += 8
-    r = ctl.on_feedback(tm, q_meas, T0 + tm / 1000)  # the arm stands: measured at rest
+    r = ctl.on_feedback(Feedback(tm, q_meas), T0 + tm / 1000)  # the arm stands: measured at rest
     assert ctl.resyncs == 1 and events == ["resync"]
     np.testing.assert_allclose(r.q, q_meas, atol=1e-12)  # within 1 mrad: exactly
     assert not r.qd.any()
     assert ctl.ex.mode == RETURNING  # the plan goes on (home) from the measured state
     t, q, qd = [tm / 1000], [r.q], [r.qd]
     for k in range(1, 100):  # and it goes on smoothly
-        r = ctl.on_feedback(tm + 4 * k, ctl.sup.q, T0 + (tm + 4 * k) / 1000)
+        r = ctl.on_feedback(Feedback(tm + 4 * k, ctl.sup.q), T0 + (tm + 4 * k) / 1000)
         t.append((tm + 4 * k) / 1000), q.append(r.q), qd.append(r.qd)
     _assert_admissible_over_the_controller_clock(t, q, qd, robot)
     assert ctl.sup.intervened == 0
@@ -153,9 +160,9 @@ def test_after_a_silence_in_motion_the_restart_takes_the_velocity_the_next_packe
     third commands its measured position and the velocity at that moment, not a standstill
     nor the average over the last cycle."""
     ctl = _control(rtree, robot)
-    ctl.on_feedback(0, _away(robot), T0)
+    ctl.on_feedback(Feedback(0, _away(robot)), T0)
     for k in range(1, 40):
-        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+        ctl.on_feedback(Feedback(4 * k, ctl.sup.q), T0 + 0.004 * k)
     assert not ctl.at_rest()
     v0 = np.array([0.3, -0.2, 0.1, 0.4, 0.0, -0.1])
     a = -decel * robot.a_max * np.sign(v0)
@@ -165,9 +172,9 @@ def test_after_a_silence_in_motion_the_restart_takes_the_velocity_the_next_packe
     def q_at(k):  # the arm k cycles after the first packet
         return q1 + v0 * k * DT + 0.5 * a * (k * DT) ** 2
 
-    assert ctl.on_feedback(tm, q_at(0), T0 + tm / 1000) is None
-    assert ctl.on_feedback(tm + 4, q_at(1), T0 + (tm + 4) / 1000) is None
-    r = ctl.on_feedback(tm + 8, q_at(2), T0 + (tm + 8) / 1000)
+    assert ctl.on_feedback(Feedback(tm, q_at(0)), T0 + tm / 1000) is None
+    assert ctl.on_feedback(Feedback(tm + 4, q_at(1)), T0 + (tm + 4) / 1000) is None
+    r = ctl.on_feedback(Feedback(tm + 8, q_at(2)), T0 + (tm + 8) / 1000)
     np.testing.assert_allclose(r.q, q_at(2), atol=1e-12)
     np.testing.assert_allclose(r.qd, v0 + a * 2 * DT, atol=1e-9)
     assert ctl.resyncs == 1 and ctl.deferred == 2
@@ -182,13 +189,13 @@ def test_a_brake_whose_cause_is_outside_the_stream_outlasts_a_silence_and_standb
     stops from there, jerk-limited: the brake stays latched (it used to be dropped, and the
     plan resumed without a planner). A controller in standby keeps it too."""
     ctl = _control(rtree, robot)
-    ctl.on_feedback(0, _away(robot), T0)
+    ctl.on_feedback(Feedback(0, _away(robot)), T0)
     for k in range(1, 40):
-        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+        ctl.on_feedback(Feedback(4 * k, ctl.sup.q), T0 + 0.004 * k)
     assert np.abs(ctl.sup.qd).max() > 0.3  # moving home
     ctl.brake(reason)
     for k in range(40, 45):
-        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+        ctl.on_feedback(Feedback(4 * k, ctl.sup.q), T0 + 0.004 * k)
     v0 = ctl.sup.qd.copy()
     assert ctl.sup.braking and np.abs(v0).max() > 0.2  # braking, still moving
     q1, tm = ctl.sup.q + v0 * 0.06, 4 * 44 + 60  # 60 ms of silence: the arm went on
@@ -196,15 +203,15 @@ def test_a_brake_whose_cause_is_outside_the_stream_outlasts_a_silence_and_standb
     def q_at(k):
         return q1 + v0 * k * DT
 
-    assert ctl.on_feedback(tm, q_at(0), T0 + tm / 1000) is None
-    assert ctl.on_feedback(tm + 4, q_at(1), T0 + (tm + 4) / 1000) is None
-    r = ctl.on_feedback(tm + 8, q_at(2), T0 + (tm + 8) / 1000)
+    assert ctl.on_feedback(Feedback(tm, q_at(0)), T0 + tm / 1000) is None
+    assert ctl.on_feedback(Feedback(tm + 4, q_at(1)), T0 + (tm + 4) / 1000) is None
+    r = ctl.on_feedback(Feedback(tm + 8, q_at(2)), T0 + (tm + 8) / 1000)
     np.testing.assert_allclose(r.q, q_at(2), atol=1e-12)  # the rule after a silence
     np.testing.assert_allclose(r.qd, v0, atol=1e-9)
     assert ctl.resyncs == 1 and ctl.sup.brake_reason == reason
     t, qd = [tm + 8], [r.qd]
     for k in range(3, 200):  # an arm that follows: the stop, from the measured state
-        r = ctl.on_feedback(tm + 4 * k, ctl.sup.q, T0 + (tm + 4 * k) / 1000)
+        r = ctl.on_feedback(Feedback(tm + 4 * k, ctl.sup.q), T0 + (tm + 4 * k) / 1000)
         t.append(tm + 4 * k), qd.append(r.qd)
     qd = np.array(qd)
     assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT * (1 + 1e-9))
@@ -213,12 +220,14 @@ def test_a_brake_whose_cause_is_outside_the_stream_outlasts_a_silence_and_standb
     tm += 4 * 200 + 60  # silent again, the stop done: held where the arm settles, at rest
     q2 = ctl.sup.q + 1e-4
     for k in range(3):
-        r = ctl.on_feedback(tm + 4 * k, q2 + 1e-5 * k, T0 + (tm + 4 * k) / 1000)
+        r = ctl.on_feedback(Feedback(tm + 4 * k, q2 + 1e-5 * k), T0 + (tm + 4 * k) / 1000)
     np.testing.assert_allclose(r.q, q2 + 2e-5, atol=1e-12)
     assert not r.qd.any() and ctl.resyncs == 2 and ctl.sup.brake_reason == reason
     tm += 4 * 3
-    ctl.on_feedback(tm, ctl.sup.q, T0 + tm / 1000, ready=False)  # standby, then ready again
-    r = ctl.on_feedback(tm + 4, ctl.sup.q, T0 + (tm + 4) / 1000)
+    ctl.on_feedback(
+        Feedback(tm, ctl.sup.q, ready=False), T0 + tm / 1000
+    )  # standby, then ready again
+    r = ctl.on_feedback(Feedback(tm + 4, ctl.sup.q), T0 + (tm + 4) / 1000)
     assert ctl.sup.brake_reason == reason and not r.qd.any()
     assert ctl.sup.counts[f"brake_{reason}"] == 1  # the same brake, kept: counted once
 
@@ -229,13 +238,13 @@ def test_a_restart_waits_for_a_velocity_at_most_a_few_packets(rtree, robot):
     from thinkfast.control.core import DEFER_MAX
 
     ctl = _control(rtree, robot)
-    ctl.on_feedback(0, _away(robot), T0)
+    ctl.on_feedback(Feedback(0, _away(robot)), T0)
     for k in range(1, 40):
-        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+        ctl.on_feedback(Feedback(4 * k, ctl.sup.q), T0 + 0.004 * k)
     q1, tm = ctl.sup.q.copy(), 4 * 39 + 60  # 60 ms of silence, then packets 4 cycles apart:
     replies = []  # no silence each, but too far apart to measure a velocity
     for k in range(DEFER_MAX + 1):
-        replies.append(ctl.on_feedback(tm + 16 * k, q1, T0 + (tm + 16 * k) / 1000))
+        replies.append(ctl.on_feedback(Feedback(tm + 16 * k, q1), T0 + (tm + 16 * k) / 1000))
     assert replies[:DEFER_MAX] == [None] * DEFER_MAX and replies[-1] is not None
     assert not replies[-1].qd.any()
     np.testing.assert_allclose(replies[-1].q, q1, atol=1e-12)
@@ -249,14 +258,14 @@ def test_packets_each_after_a_silence_are_answered_after_a_few(rtree, robot):
     from thinkfast.control.core import DEFER_MAX
 
     ctl = _control(rtree, robot)
-    ctl.on_feedback(0, _away(robot), T0)
+    ctl.on_feedback(Feedback(0, _away(robot)), T0)
     for k in range(1, 40):
-        ctl.on_feedback(4 * k, ctl.sup.q, T0 + 0.004 * k)
+        ctl.on_feedback(Feedback(4 * k, ctl.sup.q), T0 + 0.004 * k)
     assert not ctl.at_rest()
     q1, tm = ctl.sup.q.copy(), 4 * 39
     replies = []
     for k in range(1, 3 * (DEFER_MAX + 1) + 1):
-        replies.append(ctl.on_feedback(tm + 250 * k, q1, T0 + (tm + 250 * k) / 1000))
+        replies.append(ctl.on_feedback(Feedback(tm + 250 * k, q1), T0 + (tm + 250 * k) / 1000))
     assert replies[:DEFER_MAX] == [None] * DEFER_MAX and replies[DEFER_MAX] is not None
     np.testing.assert_allclose(replies[DEFER_MAX].q, q1, atol=1e-12)
     answered = sum(r is not None for r in replies)  # each restart in motion measures again
@@ -267,10 +276,10 @@ def test_a_superseded_packet_measures_the_velocity_a_restart_starts_with(rtree, 
     """After this host stalled (the controller went on sending), the restart takes the measured
     velocity from the peer's packet just before the answered one."""
     ctl = _control(rtree, robot)
-    ctl.on_feedback(0, robot.home, T0)
+    ctl.on_feedback(Feedback(0, robot.home), T0)
     v = np.array([0.4, -0.2, 0.1, 0.5, 0.0, -0.3])
     q_meas = robot.home + v * 0.1
-    r = ctl.on_feedback(100, q_meas, T0 + 0.1, before=(96, q_meas - v * 0.004))
+    r = ctl.on_feedback(Feedback(100, q_meas), T0 + 0.1, before=(96, q_meas - v * 0.004))
     assert r.tick.resync
     np.testing.assert_allclose(r.q, q_meas, atol=1e-12)
     np.testing.assert_allclose(r.qd, v, rtol=1e-9)
@@ -278,13 +287,13 @@ def test_a_superseded_packet_measures_the_velocity_a_restart_starts_with(rtree, 
 
 def test_the_measured_velocity_seeds_a_restart_when_two_packets_measure_it(rtree, robot):
     ctl = _control(rtree, robot)
-    ctl.on_feedback(0, robot.home, T0)
+    ctl.on_feedback(Feedback(0, robot.home), T0)
     v = np.array([0.2, -0.1, 0.0, 0.3, 0.0, 0.0])
     ctl.rate.fb = (ctl.clock.t, robot.home)  # the last packet before the silence
     tm = 100  # 100 ms later: a silence
-    r = ctl.on_feedback(tm, robot.home + v * 0.004, T0 + 0.1)
+    r = ctl.on_feedback(Feedback(tm, robot.home + v * 0.004), T0 + 0.1)
     assert r.tick.resync and not r.qd.any()  # 100 ms apart: no velocity measured
-    r2 = ctl.on_feedback(tm + 4, robot.home + v * 0.008, T0 + 0.104)
+    r2 = ctl.on_feedback(Feedback(tm + 4, robot.home + v * 0.008), T0 + 0.104)
     assert not r2.tick.resync  # consecutive: the velocity is measured from now on
     assert ctl.rate.measure(ctl.clock.tick(tm + 8, T0 + 0.108), robot.home + v * 0.012) is not None
 
@@ -292,14 +301,14 @@ def test_the_measured_velocity_seeds_a_restart_when_two_packets_measure_it(rtree
 def _lagging_run(ctl, robot, lag_cycles, freeze=(math.inf, math.inf), n=400):
     """Feedback that follows the command ``lag_cycles`` late (a slow servo), frozen during the
     cycles ``freeze`` = [from, to) (an arm that stops following). Returns the replies."""
-    ctl.on_feedback(0, _away(robot), T0)
+    ctl.on_feedback(Feedback(0, _away(robot)), T0)
     sent = [ctl.sup.q]
     out = []
     for k in range(1, n):
         q_meas = sent[max(0, len(sent) - 1 - lag_cycles)]
         if freeze[0] <= k < freeze[1]:
             q_meas = sent[freeze[0] - 1 - lag_cycles]
-        r = ctl.on_feedback(4 * k, q_meas, T0 + 0.004 * k)
+        r = ctl.on_feedback(Feedback(4 * k, q_meas), T0 + 0.004 * k)
         sent.append(r.q)
         out.append(r)
     return out
@@ -328,18 +337,18 @@ def test_repeated_faults_within_the_window_latch_fault(rtree, robot):
     events = []
     ctl = _control(rtree, robot, events)
     q_frozen = _away(robot)
-    ctl.on_feedback(0, q_frozen, T0)
+    ctl.on_feedback(Feedback(0, q_frozen), T0)
     tm = 0
     for _ in range(3000):  # the arm never moves: every return home trips the check again
         tm += 4
-        ctl.on_feedback(tm, q_frozen, T0 + tm / 1000)
+        ctl.on_feedback(Feedback(tm, q_frozen), T0 + tm / 1000)
         if ctl.latched:
             break
     assert ctl.latched and ctl.mode() == FAULT and ctl.ex.mode == FAULT
     assert events == ["brake", "recover", "brake", "recover", "brake", "fault_latched"]
     for _ in range(50):  # latched: holds the measured position, moves nothing
         tm += 4
-        r = ctl.on_feedback(tm, q_frozen, T0 + tm / 1000)
+        r = ctl.on_feedback(Feedback(tm, q_frozen), T0 + tm / 1000)
         assert not r.qd.any()
     np.testing.assert_allclose(r.q, np.clip(q_frozen, ctl.sup.limits.q_min, ctl.sup.limits.q_max))
 
@@ -430,7 +439,7 @@ def test_ordinary_throws_never_need_the_supervisor_and_stay_jerk_limited(rtree, 
                 if acc is not None:
                     ex.on_detection(ctl.t_next if ctl.last else t, acc.stamp, acc.position)
                 k += 1
-            r = ctl.on_feedback(tm, arm.q, t)
+            r = ctl.on_feedback(Feedback(tm, arm.q), t)
             arm.command(r.q, r.qd, arm.t)
             arm.step(DT)
             q.append(r.q)
@@ -472,7 +481,7 @@ def _throws_with_missed_replies(rtree, robot, planner, miss=0.01, n=5, seed=11, 
             if last is not None and rng.random() < miss:
                 moving_misses += bool(np.abs(last.qd).max() > 0.1)
             else:
-                r = ctl.on_feedback(tm, arm.q, t, seqno=seqno, late=was_late)
+                r = ctl.on_feedback(Feedback(tm, arm.q, seqno), t, late=was_late)
                 was_late = last is not None and rng.random() < late
                 if was_late:
                     moving_misses += bool(np.abs(last.qd).max() > 0.1)

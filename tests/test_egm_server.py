@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from thinkfast.contract import egm
-from thinkfast.daemon.egm_address import EgmAddressError
-from thinkfast.daemon.egm_server import EgmServer
+from thinkfast.link.egm_address import EgmAddressError
+from thinkfast.link.egm_server import EgmServer
 
 LOOPBACK = "127.0.0.1"
 

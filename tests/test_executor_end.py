@@ -6,6 +6,7 @@ import pytest
 from thinkfast.control.config import RunConfig
 from thinkfast.control.executor import EXECUTING, IDLE, RETURNING, Executor
 from thinkfast.control.intake import Intake
+from thinkfast.control.link import Feedback
 from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
 from thinkfast.sim.controller import ServoConfig
 from thinkfast.sim.lockstep import DT, LEAD, World
@@ -131,7 +132,7 @@ def _fly_feint(world, seed: int, j: int):
         while k < len(dets) and dets[k].delivery_time <= t:
             core.on_detection(detection_payload(dets[k]), None, t)
             k += 1
-        reply = core.on_feedback(round(t * 1000.0), sim.q, t)
+        reply = core.on_feedback(Feedback(round(t * 1000.0), sim.q), t)
         if reply is not None:
             sim.command(reply.q, reply.qd, t)
         sim.step(DT)

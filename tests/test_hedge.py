@@ -17,6 +17,8 @@ import pytest
 from tests.test_executor_modes import CFG, DT, END, HELD, RELEASE, THROW, Run, feed
 from thinkfast.control.executor import EXECUTING, IDLE, Executor
 from thinkfast.control.hedge import COMMIT
+from thinkfast.control.link import Feedback
+from thinkfast.control.outcome import state_of
 from thinkfast.daemon.status_text import episode_end, episode_text
 from thinkfast.decide.tree_view import runtime_tree
 from thinkfast.robot.shield_path import ShieldSampler
@@ -164,11 +166,11 @@ def test_an_episode_hedged_on_but_never_confirmed_ends_with_its_own_figures(rtre
     glimpse = THROW._replace(release=release, t_seen=release - 0.6, t_lost=release + 0.07)
     feed(glimpse, release + 1.5)(run)
     assert ex.mode == IDLE and ex.episodes == 1  # the glimpse was never a confirmed throw
-    text = episode_text(ex)
+    text = episode_text(state_of(ex))
     assert text == {"throws": 1, "executed": False, "confirmed": False, "hedges": 1,
                     "hedge_end": ex.hedge_end}  # fmt: skip
     assert ex.hedge_end in ("no_launch", "silence", "timeout")
-    kind, detail = episode_end(ex)
+    kind, detail = episode_end(state_of(ex))
     assert kind == "episode_end" and detail == text
 
 
@@ -235,7 +237,7 @@ def _fly_home(world, throw, seed: int, miss: float):
             core.on_detection(detection_payload(dets[k]), None, t)
             k += 1
         if t < 0.1 or rng.random() >= miss:
-            reply = core.on_feedback(round(t * 1000.0), sim.q, t)
+            reply = core.on_feedback(Feedback(round(t * 1000.0), sim.q), t)
             if reply is not None:
                 sim.command(reply.q, reply.qd, t)
         sim.step(DT)

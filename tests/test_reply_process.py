@@ -213,22 +213,23 @@ def test_the_deadline_brakes_on_a_silent_planner_and_resumes_from_the_stop(robot
     from thinkfast.control.config import RunConfig
     from thinkfast.control.plan import SIZE, plan_vector
     from thinkfast.control.segments import STEER, move
-    from thinkfast.daemon.egm_server import EgmServer
     from thinkfast.daemon.reply_process import ReplyLoop
     from thinkfast.daemon.reply_rows import CALL, COL, EVENT, EVENTS, REPLY, WIDTH
     from thinkfast.daemon.shared_plan import RowRing, Seqlock
+    from thinkfast.link.egm import egm_feedback, open_egm
+    from thinkfast.link.registry import LinkSpec
 
     cfg = RunConfig()
     block, ring = Seqlock(SIZE), RowRing(WIDTH)
     loop = ReplyLoop(robot, cfg, block, ring, os.getppid())
-    loop.egm = EgmServer(("127.0.0.1", 0), loop.reply, timing=True)  # its counters in the rows
+    loop.link = open_egm(LinkSpec("127.0.0.1:0"), loop.reply)  # its counters in the rows
     try:
         core, sup, f = loop.core, loop.core.sup, loop.follower
         qs = []
 
         def packet(seqno: int) -> None:
             q = robot.home if not qs else qs[-1]  # an arm that follows exactly
-            q, _ = loop.reply(RobotFeedback(seqno, 4 * seqno, q, True, True, True))
+            q, _ = loop.reply(egm_feedback(RobotFeedback(seqno, 4 * seqno, q, True, True, True)))
             qs.append(np.array(q))
             loop.after(True)
 
@@ -267,7 +268,7 @@ def test_the_deadline_brakes_on_a_silent_planner_and_resumes_from_the_stop(robot
         assert np.all(np.abs(np.diff(qd, axis=0)) <= robot.a_max * DT + 1e-9)
         assert np.all(np.abs(qd) <= robot.v_max + 1e-9)
     finally:
-        loop.egm.close()
+        loop.link.close()
         block.close()
         ring.close()
 
@@ -297,10 +298,11 @@ def _replies_with_plans_landing(robot, monkeypatch, prepare: bool) -> tuple[np.n
     from thinkfast.control.plan import SIZE, plan_vector
     from thinkfast.control.segments import STEER, move
     from thinkfast.daemon import reply_process
-    from thinkfast.daemon.egm_server import EgmServer
     from thinkfast.daemon.reply_process import ReplyLoop
     from thinkfast.daemon.reply_rows import WIDTH
     from thinkfast.daemon.shared_plan import RowRing, Seqlock
+    from thinkfast.link.egm import egm_feedback, open_egm
+    from thinkfast.link.registry import LinkSpec
 
     now = [100.0]
     clock = SimpleNamespace(time=lambda: now[0], monotonic=lambda: now[0])
@@ -308,7 +310,7 @@ def _replies_with_plans_landing(robot, monkeypatch, prepare: bool) -> tuple[np.n
     cfg = RunConfig()
     block, ring = Seqlock(SIZE), RowRing(WIDTH)
     loop = ReplyLoop(robot, cfg, block, ring, os.getppid())
-    loop.egm = EgmServer(("127.0.0.1", 0), loop.reply, timing=True)
+    loop.link = open_egm(LinkSpec("127.0.0.1:0"), loop.reply)
     rng = np.random.default_rng(4)
     out, used, q, plan_id, seg = [], 0, robot.home, 0, None
     try:
@@ -316,7 +318,7 @@ def _replies_with_plans_landing(robot, monkeypatch, prepare: bool) -> tuple[np.n
         for k in range(1, 160):
             now[0] = 100.0 + k * DT
             ahead = core._prepared.ahead if core._prepared is not None else None
-            q, qd = loop.reply(RobotFeedback(k, 4 * k, q, True, True, True))[:2]
+            q, qd = loop.reply(egm_feedback(RobotFeedback(k, 4 * k, q, True, True, True)))[:2]
             used += ahead is not None and q is ahead.result[0]
             out.append(np.r_[q, qd])
             loop.after(True)
@@ -336,7 +338,7 @@ def _replies_with_plans_landing(robot, monkeypatch, prepare: bool) -> tuple[np.n
                 core.prepare()
         assert f.plan_id == plan_id and core.sup.intervened == 0
     finally:
-        loop.egm.close()
+        loop.link.close()
         block.close()
         ring.close()
     return np.array(out), used

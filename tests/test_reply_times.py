@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from thinkfast.contract.egm import encode_robot
-from thinkfast.daemon.egm_server import EgmServer
-from thinkfast.daemon.reply_times import ReplyTimes
+from thinkfast.link.egm_server import EgmServer
+from thinkfast.link.reply_times import ReplyTimes
 
 
 def test_nothing_timed_yet_summarises_to_none():

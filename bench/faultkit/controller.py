@@ -41,7 +41,7 @@ import numpy as np
 from bench.faultkit import rows as R
 from bench.faultkit.egm_pb import decode_reply, robot_message
 from bench.faultkit.senders import malformed_datagram, recv_stamped
-from thinkfast.daemon.egm_server import SO_TIMESTAMPNS
+from thinkfast.link.egm_server import SO_TIMESTAMPNS
 from thinkfast.sim.controller import ClockJitter, ServoConfig, SimController, Stamps
 
 

@@ -41,10 +41,22 @@ class CoreAssembly:
         self.tree: RuntimeTree = runtime_tree(tree, robot, cfg)
         self.limits: SafetyLimits = robot_limits(robot, cfg.safety.position_margin)
 
-    def executor(self, planner: str, cfg: RunConfig | None = None) -> Executor:
+    def executor(
+        self,
+        planner: str,
+        cfg: RunConfig | None = None,
+        realtime: bool = False,
+        home_on_start: bool = True,
+    ) -> Executor:
         """An executor of ``planner`` at home; ``cfg``: another run configuration for it (e.g.
-        another ``[hedge] mode``; None: the assembly's)."""
-        return Executor(self.tree, self.robot, self.cfg if cfg is None else cfg, planner)
+        another ``[hedge] mode``; None: the assembly's). ``realtime``: its planner runs on the
+        wall clock (a late solve is dropped); ``home_on_start``: away from home at start, it
+        goes home at once (else it holds until told, the daemon's way home checked first)."""
+        ex = Executor(self.tree, self.robot, self.cfg if cfg is None else cfg, planner)
+        if realtime:
+            ex.planner.realtime = True
+        ex.home_on_start = home_on_start
+        return ex
 
     def supervisor(self) -> SafetySupervisor:
         """A safety supervisor at home."""

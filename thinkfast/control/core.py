@@ -66,7 +66,16 @@ from thinkfast.control.core_faults import FaultPolicy, Reply
 from thinkfast.control.egm_clock import ClockTick, ControllerClock
 from thinkfast.control.executor import FAULT, IDLE, Executor
 from thinkfast.control.feedback_rate import FeedbackRate, span_before
-from thinkfast.control.intake import Accepted, Intake
+from thinkfast.control.intake import Intake
+from thinkfast.control.link import Feedback
+from thinkfast.control.outcome import (
+    CoreState,
+    DetectionOutcome,
+    ThrowFigures,
+    figures_of,
+    outcome_of,
+    state_of,
+)
 from thinkfast.control.safety import Ahead, SafetyConfig, SafetySupervisor
 
 DEFER_MAX = 3  # packets left unanswered after a silence in motion, waiting for a velocity
@@ -152,6 +161,34 @@ class ControlCore(FaultPolicy):
             return False
         return max(map(abs, sup.qd.tolist())) < REST_SPEED
 
+    def state(self) -> CoreState:
+        """The executor's part of the status (:class:`~thinkfast.control.outcome.CoreState`)."""
+        return state_of(self.ex)
+
+    def figures(self) -> ThrowFigures:
+        """Decisions, start and hedges of the throws (the simulators' judgement)."""
+        return figures_of(self.ex)
+
+    @property
+    def busy(self) -> bool:
+        """A throw episode is under way (the executor is not idle)."""
+        return self.ex.mode != IDLE
+
+    @property
+    def stage(self) -> tuple:
+        """The hedge stage of the throw (``STAGE_KEYS``' values): a ``stage`` event on change."""
+        ex = self.ex
+        return (ex.stage, ex.hedge_end, ex.hedges, ex.throw_end)
+
+    @property
+    def away(self) -> bool:
+        """The arm is held away from home, balls ignored, until :meth:`go_home`."""
+        return self.ex.away
+
+    def go_home(self, t: float) -> None:
+        """Leave a hold away from home at ``t`` [s]: return home within the return limits."""
+        self.ex.go_home(t)
+
     def mode(self) -> str:
         """Executor mode, ``brake`` while braking, ``fault`` while latched."""
         if self.latched:
@@ -188,51 +225,48 @@ class ControlCore(FaultPolicy):
             if retract is not None:
                 retract()
 
-    def on_detection(self, payload: bytes, now: float | None, t_plan: float) -> Accepted | None:
+    def on_detection(
+        self, payload: bytes, now: float | None, t_plan: float, crossing: bool = False
+    ) -> DetectionOutcome:
         """One detection ``payload`` received at ``now`` [s] (None: no clock checks, lockstep):
         validated by the intake and, when accepted, fused and planned on by the executor, the
-        plan taking effect at ``t_plan`` (the controller time of the next cycle). Returns the
-        accepted detection, or None (dropped: counted by the intake). Never raises: a planner
-        failure is counted in ``planner_errors`` (``last_error``) and brakes."""
+        plan taking effect at ``t_plan`` (the controller time of the next cycle). Returns what
+        happened (:class:`~thinkfast.control.outcome.DetectionOutcome`; its crossing only with
+        ``crossing``). Never raises: a planner failure is counted in ``planner_errors``
+        (``last_error``) and brakes."""
+        ex, was = self.ex, self.ex.mode
         det = self.intake.take(payload, now)
         if det is None:
-            return None
+            return outcome_of(ex, None, self.intake.last_drop, was, None, False)
         self.invalidate()  # the plan changes: prepare again
+        error = None
         try:
-            refused = self.ex.on_detection(t_plan, det.stamp, det.position, det.camera)
+            refused = ex.on_detection(t_plan, det.stamp, det.position, det.camera)
             if refused is not None:
                 self.intake.reject_accepted(refused)
-                return None
+                return outcome_of(ex, None, (refused, ""), was, None, False)
         except Exception as exc:  # a planner bug must not stop the EGM loop: stop the arm
             self.planner_errors += 1
-            self.last_error = exc
+            self.last_error = error = exc
             self.brake("nonfinite")
-        return det
+        return outcome_of(ex, det, None, was, error, crossing)
 
     def on_feedback(
-        self,
-        tm_ms: int | None,
-        q_meas: np.ndarray,
-        now: float,
-        before=None,
-        ready: bool = True,
-        seqno: int | None = None,
-        late: bool = False,
+        self, fb: Feedback, now: float, before: Feedback | None = None, late: bool = False
     ) -> Reply | None:
-        """The reply to one ``EgmRobot`` (header stamp ``tm_ms``, sequence number ``seqno``,
-        joints ``q_meas`` [rad]) received at ``now`` [s], or None: leave this packet unanswered
-        (after a silence in motion, until three packets measure the velocity; counted in
-        ``deferred``). ``seqno`` None: the controller's cycles are counted by ``tm`` alone.
-        ``before``: ``(tm_ms, q_meas)`` or ``(tm_ms, q_meas, seqno)`` of the peer's packet just
+        """The reply to one controller feedback ``fb`` (:class:`~thinkfast.control.link.
+        Feedback`: joints [rad], the controller's clock and cycle count, readiness) received at
+        ``now`` [s], or None: leave it unanswered (after a silence in motion, until three
+        packets measure the velocity; counted in ``deferred``). ``before``: the feedback just
         before it when that one was superseded unanswered (it measures the velocity after a
         stall of this host). ``late``: the previous reply reached the controller a cycle late
-        (this packet arrived before it left; module doc). ``ready``:
-        the controller follows references (motors on, EGM motion running); otherwise the reply
-        is the measured position (module doc). Never raises: a failing ``executor.setpoint``
-        is counted in ``errors`` and brakes.
+        (this feedback arrived before it left; docs/DESIGN.md, The control core). Not ``ready``:
+        the reply is the measured position. Never raises: a failing ``executor.setpoint`` is
+        counted in ``errors`` and brakes.
 
         In shadow mode the reply's ``q``/``qd`` are the virtual arm's; the caller sends
         :attr:`hold_q` at rest instead."""
+        tm_ms, q_meas, seqno, ready = fb.t_ms, fb.q, fb.cycle, fb.ready
         if self._unmeasured is not None:
             self.settle()
         if not (ready or self.shadow):

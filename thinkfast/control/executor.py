@@ -51,7 +51,6 @@ or not (a ball tracked, perhaps hedged on, never confirmed), is kept as ``ended`
 
 from __future__ import annotations
 
-import enum
 import math
 
 import numpy as np
@@ -59,6 +58,7 @@ import numpy as np
 from thinkfast.control.config import RunConfig
 from thinkfast.control.gate import ThrowGate
 from thinkfast.control.hedge_stage import hedge_stage
+from thinkfast.control.modes import EXECUTING, FAULT, IDLE, RETURNING, STAGE_KEYS, TRACKING, Mode
 from thinkfast.control.planners import registry
 from thinkfast.control.planners.base import Belief, EpisodeLog
 from thinkfast.control.segments import EDGE, RETURN, Segment, WristTracker
@@ -67,20 +67,7 @@ from thinkfast.decide.tree_view import RuntimeTree
 from thinkfast.robot.model import Robot
 from thinkfast.robot.steering import feasible_acceleration
 
-
-class Mode(enum.StrEnum):
-    """State of the executor (its value is the status ``state`` and the setpoints' ``mode``)."""
-
-    IDLE = "idle"
-    TRACKING = "tracking"
-    EXECUTING = "executing"
-    RETURNING = "returning"
-    FAULT = "fault"
-
-
-IDLE, TRACKING, EXECUTING, RETURNING, FAULT = Mode  # the names the rest of the package uses
 HOME_TOLERANCE = 1e-3  # rad: a joint further than this from home is away from home
-STAGE_KEYS = ("stage", "hedge_end", "hedges", "throw_end")  # the status's and record's stage
 __all__ = ["ARM_HOME", "STAGE_KEYS", "EpisodeLog", "Executor", "Mode"]
 
 

@@ -21,6 +21,7 @@ from thinkfast.cli_util import (
     run_app,
 )
 from thinkfast.control.planners import registry
+from thinkfast.link.registry import names as link_names
 
 app = make_app("thinkfast runtime daemon: ball detections over zenoh in, EGM setpoints out.")
 
@@ -55,6 +56,11 @@ def run(
         "--egm-handover",
         help="without --egm-controller: another sender may take over after the served "
         "controller was silent this long (s)",
+    ),
+    link: str = typer.Option(
+        "egm",
+        "--link",
+        help="the controller link: " + ", ".join(link_names()) + " (docs/ARCHITECTURE.md)",
     ),
     key_prefix: str = KEY_PREFIX,
     zenoh_connect: ZenohEndpoints = ZENOH_CONNECT,
@@ -140,9 +146,9 @@ def run(
         start_writer_early(record)  # the writer's imports beside the ones below
     from thinkfast.contract.zenoh_session import session_config
     from thinkfast.control.config import load_run_config
-    from thinkfast.daemon.egm_address import parse_controller, parse_hostport
     from thinkfast.daemon.service import Daemon, Endpoints, Modes
     from thinkfast.errors import ConfigError
+    from thinkfast.link.egm_address import parse_controller, parse_hostport
     from thinkfast.tree.file import load_tree
     from thinkfast.tree.robot_match import robot_for_tree
 
@@ -218,7 +224,14 @@ def run(
     refuse_open_zenoh(conf, insecure_zenoh)  # after the config errors, before any socket
     robot = scale_limits(robot, speed_scale)
     ends = Endpoints(
-        egm_bind, egm_controller, egm_handover, key_prefix, record, ros_domain, insecure_zenoh
+        egm_bind,
+        egm_controller,
+        egm_handover,
+        key_prefix,
+        record,
+        ros_domain,
+        insecure_zenoh,
+        link,
     )
     modes = Modes(shadow=shadow, go_home=go_home, speed_scale=speed_scale)
     spin = math.inf if busy_poll else spin_ahead / 1e3
@@ -236,11 +249,11 @@ def run(
     if rerun is not None:
         from thinkfast.daemon.live_view import daemon_view
 
-        daemon.view = daemon_view(rerun, robot, daemon.executor.tree, cfg)
+        daemon.view = daemon_view(rerun, robot, daemon.runtime_tree, cfg)
     if foxglove is not None:
         from thinkfast.daemon.foxglove_view import FoxgloveView
 
-        daemon.view = FoxgloveView(*fox, robot, daemon.executor.tree, cfg)
+        daemon.view = FoxgloveView(*fox, robot, daemon.runtime_tree, cfg)
         logging.getLogger("thinkfast.run").info("foxglove on ws://%s:%d", fox[0], daemon.view.port)
     sys.exit(daemon.run())
 

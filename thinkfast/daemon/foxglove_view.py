@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import threading
 
-from thinkfast.daemon.egm_address import EgmAddressError, parse_hostport
 from thinkfast.daemon.live_view import DaemonView
 from thinkfast.errors import ConfigError
+from thinkfast.link.egm_address import EgmAddressError, parse_hostport
 
 BACKLOG = 4096  # messages queued per client before a slow one is dropped (the SDK's policy)
 
@@ -32,7 +32,7 @@ def foxglove_address(text: str) -> tuple[str, int]:
     """``--foxglove`` ``[HOST:]PORT`` -> (host, port); the host defaults to 127.0.0.1 (loopback).
 
     Raises:
-        ConfigError: not ``[HOST:]PORT`` (:func:`~thinkfast.daemon.egm_address.parse_hostport`).
+        ConfigError: not ``[HOST:]PORT`` (:func:`~thinkfast.link.egm_address.parse_hostport`).
     """
     try:
         return parse_hostport(text, "--foxglove", "127.0.0.1", "8765, 0.0.0.0:8766")

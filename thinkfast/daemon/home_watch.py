@@ -11,7 +11,6 @@ from collections.abc import Callable
 import numpy as np
 
 from thinkfast.control.core import ControlCore
-from thinkfast.control.executor import Executor
 from thinkfast.control.way_home import WayHome
 from thinkfast.robot.model import Robot
 
@@ -37,7 +36,7 @@ class HomeWatch:
         robot: Robot,
         go_home: bool,
         dt: float,
-        new_executor: Callable[[], Executor],
+        new_executor: Callable[[], object],
         event: Callable[[float, str, dict], None],
     ):
         self.robot, self.go_home, self.dt = robot, go_home, dt
@@ -46,10 +45,10 @@ class HomeWatch:
         self._checker = None  # collision model of the cell, built for the first way home
         self._logged: tuple | None = None  # the place last reported
 
-    def held(self, ex: Executor) -> bool:
+    def held(self, control: ControlCore) -> bool:
         """Held away from home for good (``--hold-away``, or the way home is blocked): not
         idle, which the contract defines as at home and ready."""
-        if not ex.away:
+        if not control.away:
             return False
         return not self.go_home or (self.way_home is not None and self.way_home.result is not None)
 
@@ -61,8 +60,7 @@ class HomeWatch:
     ) -> None:
         """One step between replies: ``time_left(now)`` [s] of work fit before the next reply;
         ``plan_time(now)``: when a plan made now takes effect [s]."""
-        ex = control.ex
-        if not ex.away or control.standby or control.last is None:
+        if not control.away or control.standby or control.last is None:
             return
         q0 = np.array(control.sup.q)
         key = tuple(np.round(q0, 4))
@@ -99,7 +97,7 @@ class HomeWatch:
             return
         detail = {"clear": r.clear, "duration": round(r.duration, 3), "samples": r.samples}
         if r.clear:
-            ex.go_home(plan_time(time.time()))
+            control.go_home(plan_time(time.time()))
             control.invalidate()
             self.event(control.clock.t, "way_home", detail)
         else:

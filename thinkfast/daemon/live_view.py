@@ -149,13 +149,13 @@ class DaemonView:
         """Keep the daemon's status message ``msg`` (a reference; drawn in :meth:`service`)."""
         self.status_msg = (now, msg)
 
-    def on_detection(self, now: float, payload: bytes, accepted, executor) -> None:
-        """Queue one detection and the executor's state after it (references only: cheap)."""
-        ex = executor
-        seen = _Seen(
-            now, payload, accepted, ex.belief, str(ex.mode), ex.current_value(), ex.segment,
-            ex.wrist.state[:3].copy(),
-        )  # fmt: skip
+    def on_detection(self, now: float, payload: bytes, out) -> None:
+        """Queue one detection and the core's outcome of it (``out``:
+        :class:`~thinkfast.control.outcome.DetectionOutcome`; references only: cheap)."""
+        d = out.decision
+        value = None if d is None else (d.value, d.goal)
+        seen = _Seen(now, payload, out.detection, out.belief, out.mode, value, out.segment,
+                     out.wrist)  # fmt: skip
         if len(self.jobs) >= self.max_jobs:
             self.jobs.popleft()
             self.dropped += 1

@@ -18,6 +18,7 @@ class Endpoints:
     record: Path | None = None
     ros_domain: int | None = None  # also the ROS 2 topics (daemon/ros_edge.py) on this domain
     insecure_zenoh: bool = False  # open a zenoh session others reach without authentication
+    link: str = "egm"  # the controller link (thinkfast.link.registry), EGM unless named
 
 
 @dataclass(frozen=True)

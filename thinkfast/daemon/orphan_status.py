@@ -41,7 +41,7 @@ def start(zenoh_json: str, prefix: str, loop) -> threading.Thread:
 
 def status(loop, now: float) -> dict:
     """The status message of a reply loop without its planner."""
-    core, sup, egm = loop.core, loop.core.sup, loop.egm
+    core, sup, egm = loop.core, loop.core.sup, loop.link
     return {
         "stamp": now,
         "state": "fault",

@@ -38,14 +38,17 @@ import numpy as np
 
 from thinkfast.contract.egm import EgmEncodeError, sensor_body
 from thinkfast.control.core import ControlCore
+from thinkfast.control.link import Feedback
 from thinkfast.control.plan import SIZE, PlanFollower, decode_plan
 from thinkfast.control.safety import SafetySupervisor, robot_limits
 from thinkfast.daemon import gc_rule, orphan_status
 from thinkfast.daemon.cycle import Cycle
-from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.reply_rows import WIDTH, call_row, event_row, reply_row
 from thinkfast.daemon.rt_thread import pin_thread, set_fifo
 from thinkfast.daemon.shared_plan import RowRing, Seqlock
+from thinkfast.link.egm import open_egm
+from thinkfast.link.egm_server import EgmServer
+from thinkfast.link.registry import LinkSpec
 
 PARENT_CHECK = 0.001  # s: how often the loop looks whether its planner process is still there
 
@@ -54,7 +57,7 @@ class ReplyLoop:
     """The reply process's state (module doc).
 
     Args:
-        egm: the EGM server (its ``reply_fn`` is :meth:`reply`).
+        link: the EGM link (its reply function is :meth:`reply`).
         robot, cfg: the robot and the run configuration.
         plan: the plan seqlock (attached). ring: the row ring (attached).
         parent: the planner process's pid.
@@ -68,7 +71,7 @@ class ReplyLoop:
                                robot.home)  # fmt: skip
         self.events: list[np.ndarray] = []
         self.core = ControlCore(self.follower, sup, cfg.safety, on_event=self._on_event)
-        self.egm: EgmServer | None = None
+        self.link: EgmServer | None = None
         self.zenoh: tuple[str, str] | None = None  # (JSON5 config, key prefix): orphan status
         self.version = -1  # the plan block's version last read
         self.lost = False
@@ -81,12 +84,11 @@ class ReplyLoop:
     def _on_event(self, t: float, kind: str, detail: dict) -> None:
         self.events.append(event_row(t, kind, detail.get("reason")))
 
-    def reply(self, fb, before=None):
-        """EgmServer's ``reply_fn``: the core's reply to ``fb`` (None: unanswered)."""
+    def reply(self, fb: Feedback, before: Feedback | None = None):
+        """The link's reply function: the core's reply to ``fb`` (None: unanswered)."""
         now = time.time()
-        prev = None if before is None else (before.tm_ms, before.q_rad, before.seqno)
-        late = self.egm.behind
-        r = self.core.on_feedback(fb.tm_ms, fb.q_rad, now, prev, fb.ready, fb.seqno, late)
+        late = self.link.behind
+        r = self.core.on_feedback(fb, now, before, late)
         self._fb, self._now = fb, now
         if r is None:
             return None
@@ -127,7 +129,7 @@ class ReplyLoop:
         self.events.clear()
         if replied and self.core.last is not None:
             stepped = f.t_set == self.core.last.tick.t
-            ring.put(reply_row(self.core, f, self._fb, self.egm, self._now, stepped))
+            ring.put(reply_row(self.core, f, self._fb, self.link, self._now, stepped))
 
     def watch_plan(self, now_mono: float) -> None:
         """Take a new plan; keep the deadlines (module doc)."""
@@ -202,7 +204,7 @@ class ReplyLoop:
 
     def run(self, spin_ahead: float = 0.0) -> None:
         """Serve until SIGTERM/SIGINT (module doc)."""
-        egm, core = self.egm, self.core
+        egm, core = self.link, self.core
         poller = select.poll()
         poller.register(egm.fileno(), select.POLLIN)
         cycle = Cycle(self.cfg.safety.dt, spin_ahead)
@@ -239,8 +241,7 @@ def main(conn, bind, controller, handover, robot, cfg, plan_name, ring_name, par
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     try:
-        loop.egm = EgmServer(bind, loop.reply, controller, timing=True, handover=handover)
-        loop.egm.timing.late_after = cfg.safety.dt
+        loop.link = open_egm(LinkSpec(bind, controller, handover, cfg.safety.dt), loop.reply)
         if cpu is not None:
             pin_thread(cpu)
         if fifo is not None:
@@ -248,12 +249,12 @@ def main(conn, bind, controller, handover, robot, cfg, plan_name, ring_name, par
     except Exception as exc:  # bind or real-time settings refused: the daemon says why
         conn.send(("error", str(exc)))
         return
-    conn.send(("ready", loop.egm.address, os.getpid()))
+    conn.send(("ready", loop.link.address, os.getpid()))
     conn.close()
     try:
         loop.run(spin_ahead)
     finally:
-        loop.egm.close()
+        loop.link.close()
         loop.plan.close()
         loop.ring.close()
     sys.stderr.flush()

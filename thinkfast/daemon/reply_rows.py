@@ -17,7 +17,7 @@ import numpy as np
 
 from thinkfast.control.plan import CALLS, MODES
 from thinkfast.control.safety import BRAKE_REASONS, KINDS
-from thinkfast.daemon.egm_server import EgmCounters
+from thinkfast.link.egm_server import EgmCounters
 
 REPLY, CALL, EVENT = 1.0, 2.0, 3.0
 EVENTS = (
@@ -63,28 +63,28 @@ def reply_row(core, follower, fb, egm, now: float, stepped: bool) -> np.ndarray:
     """A ``REPLY`` row of the control ``core``'s last reply to feedback ``fb`` (received at
     ``now`` [s]) sent by the EGM server ``egm``."""
     row = np.zeros(WIDTH)
-    sup, last = core.sup, core.last
+    sup, last, st = core.sup, core.last, dict(fb.state)  # EGM's motor, MCI and RAPID states
     timing = egm.timing
     k = (timing.count - 1) % len(timing.work_s) if timing is not None and timing.count else None
     peer = egm.peer
     ip = _ipv4(peer[0]) if peer is not None else -1.0
     mode = "standby" if last.mode == "standby" else core.mode()
     values = {
-        "type": REPLY, "t": last.tick.t, "seqno": -1 if fb.seqno is None else fb.seqno,
-        "tm": -1 if fb.tm_ms is None else fb.tm_ms, "now": now,
+        "type": REPLY, "t": last.tick.t, "seqno": -1 if fb.cycle is None else fb.cycle,
+        "tm": -1 if fb.t_ms is None else fb.t_ms, "now": now,
         "work": np.nan if k is None else timing.work_s[k],
         "wait": np.nan if k is None else timing.wait_s[k],
         "mode": MODES.index(mode) if mode in MODES else -1, "stepped": stepped,
         "brake": BRAKE_REASONS.index(sup.brake_reason) if sup.braking else -1,
         "ready": fb.ready, "standby": core.standby, "latched": core.latched,
-        "plan_id": follower.plan_id, "epoch": follower.epoch, "motors_on": fb.motors_on,
-        "mci_running": fb.mci_running, "rapid_running": fb.rapid_running, "peer_ip": ip,
+        "plan_id": follower.plan_id, "epoch": follower.epoch, "motors_on": st["motors_on"],
+        "mci_running": st["mci_running"], "rapid_running": st["rapid_running"], "peer_ip": ip,
         "peer_port": -1 if peer is None else peer[1], "sup_ticks": sup.ticks,
         "sup_intervened": sup.intervened, "fault_count": core.fault_count,
     }  # fmt: skip
     for name, value in values.items():
         row[COL[name]] = np.nan if value is None else value
-    row[COL["q_meas"]], row[COL["q"]], row[COL["qd"]] = fb.q_rad, last.q, last.qd
+    row[COL["q_meas"]], row[COL["q"]], row[COL["qd"]] = fb.q, last.q, last.qd
     row[COL["qdd"]] = sup.qdd_end
     for name in CORE_COUNTS:
         row[COL[name]] = getattr(core, name)

@@ -42,15 +42,16 @@ import numpy as np
 from thinkfast.config import to_dict
 from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
-from thinkfast.control.executor import EXECUTING, IDLE, STAGE_KEYS
+from thinkfast.control.link import Feedback
+from thinkfast.control.modes import STAGE_KEYS
 from thinkfast.daemon import gc_rule
 from thinkfast.daemon.cycle import Cycle
-from thinkfast.daemon.egm_server import EgmServer
 from thinkfast.daemon.home_watch import HomeWatch
 from thinkfast.daemon.options import Endpoints, Modes
 from thinkfast.daemon.rt_thread import pin_thread, set_fifo
 from thinkfast.daemon.status_text import episode_end, peer_text, status_message, summary
 from thinkfast.daemon.zenoh_edge import ZenohIO
+from thinkfast.link.registry import LinkSpec, open_link
 from thinkfast.record.recorder import Recorder
 from thinkfast.record.tables import plane_json
 from thinkfast.robot.model import Robot
@@ -100,9 +101,10 @@ class Daemon:
             },
         )  # first: a record target that cannot be written stops the start, before serving
         parts = CoreAssembly(tree, robot, cfg)
-        self.executor = parts.executor(planner)
-        self.executor.planner.realtime = True  # on the wall clock: a late solve is dropped
-        self.executor.home_on_start = False  # the way home is checked first (--go-home)
+        # on the wall clock a late solve is dropped; the way home is checked first (--go-home)
+        self.executor = parts.executor(planner, realtime=True, home_on_start=False)
+        self.runtime_tree = parts.tree  # the tree as the planners see it (the live view's)
+        self.plane_x = float(parts.tree.plane_x)  # the plane's distance [m] (status, summary)
         way = functools.partial(parts.executor, "naive")  # plans the way home
         self.home = HomeWatch(robot, modes.go_home, cfg.safety.dt, way, self._event)
         self.limits = parts.limits
@@ -112,8 +114,8 @@ class Daemon:
         self._controller_key: tuple | None = None  # the same three, to compare per reply
         self.planned: tuple[np.ndarray, np.ndarray, str] | None = None  # shadow: virtual arm
         self._was_connected = False
-        self._last_mode = IDLE
-        self.egm = self._serve_egm(endpoints)
+        self.link_text = "EGM" if endpoints.link == "egm" else f"the {endpoints.link} link"
+        self.link = self._open_link(endpoints)  # the controller's wire (thinkfast.link)
         if endpoints.ros_domain is None:
             self.zio = ZenohIO(zenoh_conf, endpoints.key_prefix, endpoints.insecure_zenoh)
         else:  # rosbags (the ros extra) only when asked for
@@ -136,25 +138,29 @@ class Daemon:
         self._peer = None
 
     # -------------------------------------------------------------- EGM path
-    def _serve_egm(self, endpoints: Endpoints) -> EgmServer:
-        """The EGM server answering with :meth:`_reply` (thinkfast.daemon.split: elsewhere)."""
-        egm = EgmServer(endpoints.egm_bind, self._reply, endpoints.egm_controller, timing=True,
-                        handover=endpoints.egm_handover)  # fmt: skip
-        egm.timing.late_after = self.cfg.safety.dt
-        return egm
+    def _open_link(self, endpoints: Endpoints):
+        """The controller link ``endpoints.link`` answering with :meth:`_reply`
+        (thinkfast.daemon.split: in the reply process)."""
+        spec = LinkSpec(endpoints.egm_bind, endpoints.egm_controller, endpoints.egm_handover,
+                        self.cfg.safety.dt)  # fmt: skip
+        return open_link(endpoints.link, spec, self._reply)
 
-    def _reply(self, fb, before=None) -> tuple[np.ndarray, np.ndarray] | None:
-        """The setpoint answering ``fb``, or None to leave it unanswered (after a silence in
-        motion, until three packets measure the velocity; see :mod:`thinkfast.control.core`)."""
+    def link_where(self) -> str:
+        """Where the controller link listens, for the log (``host:port`` for a socket)."""
+        address = self.link.address
+        return peer_text(address) if isinstance(address, tuple) else str(address)
+
+    def _reply(self, fb: Feedback, before: Feedback | None = None):
+        """The setpoint answering the feedback ``fb``, or None to leave it unanswered (after a
+        silence in motion, until three packets measure the velocity; docs/DESIGN.md)."""
         now = time.time()
         self.last_rx = now
         if self.stop_reason is not None:
             self._brake_on_signal()
         errors = self.control.errors
-        prev = None if before is None else (before.tm_ms, before.q_rad, before.seqno)
-        late = self.egm.behind  # the last reply reached the controller a cycle late
-        r = self.control.on_feedback(fb.tm_ms, fb.q_rad, now, prev, fb.ready, fb.seqno, late)
-        if (fb.motors_on, fb.mci_running, fb.rapid_running) != self._controller_key:
+        late = self.link.behind  # the last reply reached the controller a cycle late
+        r = self.control.on_feedback(fb, now, before, late)
+        if fb.state != self._controller_key:
             self._controller_changed(fb, now)  # after the clock took this packet's time
         if self.control.errors != errors:
             self._planner_error("setpoint", self.control.last_error)
@@ -167,8 +173,9 @@ class Daemon:
         if self.modes.shadow:  # the plan is shown, the arm holds (egm_control)
             self.planned = (q, qd, mode)
             q, qd, mode = self.control.hold_q, np.zeros(self.robot.n_joints), "shadow"
-        self.outbox.append((r.tick.t, q, qd, mode, fb.q_rad))
-        self.recorder.egm(now, fb.seqno, fb.q_rad, q_rec, qd_rec, self.supervisor.braking)
+        self.outbox.append((r.tick.t, q, qd, mode, fb.q))
+        cycle = -1 if fb.cycle is None else fb.cycle
+        self.recorder.egm(now, cycle, fb.q, q_rec, qd_rec, self.supervisor.braking)
         return q, qd
 
     def _brake_on_signal(self) -> None:
@@ -176,26 +183,21 @@ class Daemon:
         and a record event saying what was going on."""
         if not self._signal_braked:
             self._signal_braked = True
-            ex = self.executor
+            st = self.control.state()
             self._event(
                 self.control.clock.t,
                 "brake",
-                {"reason": "signal", "signal": self.stop_reason, "mode": ex.mode,
-                 "throws": ex.episodes},
+                {"reason": "signal", "signal": self.stop_reason, "mode": st.mode,
+                 "throws": st.throws},
             )  # fmt: skip
         self.control.brake("signal")
 
-    def _controller_changed(self, fb, now: float) -> None:
-        """The controller reports another motor, MCI or RAPID state: status and a log line,
-        stamped with this packet's controller time (its receive time ``now`` [s] before the
-        controller's clock has started)."""
-        self._controller_key = (fb.motors_on, fb.mci_running, fb.rapid_running)
-        self.controller_state = {
-            "motors_on": fb.motors_on,
-            "mci_running": fb.mci_running,
-            "rapid_running": fb.rapid_running,
-            "ready": fb.ready,
-        }
+    def _controller_changed(self, fb: Feedback, now: float) -> None:
+        """The controller reports another state (EGM: motors, MCI, RAPID): status and a log
+        line, stamped with this packet's controller time (its receive time ``now`` [s] before
+        the controller's clock has started)."""
+        self._controller_key = fb.state
+        self.controller_state = {**dict(fb.state), "ready": fb.ready}
         t = self.control.clock.t
         self._event(t if math.isfinite(t) else now, "controller_state", self.controller_state)
 
@@ -211,7 +213,7 @@ class Daemon:
 
     def _watch_throw(self, t: float) -> None:
         """Count the supervisor's interventions per throw (status and record)."""
-        sup, busy = self.supervisor, self.executor.mode != IDLE
+        sup, busy = self.supervisor, self.control.busy
         if busy and self._throw_mark is None:
             self._throw_mark = (sup.ticks, sup.intervened)
         elif not busy and self._throw_mark is not None:
@@ -221,15 +223,14 @@ class Daemon:
                 "ticks": sup.ticks - ticks0,
                 "intervened": sup.intervened - intervened0,
             }
-            kind, detail = episode_end(self.executor)  # throw_end, or one never confirmed
+            kind, detail = episode_end(self.control.state())  # throw_end, or never confirmed
             self._event(t, kind, {**detail, **self.last_throw})
 
     def _watch_stage(self, t: float) -> None:
         """A ``stage`` event (log and record) whenever the executor's stage of commitment
         changes: a hedge begins (``hedge``), ends (``hedge_end``: why), the commit takes over or
         a throw's motion ends (``throw_end``: why, ``retracted`` for a feint taken for a throw)."""
-        ex = self.executor
-        stage = (ex.stage, ex.hedge_end, ex.hedges, ex.throw_end)
+        stage = self.control.stage
         if stage != self._stage:
             self._stage = stage
             self._event(t, "stage", dict(zip(STAGE_KEYS, stage, strict=True)))
@@ -240,13 +241,14 @@ class Daemon:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self._on_signal)
         poller = select.poll()
-        poller.register(self.egm.fileno(), select.POLLIN)
+        poller.register(self.link.fileno(), select.POLLIN)
         gc_rule.hold()  # collections run after replies (_collect_garbage), never inside one
         status_period = 1.0 / self.cfg.status_rate
         next_status = time.time()
         spin = "always" if self.cycle.busy else f"{1e3 * self.cycle.spin_ahead:g} ms ahead"
         log.info(
-            "serving EGM on %s:%d, planner %s, spinning %s", *self.egm.address, self.planner,
+            "serving %s on %s, planner %s, spinning %s", self.link_text, self.link_where(),
+            self.planner,
             spin if self.cycle.spin_ahead > 0 else "never",
         )  # fmt: skip
         cycle = self.cycle
@@ -263,7 +265,7 @@ class Daemon:
                 if cycle.in_window(since):  # the next reply ahead, once per cycle
                     self.control.prepare()  # (an EGM codec warm-up here: within noise, dropped)
                 wait_ms = cycle.wait_ms(since)
-                replied = bool(poller.poll(wait_ms)) and self.egm.poll() > 0  # replies at once
+                replied = bool(poller.poll(wait_ms)) and self.link.poll() > 0  # replies at once
                 self._flush_outbox()
                 self._watch_peer()
                 self._take_detections(replied)
@@ -286,7 +288,7 @@ class Daemon:
             gc_rule.release()
             self.zio.publish_status({**self.status(time.time()), "exiting": True})
             self.recorder.close()
-            self.egm.close()
+            self.link.close()
             self.zio.close()
             if self.view is not None:
                 self.view.close()  # logs what is still queued, flushes (a saved file ends)
@@ -304,14 +306,14 @@ class Daemon:
         return now - self.last_rx < max(0.1, 5.0 * self.cfg.safety.resync_after)
 
     def _watch_peer(self) -> None:
-        if self.egm.peer != self._peer:
-            self._peer = self.egm.peer
+        if self.link.peer != self._peer:
+            self._peer = self.link.peer
             self._event(self.control.clock.t, "egm_peer", {"peer": peer_text(self._peer)})
         connected = self.connected(time.time())
         if connected != self._was_connected:
             self._was_connected = connected
             kind = "egm_connected" if connected else "egm_lost"
-            self._event(self.control.clock.t, kind, {"peer": peer_text(self.egm.peer)})
+            self._event(self.control.clock.t, kind, {"peer": peer_text(self.link.peer)})
 
     def _flush_outbox(self) -> None:
         for stamp, q, qd, mode, q_meas in self.outbox:
@@ -353,39 +355,33 @@ class Daemon:
         return self.control.t_next if self.connected(now) else now
 
     def _take(self, payload: bytes, now: float) -> None:
-        """One detection payload received at ``now``: intake, recorder, filter and planner."""
+        """One detection payload received at ``now``: recorded raw, then the core's outcome
+        (intake, filter, planner) recorded, shown and logged."""
         self.recorder.raw(now, payload)
-        ctl, errors = self.control, self.control.planner_errors
         t0 = time.perf_counter()
-        det = ctl.on_detection(payload, now, self._plan_time(now))
+        out = self.control.on_detection(payload, now, self._plan_time(now), self.recorder.enabled)
         if self.view is not None:  # queued only: logged in idle time (service)
-            self.view.on_detection(now, payload, det, self.executor)
+            self.view.on_detection(now, payload, out)
+        det = out.detection
         if det is None:
-            self._log_drop()
+            self._log_drop(out.dropped)
             return
         self.recorder.detection(now, det.stamp, det.position, det.seq)
-        if ctl.planner_errors != errors:
-            self._planner_error("planner", ctl.last_error)
+        if out.error is not None:
+            self._planner_error("planner", out.error)
             return
-        ex = self.executor
         self.decision_ms = 1e3 * (time.perf_counter() - t0)
-        if self.recorder.enabled and ex.belief.n_meas >= 2:  # the crossing only for the record
-            c = ex.tree.crossing(ex.belief.mean, ex.belief.cov, self.cfg.filter.gravity)
-            self.recorder.belief(now, ex.belief, c)
-        vg = ex.current_value()
-        if vg is not None:
-            self.recorder.decision(now, ex.mode, ex.node, vg[0], vg[1])
-        if ex.mode == EXECUTING and self._last_mode != EXECUTING:
-            self._event(
-                self.control.clock.t,
-                "throw_start",
-                {"throw": ex.episodes + 1, "value": None if vg is None else round(vg[0], 3)},
-            )
-        self._last_mode = ex.mode
+        if out.crossing is not None:  # computed for the record only
+            self.recorder.belief(now, out.belief, out.crossing)
+        d = out.decision
+        if d is not None:
+            self.recorder.decision(now, d.mode, d.node, d.value, d.goal)
+        if out.started:
+            value = None if d is None else round(d.value, 3)
+            self._event(self.control.clock.t, "throw_start", {"throw": out.throw, "value": value})
 
-    def _log_drop(self) -> None:
+    def _log_drop(self, reason: tuple[str, str] | None) -> None:
         """A dropped detection: log the first of each reason, then at 10, 100, 1000, ..."""
-        reason = self.intake.last_drop
         if reason is None:
             return
         n = self.intake.dropped(reason[0])

@@ -33,12 +33,11 @@ import numpy as np
 
 from thinkfast.control.core import Reply
 from thinkfast.control.egm_clock import ClockTick
-from thinkfast.control.executor import EXECUTING
+from thinkfast.control.modes import EXECUTING
 from thinkfast.control.plan import CALLS, MODES, SIZE, executor_plan, plan_key
+from thinkfast.control.planner_side import PlannerSide
 from thinkfast.control.safety import BRAKE_REASONS
 from thinkfast.daemon import reply_process
-from thinkfast.daemon.egm_address import EgmAddressError
-from thinkfast.daemon.egm_server import EgmCounters
 from thinkfast.daemon.reply_rows import (
     CALL,
     COL,
@@ -50,10 +49,13 @@ from thinkfast.daemon.reply_rows import (
     WIDTH,
     ip_text,
 )  # fmt: skip
-from thinkfast.daemon.reply_times import ReplyTimes
 from thinkfast.daemon.rt_thread import set_fifo
 from thinkfast.daemon.service import Daemon
 from thinkfast.daemon.shared_plan import RowRing, Seqlock
+from thinkfast.errors import ConfigError
+from thinkfast.link.egm_address import EgmAddressError
+from thinkfast.link.egm_server import EgmCounters
+from thinkfast.link.reply_times import ReplyTimes
 
 log = logging.getLogger("thinkfast.run")
 START_TIMEOUT = 120.0  # s for the reply process to import, bind and report
@@ -82,6 +84,7 @@ class SplitDaemon(Daemon):
         self.stall = stall
         self._zenoh = (str(zenoh_conf), endpoints.key_prefix)  # for the reply process's status
         super().__init__(tree, robot, cfg, planner, endpoints, zenoh_conf, **kwargs)
+        self.side = PlannerSide(self.executor)  # the reply loop's replans made here too
         self.plan_id = 0
         self.epoch = 0  # replans of the reply loop made here too
         self._plan_key: tuple | None = None
@@ -90,8 +93,11 @@ class SplitDaemon(Daemon):
         self.lap_max = 0.0  # the longest planner loop [s]
         self._slow_said = -math.inf
 
-    def _serve_egm(self, endpoints):
+    def _open_link(self, endpoints):
         """Start the reply process; it binds the EGM socket and reports its address."""
+        if endpoints.link != "egm":
+            raise ConfigError("--reply-process", None, f"the reply process speaks EGM, not "
+                              f"--link {endpoints.link}")  # fmt: skip
         self.plan_block = Seqlock(SIZE)
         self.ring = RowRing(WIDTH)
         ctx = multiprocessing.get_context("spawn")
@@ -134,23 +140,15 @@ class SplitDaemon(Daemon):
             self._reply_row(t, row)
 
     def _call(self, name: str, t: float, row: np.ndarray) -> None:
-        ex = self.executor
         q, qd, qdd = row[COL["q"]], row[COL["qd"]], row[COL["qdd"]]
         self.epoch += 1
         try:
-            if name == "resync":
-                ex.resync(q, qd, qdd, t)
-            elif name == "start_from":
-                ex.start_from(q, t)
-            elif name == "hold_fault":
-                ex.hold_fault(q, t)
-            else:
-                ex.recover(q, t)
+            self.side.call(name, t, q, qd, qdd)
         except Exception as exc:  # the reply loop goes on from its own replan
             self._planner_error(name, exc)
 
     def _reply_row(self, t: float, row: np.ndarray) -> None:
-        ctl, sup, egm, ex = self.control, self.supervisor, self.egm, self.executor
+        ctl, sup, egm = self.control, self.supervisor, self.link
         now = float(row[COL["now"]])
         q, qd, qdd, q_meas = (np.array(row[COL[k]]) for k in ("q", "qd", "qdd", "q_meas"))
         mode = MODES[int(row[COL["mode"]])]
@@ -180,10 +178,8 @@ class SplitDaemon(Daemon):
                                      "ready": bool(row[COL["ready"]])}  # fmt: skip
             self._event(t, "controller_state", self.controller_state)
         if row[COL["stepped"]]:  # the executor's episode at this controller time
-            n = ex.n_arm  # the wrist's joints follow the positioning joints
-            ex.wrist.reset(q[n:], t, qd[n:], qdd[n:])  # its wrist where the reply loop's is
             try:
-                ex.setpoint(t)
+                self.side.step(t, q, qd, qdd)  # its wrist where the reply loop's is
             except Exception as exc:
                 self._planner_error("setpoint", exc)
         self._watch_throw(t)
@@ -201,8 +197,8 @@ class SplitDaemon(Daemon):
         self.epoch = int(row[COL["epoch"]])
         log.warning("%d reply rows lost: planning on from the last command", self.ring.lost)
         try:
-            self.executor.resync(row[COL["q"]], row[COL["qd"]], row[COL["qdd"]],
-                                 float(row[COL["t"]]))  # fmt: skip
+            self.side.call("resync", float(row[COL["t"]]), row[COL["q"]], row[COL["qd"]],
+                           row[COL["qdd"]])  # fmt: skip
         except Exception as exc:
             self._planner_error("resync", exc)
 
@@ -215,7 +211,7 @@ class SplitDaemon(Daemon):
 
     def _publish(self) -> None:
         """The executor's plan, when it changed since the last one published."""
-        ex = self.executor
+        ex = self.executor  # the plan is read off it in control.plan
         key = plan_key(ex, self.epoch)
         if key == self._plan_key:
             return
@@ -229,8 +225,8 @@ class SplitDaemon(Daemon):
         reply process dies (exit 1)."""
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self._on_signal)
-        log.info("serving EGM on %s:%d from reply process %d, planner %s", *self.egm.address,
-                 self.reply_pid, self.planner)  # fmt: skip
+        log.info("serving %s on %s from reply process %d, planner %s", self.link_text,
+                 self.link_where(), self.reply_pid, self.planner)  # fmt: skip
         if self.cpu is not None:  # the reply process's CPU is left to it
             others = os.sched_getaffinity(0) - {self.cpu}
             _move_threads(others)
@@ -317,7 +313,7 @@ class SplitDaemon(Daemon):
     def _stall(self, now: float) -> None:
         if self.stall is None:
             return
-        if self._executing is None and self.executor.mode == EXECUTING:
+        if self._executing is None and self.control.state().mode == EXECUTING:
             self._executing = now
         seconds, after = self.stall
         if self._executing is not None and now - self._executing >= after:

@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from thinkfast.control.core import FAULT_REASONS
-from thinkfast.control.executor import FAULT, STAGE_KEYS
+from thinkfast.control.modes import FAULT
+from thinkfast.control.outcome import CoreState
 
 if TYPE_CHECKING:
     from thinkfast.daemon.service import Daemon
@@ -24,31 +25,30 @@ if TYPE_CHECKING:
 
 def status_message(d: Daemon, now: float) -> dict:
     """The status message (docs/INTERFACES.md: at least stamp and state)."""
-    ex, ctl, sup = d.executor, d.control, d.supervisor
-    vg = ex.current_value()
-    value = None if vg is None else vg[0]
+    ctl, sup = d.control, d.supervisor
+    st = ctl.state()
     fault = ctl.latched or (sup.braking and sup.brake_reason in FAULT_REASONS)
     return {
         "stamp": now,
-        "state": FAULT if fault or d.home.held(ex) else ex.mode,
+        "state": FAULT if fault or d.home.held(ctl) else st.mode,
         "planner": d.planner,
-        "throws": ex.episodes,
-        "node": ex.node,
-        "value": value,
+        "throws": st.throws,
+        "node": st.node,
+        "value": st.value,
         "decision_ms": round(d.decision_ms, 3),
-        "stage": {k: getattr(ex, k) for k in STAGE_KEYS},
+        "stage": st.stage,
         "detections": d.intake.as_dict(),
         "zenoh": d.zio.as_dict(),
-        "cameras": {} if ex.check is None else ex.check.as_dict(),
+        "cameras": st.cameras,
         **({} if d.view is None else {"view": d.view.as_dict()}),
-        "egm": {**vars(d.egm.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},
+        "egm": {**vars(d.link.counters), "repeated": ctl.repeats, "resyncs": ctl.resyncs},
         "loop": {  # the reply loop's own counters (docs/ARCHITECTURE.md, The EGM path)
             "missed_cycles": ctl.held,
             "catch_ups": ctl.catch_ups,
-            "late_replies": d.egm.counters.behind,
+            "late_replies": d.link.counters.behind,
         },
-        "egm_peer": peer_text(d.egm.peer),
-        "egm_foreign": dict(d.egm.foreign_sources),
+        "egm_peer": peer_text(d.link.peer),
+        "egm_foreign": dict(d.link.foreign_sources),
         "egm_connected": d.connected(now),
         "safety": {k: v for k, v in sup.counts.items() if v},
         "interventions": {
@@ -61,13 +61,13 @@ def status_message(d: Daemon, now: float) -> dict:
         "brake_reason": sup.brake_reason,
         "planner_errors": d.planner_errors,
         "recorder": d.recorder.status(),
-        "egm_timing": d.egm.timing.summary(),
+        "egm_timing": d.link.timing.summary(),
         "controller": {
             **(d.controller_state or {}),
             "standby": ctl.standby,
             "standby_replies": ctl.standby_replies,
         },
-        "away_from_home": ex.away,
+        "away_from_home": st.away,
         "way_home": None if d.home.way_home is None else way_text(d.home.way_home.result),
         "shadow": None if not d.modes.shadow else planned_text(d.planned),
         "speed_scale": d.modes.speed_scale,
@@ -86,7 +86,7 @@ def cell_text(d: Daemon) -> dict:
             "robot_toml_sha256": robot.toml_sha256[:16],
         },
         "tree_fingerprint": d.tree_fingerprint[:16],
-        "plane_x": float(d.executor.tree.plane_x),
+        "plane_x": d.plane_x,
     }
 
 
@@ -99,9 +99,9 @@ def summary(d: Daemon) -> dict:
         "tree_config_sha256": str(meta.get("config_sha256", ""))[:16],
         "tree_urdf_sha256": str(meta.get("urdf_sha256", ""))[:16],
         "planner": d.planner,
-        "plane_x": float(d.executor.tree.plane_x),
+        "plane_x": d.plane_x,
         "camera": {"xyz": list(cfg.camera.xyz), "rpy": list(cfg.camera.rpy)},
-        "egm": peer_text(d.egm.address),
+        "egm": peer_text(d.link.address),
         "zenoh": d.zio.describe(),
         "limits": {
             "v_max": np.round(robot.v_max, 3).tolist(),
@@ -117,14 +117,14 @@ def summary(d: Daemon) -> dict:
     }
 
 
-def episode_text(ex) -> dict:
-    """What the daemon knows of the episode that just ended (``ex.ended``; whether it was
+def episode_text(st: CoreState) -> dict:
+    """What the daemon knows of the episode that just ended (``st.ended``; whether it was
     blocked, it cannot): ``throws`` confirmed so far, whether this one was ``confirmed``, its
     ``hedges`` (and why the last ended), and for a throw that moved the arm its figures. An
     episode never confirmed (a ball tracked, perhaps hedged on) has figures of its own, never
     the previous throw's."""
-    ep = ex.ended
-    out: dict = {"throws": ex.episodes, "executed": False}
+    ep = st.ended
+    out: dict = {"throws": st.throws, "executed": False}
     if ep is None:
         return out
     out["confirmed"] = not math.isnan(ep.t_confirmed)
@@ -145,10 +145,10 @@ def episode_text(ex) -> dict:
     }
 
 
-def episode_end(ex) -> tuple[str, dict]:
+def episode_end(st: CoreState) -> tuple[str, dict]:
     """The event that closes the episode that just ended and its detail (:func:`episode_text`):
     ``throw_end`` for a confirmed throw, ``episode_end`` for one never confirmed."""
-    detail = episode_text(ex)
+    detail = episode_text(st)
     return ("throw_end" if detail.get("confirmed") else "episode_end"), detail
 
 

@@ -98,8 +98,8 @@ def run(
     --rerun and --foxglove are the daemon's live view (passed on to the daemon it starts).
     """
     from thinkfast.control.config import load_run_config
-    from thinkfast.daemon.egm_address import parse_hostport
     from thinkfast.errors import ConfigError
+    from thinkfast.link.egm_address import parse_hostport
     from thinkfast.sim.realtime import run_throws, run_with_daemon
 
     view = live_view_args(rerun, foxglove)  # fail here, not in the daemon

@@ -16,7 +16,7 @@ import sys
 import threading
 import time
 
-from thinkfast.daemon.egm_server import SO_TIMESTAMPNS, arrival_age
+from thinkfast.link.egm_server import SO_TIMESTAMPNS, arrival_age
 
 # the simulated controller's logger, as before the split (the CLIs quiet its overrun chatter)
 log = logging.getLogger("thinkfast.sim.controller")

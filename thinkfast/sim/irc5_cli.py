@@ -58,8 +58,8 @@ def controller(
     import signal
     import threading
 
-    from thinkfast.daemon.egm_address import parse_hostport
     from thinkfast.errors import ConfigError
+    from thinkfast.link.egm_address import parse_hostport
     from thinkfast.sim.irc5 import SimIrc5
 
     target = parse_hostport(egm, "--egm")

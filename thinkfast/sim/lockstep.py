@@ -32,6 +32,7 @@ import numpy as np
 from thinkfast.contract.frames import PlanePose
 from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
+from thinkfast.control.link import Feedback
 from thinkfast.control.segments import WristTracker
 from thinkfast.decide.tree_view import BALL_RADIUS
 from thinkfast.errors import ThinkfastError
@@ -179,10 +180,10 @@ def simulate(
                 core.on_detection(detection_payload(dets[k_det]), None, t)
                 k_det += 1
             if clock is None:
-                reply = core.on_feedback(round(t * 1000.0), sim.q, t)
+                reply = core.on_feedback(Feedback(round(t * 1000.0), sim.q), t)
             else:
                 seqno, tm = sim.header()
-                reply = core.on_feedback(tm, sim.q, t, seqno=seqno)
+                reply = core.on_feedback(Feedback(tm, sim.q, seqno), t)
             if reply is not None:  # None: unanswered, the controller keeps its last reference
                 q_cmd, qd_cmd = reply.q, reply.qd
         if not moved and np.any(np.abs(qd_cmd) > 1e-6):
@@ -192,12 +193,12 @@ def simulate(
         sim.step(DT)
         t += DT
     hist = sim.history()
-    decisions = 0 if ex is None else ex.episode.decisions + ex.episodes
+    decisions = 0 if ex is None else core.figures().decisions
     guard = (sup.intervened, 0 if ex is None else core.fault_count)
     stage = (math.nan, 0)
     if ex is not None:
-        ep = ex.last_episode if math.isnan(ex.episode.t_start) and ex.last_episode else ex.episode
-        stage = (ep.t_start - t_rel, ex.hedges)
+        fig = core.figures()
+        stage = (fig.t_start - t_rel, fig.hedges)
     if feint:
         f = judge_feint(hist.t, hist.q, world.kin, robot.home, t_rel, FEINT_WINDOW)
         return Outcome(

@@ -14,7 +14,7 @@ import json
 import time
 
 from thinkfast.contract import keys
-from thinkfast.control.executor import IDLE
+from thinkfast.control.modes import IDLE
 from thinkfast.errors import ThinkfastError
 
 SILENCE = 3.0  # s without an EGM reply or a status: the daemon is gone (status comes at 20 Hz)

@@ -22,7 +22,7 @@ failing ``reply_fn`` calls and socket errors are dropped and counted in :class:`
 With ``timing=True`` it also keeps :class:`ReplyTimes`: how long each request waited in the
 socket (from the kernel's arrival time stamp) and how long the reply took to leave.
 
-Addresses (``--egm-bind``, ``--egm-controller``) are parsed in :mod:`thinkfast.daemon.egm_address`.
+Addresses (``--egm-bind``, ``--egm-controller``) are parsed in :mod:`thinkfast.link.egm_address`.
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ from thinkfast.contract.egm import (
     decode_robot,
     encode_sensor,
 )
-from thinkfast.daemon.egm_address import EgmAddressError, parse_controller, parse_hostport
-from thinkfast.daemon.reply_times import ReplyTimes
+from thinkfast.link.egm_address import EgmAddressError, parse_controller, parse_hostport
+from thinkfast.link.reply_times import ReplyTimes
 
 ReplyFn = Callable[..., "tuple[np.ndarray, np.ndarray] | None"]
 MAX_DATAGRAM = 65535

@@ -1,6 +1,6 @@
 """Reply timing of a real-time server, in fixed ring buffers (no allocation per reply).
 
-Kept by :class:`~thinkfast.daemon.egm_server.EgmServer` (``timing=True``) and summarised in the
+Kept by :class:`~thinkfast.link.egm_server.EgmServer` (``timing=True``) and summarised in the
 daemon's status message, so a running daemon shows what its EGM replies cost.
 """
 
