@@ -1,29 +1,16 @@
 """ROS 2 messages on zenoh, laid out as ``rmw_zenoh`` lays them out (docs/ROS2.md).
 
-A ROS 2 node that runs ``rmw_zenoh_cpp`` (Jazzy, Kilted) and reaches our zenoh session (through
-the same zenoh router) sees the topics published here, and its publishers reach our subscribers,
-without ROS installed on our side:
-
-* **key expression** of a topic: ``<domain_id>/<fully qualified name without the leading
-  slash>/<DDS type name>/<type hash>``, e.g.
-  ``0/thinkfast/joint_states/sensor_msgs::msg::dds_::JointState_/RIHS01_a13e...``;
-* **payload**: the message in CDR (XCDR1, little endian, with the 4-byte encapsulation header);
-  written and read by ``rosbags`` (:func:`typestore`), never by hand;
-* the **attachment** of every sample and the **liveliness tokens** that announce the node and
-  its publishers and subscriptions: :mod:`thinkfast.contract.ros_zenoh`.
-
-The type hash is REP-2016's ``RIHS01_<sha256 of the type description>``, computed by rosbags
-from the message definitions of its ROS 2 Jazzy store (the tests pin the values, and the one of
-``std_msgs/msg/String`` to the example of rmw_zenoh's design document).
-
-Frames and units (REP-103/105): a ``geometry_msgs/msg/PointStamped`` detection carries the ball
-centre [m] in ``header.frame_id`` = ``camera`` or ``base`` (the project's frames,
-docs/INTERFACES.md: both x forward, y left, z up; not a ``*_optical_frame``), stamped with the
-capture time. ``sensor_msgs/msg/JointState`` names the joints ``joint_1`` .. ``joint_6`` (the
-URDF's) with ``frame_id`` ``base_link``, positions [rad] and velocities [rad/s].
+A ROS 2 node that runs ``rmw_zenoh_cpp`` and reaches our zenoh session sees the topics published
+here, and its publishers reach our subscribers, without ROS installed on our side. A topic's key
+expression is ``<domain_id>/<name>/<DDS type name>/<type hash>``; the payload is CDR, written
+and read by ``rosbags`` (:func:`typestore`); attachments and liveliness tokens are
+:mod:`thinkfast.contract.ros_zenoh`. Units (REP-103/105): positions [m] in ``camera`` or
+``base``, joint positions [rad] and velocities [rad/s].
 
 ``rosbags`` is the optional extra ``ros`` (``pip install 'thinkfast[ros]'``); without it, using
 this module raises a :class:`ConfigError` that says so.
+
+The layout, the type hash, frames and units in full: docs/ROS2.md, "The zenoh layout".
 """
 
 from __future__ import annotations

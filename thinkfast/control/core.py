@@ -5,52 +5,16 @@ a detection payload (intake, then the executor's filter and planner) and
 :meth:`ControlCore.on_feedback` answers one ``EgmRobot`` with the executor's setpoint for that
 packet's controller time, filtered by the safety supervisor against the measured joints.
 
-Clock-free (time is passed in). For each ``EgmRobot`` the controller's clock
-(:mod:`thinkfast.control.egm_clock`) says which cycle it belongs to, and the reply is the plan
-and the supervisor's state at that time:
+Clock-free (time is passed in, s). The controller's clock (:mod:`thinkfast.control.egm_clock`)
+says which cycle each packet belongs to: the same cycle gets the same setpoint again, a gap is
+answered one cycle on (:attr:`ControlCore.held` counts the cycles held) and the executor plans
+again from there (:meth:`Executor.resync`), and a first packet or one after a silence restarts
+the stream from the measured feedback. Every plan starts from the commanded state. Without
+motors on and EGM motion running the core commands the measured position (*standby*); faults
+stop the arm smoothly, then recover, or latch after ``max_faults``.
 
-* the same cycle again (a duplicated or stale packet): the same setpoint again;
-* one cycle on: the plan at that time, through the supervisor;
-* more than one cycle on (``seqno`` counts the cycles; without it ``tm``): the packets between
-  went unanswered (superseded while this host was late, or lost), and the controller kept the
-  last reference through those cycles (:attr:`ControlCore.held` counts them). The reply moves
-  one cycle on from that reference, never several at once (a lurch of twice the speed across
-  the gap on the controller's clock), and the executor plans again from it with the same intent
-  (:meth:`Executor.resync`): the motion catches up with the time-true plan within the velocity,
-  acceleration and jerk limits where the plan has room, and arrives that much later where not.
-  A reply that reached the controller after its next cycle began (``late``: the daemon read the
-  next packet's arrival before that reply left) made it keep the reference before for that
-  cycle, and it would take the next reply after it, two cycles of motion on. The next reply is
-  the late one again, and the plan goes on from it the same way (once: when the replies stay a
-  cycle late, the controller takes one each cycle, a cycle later, and no repeat is wanted);
-* the first packet, or one after a silence longer than ``resync_after``: the stream restarts
-  from the measured feedback (position, and velocity where the feedback measured it: two
-  packets at most three cycles apart), and the executor plans on from there with the same
-  intent. After a silence in motion the arm may still be moving (the controller slowing it
-  down), and one packet measures no velocity: the first two packets are left unanswered (the
-  controller holds its last reference two cycles more, as it did through the silence) and the
-  stream restarts at the third, from its position and the velocity the three measure (exact
-  for a constant deceleration; at most :data:`DEFER_MAX` packets wait, then a pair or nothing
-  is used).
-
-Every plan starts from the commanded state: when the supervisor had to change a request (it
-should almost never have to), the executor is resynchronised to what was actually commanded.
-
-Controller state. The controller follows references only with its motors on and EGM motion
-running (``EgmRobot.motorState``, ``mciState``; RAPID not stopped). Otherwise (``ready`` False)
-every reply commands the measured position at rest (*standby*: the arm may be jogged, and the
-reference must be where it stands when EGM motion starts again), the planner keeps tracking but
-nothing it plans is commanded, and the first ready packet restarts the stream from the measured
-position like a silence does. ``shadow`` (first light) plans and supervises a virtual arm that
-follows every command exactly while the daemon sends the position measured when the stream
-started (a reference that followed the measurement would have no restoring force): the status
-and the mirrored setpoints show what would have been commanded.
-
-Faults. A deviation brake (the arm left the envelope of its recent commands) or a non-finite
-request stops the arm smoothly. Once the commanded stop is complete and the *measured* arm has
-been at rest for ``recover_after``, the stream restarts from the measured position and the arm
-returns home, then is ready again. ``max_faults`` faults within ``fault_window`` latch ``fault``
-for good: the measured position is held until the daemon is restarted.
+The reply policy case by case, the controller state and the faults: docs/DESIGN.md, "The
+control core", "Replies on the controller's clock".
 """
 
 from __future__ import annotations

@@ -5,31 +5,14 @@ duplicated or stale packet gets the same setpoint again, a missed cycle advances
 cycles, and after a silence the stream restarts from the measured feedback. Pure: the daemon
 passes the header time and its own receive time in.
 
-Three sources, in this order:
+Three sources, in this order: the header's ``seqno`` (+1 per controller cycle: the clock the
+servo moves on), else its ``tm`` [ms], else the receive time snapped to the cycle grid (its
+phase following the receive times at most ``max_slew`` per cycle). Times are returned in the
+daemon's time base (wall clock seconds, like detection stamps), re-anchored whenever nothing is
+moving.
 
-* the ``EgmRobot`` header's ``seqno`` (uint32, wraps), +1 per cycle the controller ran: the time
-  elapsed since the last served packet is that many whole cycles. This is the clock the arm
-  moves on: the servo integrates each reference over one cycle, whatever ``tm`` says. A
-  controller that is not hard real-time (a virtual controller, a simulator) stamps ``tm`` from
-  its wall clock: steps of 3, 4 or 5 ms, whole-ms rounding, repeats, jumps after its own stalls
-  while its servo still advanced one cycle per packet. Setpoints sampled at such stamps are
-  uneven on the servo's clock, and a supervisor that judged them by ``tm`` would change requests
-  that were smooth. A seqno that does not count (absent: always 0, restarted, or a step longer
-  than a silence) falls back to ``tm`` for that packet;
-* the header's ``tm`` [ms] (the controller's own clock, uint32, wraps): the time elapsed since
-  the last served packet is the difference of the stamps;
-* without ``tm``, the receive time snapped to the cycle grid: a packet less than half a cycle
-  after the last grid time is the same cycle again; otherwise it is the nearest grid time
-  (at least one cycle on), and the grid's phase follows the receive times at most ``max_slew``
-  (relative) per cycle, so that host and controller clocks drifting apart never make a cycle
-  longer or shorter than the supervisor's limits allow for.
-
-Times are returned in the daemon's time base (wall clock seconds, like detection stamps): the
-controller's clock is anchored on the receive time of the first packet and re-anchored (to the
-earliest recent arrival, the least delayed one) whenever nothing is moving, where shifting the
-time base changes no setpoint. A controller whose cycles run slower than the wall clock (a
-stalled virtual controller) thus lags the wall clock during a throw and is lined up again at
-rest.
+Why seqno comes first, and the anchoring: docs/DESIGN.md, "The control core", "The
+controller's clock".
 """
 
 from __future__ import annotations

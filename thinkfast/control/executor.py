@@ -1,52 +1,19 @@
 """Throw episodes as a state machine: idle -> tracking -> executing -> returning -> idle.
 
-Pure logic, no I/O and no clock reads: the control core (:mod:`thinkfast.control.core`, driven
-by the daemon and by the lockstep simulator) feeds it detections (``on_detection``) and asks for
-the setpoint of every 4 ms tick (``setpoint``), both with the time the plans run on. The
-executor composes the throw gate (:mod:`thinkfast.control.gate`: filter, cameras, launch
-detector, confirmation), the planner named in the registry
+Pure logic, no I/O and no clock reads: the control core (:mod:`thinkfast.control.core`) feeds it
+detections (``on_detection``) and asks for the setpoint of every 4 ms tick (``setpoint``), both
+with the time the plans run on (s). The executor composes the throw gate
+(:mod:`thinkfast.control.gate`), the planner named in the registry
 (:mod:`thinkfast.control.planners`), the hedge stage (:mod:`thinkfast.control.hedge_stage`),
 the segment timeline (:mod:`thinkfast.control.timeline`) and the wrist tracker. States
-(:class:`Mode`; tests/test_executor_modes.py drives every transition):
+(:class:`Mode`): ``idle``, ``tracking``, ``executing``, ``returning`` and ``fault`` (latched by
+:meth:`hold_fault`); an arm away from home at start holds (``away``) until :meth:`go_home`,
+unless ``home_on_start``.
 
-- ``idle``: at home, no ball. The first detection starts ``tracking``.
-- ``tracking``: the gate's filter follows the ball until its gate confirms a throw; from the
-  confirmation on, every belief goes to the planner, which leaves home (``executing``). No
-  detection for ``detection_timeout`` (counted from the last stamp plus ``stamp_lag``) ends the
-  episode: back to ``idle``. Before the confirmation the hedge stage may move the arm within
-  its bound (a hedge given up returns home while still tracking; the episode ends only once the
-  arm is home); at the confirmation the planner takes over from the commanded state (mode
-  ``executing`` when the arm is off home).
-- ``executing``: the planner plans at every belief (and moves on along its pieces at every
-  tick). A throw ends (``returning``) at the first tick after its predicted crossing plus
-  ``controller_lag`` plus ``after_crossing`` (``throw_end`` = ``crossed``), after ``max_blind``
-  without a detection (``blind``), or after ``detection_timeout`` without one when no crossing
-  was ever predicted (``silence``): a silence alone does not end a throw whose crossing is still
-  ahead (the ball may leave the camera's view before the plane). It is *retracted*
-  (``retracted``) at the detection that shows its ball is not flying towards the plane (the
-  gate's flight watch, ``[retract]``: a feint the launch detector confirmed; the predicted
-  crossing of a ball at rest keeps receding and would never end it): the arm stops at the full
-  limits it was moving with, then goes home as after any throw.
-- ``returning``: detections are ignored; a move home within the return limits
-  (``return_speed_scale``; the full limits when those cannot brake it). When the way home ends
-  elsewhere, was replaced by a hold (a :meth:`resync` Ruckig could not plan) or was never
-  planned, it is planned again from the commanded state. ``idle`` once joints 1-3 are home at
-  rest and the wrist is home (``wrist_home_tolerance``, ``wrist_home_speed``), or
-  ``wrist_home_timeout`` after the arm's way home ended.
-- away from home at start (``away``; the mode is ``idle``): :meth:`start_from` further than
-  ``HOME_TOLERANCE`` from home. With ``home_on_start`` (the simulators) the arm returns home at
-  once; without it (the daemon, unless ``--go-home``) it holds where it stands and ignores
-  balls until :meth:`go_home` (called once the way home was checked against the cell) or until
-  it starts again at home.
-- ``fault``: :meth:`hold_fault`, called by the control core once supervisor faults repeat
-  (latched): the throw is dropped, detections are ignored and no tick changes the mode; only a
-  restart (:meth:`start_from`) leaves it. The setpoints hold the position where the arm was
-  stopped (and the core keeps its supervisor braked). A single fault is recovered from:
-  :meth:`recover` drops the throw and returns home from where the arm was stopped.
+A confirmed throw is counted in ``episodes`` when its episode is dropped; every dropped episode
+is kept as ``ended``.
 
-A confirmed throw is counted in ``episodes`` (and kept as ``last_episode``) when its episode is
-dropped: back at ``idle``, at a fault, a recovery or a restart. Every dropped episode, confirmed
-or not (a ball tracked, perhaps hedged on, never confirmed), is kept as ``ended``.
+Every transition and what ends a throw: docs/DESIGN.md, "The control core", "Throw episodes".
 """
 
 from __future__ import annotations

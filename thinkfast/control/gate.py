@@ -4,25 +4,12 @@ Clock-free (times are arguments [s]). The filter follows the ball (started afres
 previous detection is older than ``throw.detection_timeout``); with several cameras
 (docs/CAMERAS.md) each one's origin and noise model is used and a camera whose detections
 disagree with the reference camera's is kept out. Two gates (the planner names its own,
-:mod:`thinkfast.control.planners.base`):
+:mod:`thinkfast.control.planners.base`): ``confirm`` counts the beliefs that predict a throw
+(approaching fast enough, crossing soon, near the goal grid) and takes the launch detector's
+launches; ``first`` (the paper's baseline) confirms at the first such belief. With ``confirm``
+the flight watch (:mod:`thinkfast.estimate.retract`) may make :class:`Fused` say ``retract``.
 
-- ``confirm``: a belief *predicts a throw* when the ball approaches the plane faster than
-  ``min_approach_speed`` at ``approach_sigmas``, its crossing is due within ``max_tau`` and lies
-  within ``region_margin`` of the goal grid; a ball held still never does. Once the filter has
-  absorbed ``settle_updates`` updates since its last (re)start, each belief that predicts a
-  throw adds one to a count and each one that does not takes one off (never below zero: one
-  outlier frame costs one step, not the whole count); the throw is confirmed when the count
-  reaches ``confirm_updates``. With several cameras a detection older than the belief (fused
-  out of sequence) counts towards the settling only when it is an inlier on every axis. A
-  launch found by the launch detector (``[launch]``) restarts the filter from its fit, and
-  confirms at once when that belief predicts a throw.
-- ``first`` (the paper's baseline): the first belief that predicts a throw at zero sigmas (mean
-  approach speed) confirms it, with neither the launch detector, the settling nor the count.
-
-With the ``confirm`` gate, the detections fused while a throw is under way (not ``armed``) also
-go to the flight watch (``[retract]``, :mod:`thinkfast.estimate.retract`): when it shows that
-the ball does not fly towards the plane (a feint the launch detector took for a launch),
-:class:`Fused` says ``retract``. The ``first`` gate keeps the paper's behaviour: no retraction.
+The two gates in full: docs/DESIGN.md, "The control core", "The throw gate".
 """
 
 from __future__ import annotations

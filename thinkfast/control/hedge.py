@@ -1,32 +1,15 @@
 """The hedge stage: a bounded start on the early belief, before the launch is confirmed.
 
-Two stages of commitment. The executor's launch gate (``[launch]``) confirms a throw
-some frames after the first flight detection is delivered (docs/RESULTS.md, "Feints, held balls,
-starts before release"); until then nothing moved. With ``[hedge] mode`` other than ``none``,
-the arm may start earlier:
+With ``[hedge] mode`` other than ``none`` the arm may start before the launch gate confirms:
+from the first detections that make a launch likely (:mod:`thinkfast.estimate.early_belief`) it
+moves towards a target chosen under that wide belief (``mean``: the nearest goal; ``tree``: the
+compiled tree's best first edge), truncated so that the shield centre stays within ``bound`` (m)
+of home, on a jerk-limited move that ends at rest. At the confirmation the re-rooted choice
+takes over from the commanded state; a hedge ends without a commit on ``no_launch``,
+``timeout`` or ``silence``, and the arm returns home. Pure logic over arrays; the executor calls
+it with the times.
 
-- **hedge**: from the first detections that make a launch likely (the early belief,
-  :mod:`thinkfast.estimate.early_belief`) the arm moves towards a target chosen under that wide
-  belief, *truncated* so that the shield centre stays within ``bound`` of its home position
-  (forward kinematics, coplanar shield), on a jerk-limited move that ends at rest there. Every
-  state of such a move can stop inside the bound (the move itself stops there, within the
-  limits), and every new plan is checked along its sampled path before it replaces the one in
-  progress. Each new detection re-plans (the belief narrows). Targets:
-  ``mean``: the goal nearest the early crossing mean (a direct move, no tree);
-  ``tree``: the compiled tree's best first edge from home under the early belief (the at-rest
-  backup of :meth:`~thinkfast.decide.tree_view.RuntimeTree.decide`: QMDP, or with ``[value]
-  backup = "lookahead"`` the first edges valued under the belief the coming detections make
-  when they end), its sub-goal; a best edge that stays home keeps the arm home. With
-  ``[hedge] terminals`` home's terminal edges compete too: the best one, when worth at least
-  the best child edge, makes the target its goal.
-- **commit**: once the launch detector confirms, the re-rooted choice takes over from the
-  commanded state (continuous in position, velocity and acceleration: the executor's plans
-  always start from ``segment.state(t)``).
-
-A hedge ends without a commit when the early belief no longer makes a launch likely
-(``no_launch``), after ``timeout`` without a confirmation (``timeout``: no new hedge in that
-episode) or when the ball is lost (``silence``); then the arm returns home within the return
-limits. Pure logic over arrays; the executor calls it with the times.
+The targets and the two stages in full: docs/DESIGN.md, "The hedge stage".
 """
 
 from __future__ import annotations

@@ -1,30 +1,15 @@
 """Re-rooted motion choice: the motion whose shield meets the ball, moving or at rest.
 
 At every belief the tree planner scores, with one value, every motion the arm could follow from
-its commanded state now, and takes the best:
+its commanded state now, and takes the best: **continue** the motion in progress, **direct
+moves** (Ruckig, to the ``candidates`` goals nearest the crossing mean, always including the
+nearest one) and, with ``[choice] branches``, the **tree branches** of the node the arm is at.
+A motion's value is :func:`path_value.block_probability` of its sampled shield path against the
+crossing Gaussian N(Y, Z, tau), the shield at path time ``s`` at ``t_plan + lag + s``. A new
+motion replaces the one in progress only when it is worth ``switch_margin`` more, so equal
+values never make the arm dither. Units: s, m, rad.
 
-- **continue**: the motion in progress (at home: staying there);
-- **direct moves**: minimum-time jerk-limited Ruckig moves from the commanded state (p, v, a) to
-  the ``candidates`` goals nearest the crossing mean (Mahalanobis distance under the crossing's
-  lateral covariance widened by the block radius), always including the goal nearest the mean
-  (naive's choice, so the planner never scores less than naive by its own measure);
-- **tree branches** (``[choice] branches``): when the arm is at a tree node's state (home at
-  rest, or at the end of the compiled edge it follows), each child edge of that node, worth its
-  best continuation in the subtree (:class:`thinkfast.decide.branches.BranchTable`, from the
-  tree file's shield paths) among those ending at the ``branch_goals`` goals nearest the
-  crossing, time-shifted to when the edge would start. A chosen child edge starts there (now at
-  home; at the end of the edge in progress otherwise, as a pending switch that later beliefs
-  may revise). A pending branch is what "continue" means while it stands.
-
-The value of a motion is the probability that the shield covers the ball where and when it
-crosses the plane: the motion's joint path is sampled every ``path_dt``, the shield centre
-follows by forward kinematics (coplanar normal), and :func:`path_value.block_probability`
-integrates it against the crossing Gaussian N(Y, Z, tau) of the delta method. The arm follows a
-command ``lag`` after it is sent, so a motion commanded from ``t_plan`` has its shield at path
-time ``s`` at ``t_plan + lag + s``.
-
-A new motion replaces the one in progress only when it is worth ``switch_margin`` more: equal
-values (a far ball, a hopeless one) never make the arm dither.
+The options and the value in full: docs/DESIGN.md, "The re-rooted choice".
 """
 
 from __future__ import annotations

@@ -1,61 +1,18 @@
 """P(block) for shields that may still be moving: the crossing belief against sampled shield paths.
 
 Pure computation (no I/O, no clocks). Inputs: M shield-centre paths sampled on one uniform time
-grid (packed once by :func:`thinkfast.decide.shield_paths.shield_paths`; from joint motions by
-:mod:`thinkfast.robot.shield_path`), the crossing Gaussian ``(Y, Z, tau) ~ N(mean, cov)`` of
-:mod:`thinkfast.estimate.crossing` (tau from the caller's "now") and the block geometry. Output:
-for each path, the probability that the ball meets the shield (:func:`block_probability`).
-Today's terminal values (:mod:`values`) ask for arrival at rest before tau; this asks what the
-judge asks: does the ball meet the disk, moving or not.
+grid (:func:`thinkfast.decide.shield_paths.shield_paths`), the crossing Gaussian
+``(Y, Z, tau) ~ N(mean, cov)`` of :mod:`thinkfast.estimate.crossing` (tau from the caller's
+"now") and the block geometry. Output: for each path, the probability that the ball meets the
+shield (:func:`block_probability`). Today's terminal values (:mod:`values`) ask for arrival at
+rest before tau; this asks what the judge asks: does the ball meet the disk, moving or not.
+Units: m, s.
 
-Geometry (the judge's sphere against the shield cylinder, :mod:`thinkfast.sim.judge`, with the
-shield normal +x as the coplanar wrist rule keeps it). The ball flies a straight line through the
-plane ``x = plane_x`` at ``(Y, Z)`` at time tau with the mean velocity ``v`` (vx < 0). The shield
-centre ``c(t)`` is linear between samples, at the first sample before the grid and held at the
-last after it. With ``dx = c_x - plane_x`` at tau:
+The value is a lower bound (the judge's sphere against the shield cylinder, as a disk of radius
+``rho`` in the plane), integrated by rules for a standard normal along tau and along the
+belief's major axis, with the isotropic disk table (:mod:`iso_disk`).
 
-- in front (``dx > 0``): the ball centre passes the disk's mid-plane ``s = -dx / (|vx| + c'_x)``
-  seconds before tau (``c'`` the velocity of the shield's current segment, extrapolated); it is
-  blocked when it is then within ``rho = shield radius + ball radius`` of the centre across the
-  normal, i.e. ``|(Y, Z) - c_eff| <= rho`` with ``c_eff = c_yz + (c'_yz - v_yz) s``;
-- behind by ``a = -dx``: the ball centre stops at the plane; the sphere touches the disk face when
-  ``|(Y, Z) - c_yz| <= R + sqrt(r_b^2 - (a - h)^2)`` (full ``rho`` for ``a <= h``, the half
-  thickness; no contact beyond ``a > h + r_b``);
-- without ``approach`` the meeting is taken at the plane (``s = 0``).
-
-Approximations (all small against the belief widths of a real throw, 2-17 cm): straight flight
-near the plane at the mean velocity; the shield's segment velocity extrapolated over ``s`` (at most
-~30 ms; 0.5 * 15 m/s^2 * s^2 < 7 mm); the sphere through a disk met obliquely reaches slightly
-further (up to ``r_b (1 / cos(theta) - 1)``, 3 mm at 0.4 rad) in the plane of incidence: the
-circle of radius ``rho`` is exact across it and a lower bound along it. A shield tilted to face
-the ball (the runtime wrist, at most ``wrist_max_tilt``) covers an ellipse containing that circle
-(semi-axes ``rho`` and ``rho / cos``), so the value stays a lower bound; its centre moves with
-the tilt by ``L sin(tilt)`` (L = wrist centre to shield centre), which the paths must include.
-
-Method. ``(Y, Z) | tau ~ N(m_yz + k (tau - m_tau), S_c)`` with a constant ``S_c = sigma_a^2 I +
-sigma_e^2 e e^T`` (isotropic part plus the excess along the major axis e). Then
-
-    P(block) = E_{tau, eta}[ F(|c_eff(tau) - m_yz - k (tau - m_tau) - e eta|; rho(tau), sigma_a) ]
-
-with ``eta ~ N(0, sigma_e^2)`` and F the isotropic disk probability (:mod:`iso_disk`, one table
-row per radius level interpolated once per call, then linear lookups). Both expectations use
-rules for a standard normal (:mod:`normal_rules`) chosen from the integrand's scale: along eta
-``sigma_a / sigma_e``; along tau ``sigma_a / (sigma_tau (v_shield + |k|))``, and the touch band's
-depth over the shield's x speed for paths inside it. When a path crosses the touch depth within
-``+-k_sigma`` of tau its value jumps there: then the trapezoid rule with spacing at most
-``jump_step``, each node's cell shared at the crossing. Pairs (path, tau node) far outside or deep
-inside every disk are 0 or 1 without a lookup; paths whose bounding box stays out of reach are 0.
-
-Accuracy (tests/test_path_value.py): 40 seeded cases (static, sweeping at 0.5 and 3 m/s, arriving
-just before and after, narrow and wide tau, off the plane through the touch depth, Ruckig moves
-through the FK, a delta-method belief) against a 10^6-sample Monte Carlo of this model within
-0.005; shields at rest within 5e-4 of the disk masses of :mod:`values`; a shield appearing at its
-goal at t within 0.005 of today's terminal value for arrival t; the judge's sphere-cylinder
-geometry within its sampling noise. Node counts are capped (``max_time_nodes``,
-``max_lateral_nodes``): full accuracy while ``sigma_tau (v_shield + |k|) <= 16 sigma_a`` and
-``sigma_e <= 5 sigma_a``; beyond, coarser and bounded in time. The errors measured, and how far
-the beliefs of simulated throws reach into those caps: docs/BENCHMARKS.md, "Path values: moving
-shields". Speed: bench/path_value.py.
+Geometry, approximations, method and accuracy: docs/DESIGN.md, "Path values".
 """
 
 from __future__ import annotations

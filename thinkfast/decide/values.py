@@ -4,38 +4,14 @@ For every terminal edge e = (goal g, remaining arrival time t_e) the value is
 
     V_e = P( |(Y, Z) - g| <= r  and  tau > t_e + margin ),   (Y, Z, tau) ~ N(o_bar, Sigma_o),
 
-with the full 3x3 covariance (the Y/Z-tau correlation matters: depth noise moves both).
+with the full 3x3 covariance (the Y/Z-tau correlation matters: depth noise moves both). Units:
+m, s; values are probabilities.
 
-Method. Everything belief-dependent is done once per goal on a time grid shared by all goals;
-the per-terminal work is one linear interpolation.
+Everything belief-dependent is done once per goal on a time grid shared by all goals (tau
+conditioned on (Y, Z), the disk mass along one axis by Gauss-Legendre, one Toeplitz product for
+the time profile); the per-terminal work is one linear interpolation.
 
-1. Condition tau on (Y, Z): its mean is linear in (Y, Z) and varies only along the unit vector
-   ``u`` of the regression coefficients, so ``tau = m_tau + beta U + eps`` with ``eps ~ N(0,
-   s_c^2)`` independent of the plane position, and ``W | U ~ N(gamma U, s_wc^2)`` across u.
-2. Disk mass along u (:mod:`thinkfast.decide.shield_disk`): ``P(W in chord | U)`` is two Phi in
-   closed form; the integral over u is Gauss-Legendre on up to three pieces of the disk (clipped to
-   ``+-k_sigma`` of U) split where the line ``E[W | U]`` crosses the circle, in a polynomial
-   substitution that removes the square-root ends of the chord. Goals whose disk misses the
-   ``+-k_sigma`` box are pruned: their mass is below ``2 Q(k_sigma)`` (8e-11 at 6.5).
-3. Each node is a uniform segment of ``beta U`` over its quadrature cell. The segments are
-   written as second differences (linear deposits of ramps; one ``bincount``) on K grid points
-   spanning ``m_tau +- k_time sigma_tau``, and one Toeplitz matrix product with the closed-form
-   kernel ``rho(d) = E[(d + 1 - eps/h)_+]`` (ramp convolved with the Gaussian of eps) gives
-   ``F_g(t) = P(disk_g, tau > t)`` at every grid point for all goals. The segment spread
-   (variance ``L^2 / 12``) is taken back from ``s_c^2`` where possible.
-4. Terminal value: ``F_g`` interpolated linearly at ``t_e + margin``, clamped to the grid
-   (``P_g`` below it, 0 above, both within ``Q(k_time)``).
-
-Error (absolute, defaults). Disk masses: Gauss-Legendre with nodes per sigma of U, per chord
-switch and per ``s_c / beta`` converges spectrally; ~1e-4 or better (checked against the Rayleigh
-formula). Time profile: the cell model and the grid interpolation, ~1e-3. The worst case is a
-thin, strongly tau-correlated belief (|rho| > 0.99) with a disk tip in its core: ``F_g`` then has
-a kink (slope jump ``a_g(u_tip) / beta``) between grid points, and linear interpolation errs by up
-to a quarter of that jump times the step, bounded by ``2.5 / ((K - 3) sqrt(2 pi)) = 0.016`` for
-``k_time = 5``. ``tests/test_values.py`` holds every value within 0.005 of a 10^6-sample Monte
-Carlo on its test set (strong Y-tau and Z-tau correlation, 5 mm and 0.5 m beliefs, mean on a
-shield edge, a delta-method belief). The errors measured against a converged reference, and what
-a finer time grid costs: docs/BENCHMARKS.md, "Kernel figures the code refers to".
+The method step by step and its error bounds: docs/DESIGN.md, "Terminal values".
 """
 
 from __future__ import annotations

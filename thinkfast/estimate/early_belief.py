@@ -1,40 +1,16 @@
 """The early, wide belief: where a ball that has just left the hold will cross the plane.
 
-The launch detector (:mod:`thinkfast.estimate.launch`) declares a launch only once two windows
-of at least four detections fit a free flight, some frames after the first flight detection is
-delivered (docs/RESULTS.md, "Feints, held balls, starts before release"). Before that, the first
-one to three detections that left the hold already say a little: where the ball is, roughly how
-fast it moves laterally. Alone they say almost nothing
-about the approach speed (the stereo depth noise at 6-8 m is 8-19 cm per frame, the ball moves
-17-35 cm per frame), so they are combined with a **prior over the throws the cell expects**
-(``[early]``): the ball crosses the plane inside the goal grid's box widened by
-``region_margin``, ``flight_time`` after leaving (uniform on both). From the ball's position
-``p`` that prior is a distribution of its velocity: ``v = (C - p + g tau^2 / 2 e_z) / tau`` for
-a crossing point ``C`` and remaining flight time ``tau``; its mean and covariance come from the
-moments over a ``grid`` ^ 3 lattice of (Y, Z, tau) (:func:`velocity_prior`).
+Before the launch detector (:mod:`thinkfast.estimate.launch`) confirms, the first flight
+detections say where the ball is but little about its approach speed. They are combined with a
+prior over the throws the cell expects (``[early]``: a crossing inside the goal grid's box, a
+flight time range) that, from the ball's position, is a velocity prior (:func:`velocity_prior`).
+The weighted least-squares flight fit with that prior (:func:`fit_with_prior`) has a mean and a
+covariance from a single detection on; its plane crossing N(Y, Z, tau) is what the hedge stage
+decides on. :func:`flight_run` picks the detections that left the hold and
+:func:`likely_launch` is the hedge stage's trigger. Units: m, s, in ``base``.
 
-The early belief is the weighted least-squares free flight through the flight detections (the
-launch detector's noise model) with that velocity prior as one more measurement
-(:func:`fit_with_prior`, information form): from a single detection on it has a mean and a
-covariance, and each detection narrows it. Its plane crossing (the delta method,
-:mod:`thinkfast.estimate.crossing`) is the N(Y, Z, tau) the hedge stage decides on.
-
-Which detections are flight (:func:`flight_run`): the newest ones, each nearer the plane than the
-hold by ``depart_sigmas`` of its depth noise; the hold is the median of the detections before
-them (at least ``min_hold`` of them: a ball first seen in flight has no hold to leave). With
-several cameras each camera leaves the hold on its own: the run begins at a detection that has
-left, and a camera's detections in it that have not left yet come before its first one that
-has. A camera that sees the approach along its viewing ray (the base camera: depth noise of
-12-28 cm at 6-8 m, so 25-55 cm to leave) shows the departure 2-3 frames after one that sees
-it across (the side camera: 5-6 cm); required to leave too, its detections cut every run the
-other camera had begun, and the trigger came with the launch confirmation (docs/RESULTS.md,
-"Two cameras with the hedge"). With one camera this is the run of newest detections that all
-left. A *launch is likely* (:func:`likely_launch`) when ``trigger_points`` detections of the
-run have left the hold and the flight fit with the prior explains the run's newest (chi-square
-below its ``1 - alpha`` quantile; with ``max_drop`` = 1 the fit may leave out the one gross
-outlier whose absence lowers the chi-square by more than the 3-dof quantile, as the launch
-detector's does): a ball moved by the hand at under a metre per second against a prior of 8
-m/s or more does not. This is the hedge stage's trigger; the launch detector still confirms.
+The prior, the flight run with several cameras and the trigger: docs/DESIGN.md, "The early
+belief".
 """
 
 from __future__ import annotations

@@ -1,62 +1,18 @@
 """RIAE-AKF: robust innovation-based adaptive Kalman filter for the ball, in the ``base`` frame.
 
 State ``[X Y Z Vx Vy Vz]`` (m, m/s); measurement: the ball centre ``z = [X Y Z]`` (m), so
-``H = [I 0]``. Process model: constant velocity plus gravity ``(0, 0, -g)`` as a known input and,
-optionally, quadratic air drag ``a = -k |v| v`` (``k = 0`` reproduces the paper). Process noise
-is white acceleration with spectral density ``q`` per axis. Time comes in as an argument: ``dt``
-follows the measurement stamps and may vary.
+``H = [I 0]``. Process model: constant velocity plus gravity as a known input and, optionally,
+quadratic air drag; white-acceleration process noise. Time comes in as an argument (``dt``
+follows the measurement stamps and may vary).
 
-One update (measurement ``z`` at time ``t``), after predicting to ``t``:
+Each update gates the innovation per axis (an outlier is clipped to the gate and shrunk), adapts
+R from a window of recent innovations, and re-initialises an axis that stays an outlier too
+long. With ``robust`` and ``adaptive`` both off it is a textbook linear Kalman filter. Late and
+out-of-order measurements are rejected and counted, so they never corrupt the state; with
+several cameras one up to ``max_lag`` old is fused out of sequence.
 
-1. Innovation ``v = z - x[:3]`` and its predicted covariance ``S = P[:3,:3] + R`` (current R).
-2. Robust gate (``robust``), per axis i: ``s_i = |v_i| / sqrt(S_ii)`` is tested against
-   ``c = sqrt(chi2_1^-1(alpha))``. An inlier (``s_i <= c``) is kept. An outlier is revised (eq. 3)
-   to sit on the threshold, ``v_i c / s_i``, and the state update takes it further shrunk by
-   ``exp(-(s_i - c) / shrink_scale)`` (sigmas): a slightly-too-large innovation still counts
-   almost fully, a gross outlier counts for nothing.
-3. Adaptation (``adaptive``): ``C_hat = mean(v' v'^T)`` over the last n <= ``window`` revised
-   innovations (eq. 4) and ``R_hat = diag(C_hat - P[:3,:3])`` (eq. 5, diagonal). C_hat is first
-   divided by ``E[min(x^2, c^2)]`` (0.98 at alpha = 0.99), the share of a variance that clipping
-   at the gate keeps. R0 acts as a prior worth ``w0 = warmup (1 - n / window)`` innovations,
-   ``R = (w0 R0 + n R_hat) / (w0 + n)``: a soft warm-up that fades out as the window fills, so
-   with a full window R is eq. 5 alone. Each variance is floored at ``r_min_std**2``, so R stays
-   positive definite. Guards, each found necessary on simulated throws:
-   - diagonal: from ~20 samples the small eigenvalues of a full 3 x 3 estimate are unreliable,
-     and an R too small in one direction makes the filter overconfident there (NEES ~10 instead
-     of 6). Assumption: the stereo noise is close to axis-aligned in ``base`` (the camera looks
-     along x, so its depth noise is along x).
-   - the window takes the threshold-clipped innovation, shrunk exponentially only beyond
-     ``gross_sigma``. Feeding it the state update's shrunk value would let R collapse (an R too
-     small makes every innovation an outlier whose shrunk square is smaller still); feeding it
-     gross outliers unshrunk would inflate R by ``c^2`` per outlier.
-   - the window only takes innovations once the state has settled (``trace(H P- H^T) <=
-     trace(R)``): right after the two-point start the innovations are dominated by the state
-     uncertainty, and eq. 5, which subtracts the *current* ``H P- H^T``, would read them as noise.
-4. Kalman gain with that R, state update with the revised innovation, covariance
-   ``P - K H P`` (symmetrised).
-5. Recovery: an axis whose innovation was revised ``reset_after`` updates in a row has lost the
-   ball (a gross outlier accepted while P was large, or a real change); that axis's position and
-   velocity are re-initialised from its last two measurements, uncorrelated with the others.
-
-With ``robust`` and ``adaptive`` both off, this is a textbook linear Kalman filter.
-
-Initialisation from the first two measurements: position ``p1``, velocity
-``(p1 - p0) / dt + a dt / 2`` (the finite difference is the mid-interval velocity; the model
-acceleration ``a`` brings it to ``t1``), covariance propagated from ``R0`` plus ``p0_std**2``.
-
-Late and out-of-order policy: a measurement whose stamp is not later than the last accepted
-measurement, or earlier than the belief time, is rejected and counted (``n_late``); the belief is
-otherwise returned unchanged, so late data can never corrupt the state. With several cameras
-(``max_lag`` > 0, docs/CAMERAS.md) a measurement up to ``max_lag`` older than the belief (another
-camera's newer one came first) is fused out of sequence instead (status ``"past"``): it measures
-the current state through the backward transition, ``z = [I, -dt I] x + g dt^2 / 2 e_z + w``,
-whose noise adds the position part of the process noise over ``dt``, ``Q_pp(dt)`` (its
-correlation with the current state is neglected); the robust gate weighs it as any other, but it
-neither feeds the adaptation window nor counts towards a recovery, and the belief keeps its time
-and its newest measurement. Two measurements from different cameras start the filter with each
-one's own noise: the velocity variance is ``(R_0 + R_1) / dt^2``. ``predict`` to a time
-before the belief time is a no-op. Outliers in the two initialising measurements are not gated,
-but the recovery step replaces a bad start within ``reset_after`` frames.
+The update step by step, its guards and why each is needed, the initialisation and the late
+data policy: docs/DESIGN.md, "The filter".
 """
 
 from __future__ import annotations

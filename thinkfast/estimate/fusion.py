@@ -1,31 +1,14 @@
 """Several stereo cameras: their configuration, and the check that keeps a wrong one out.
 
-Every camera measures the ball in its own frame; the intake (``thinkfast/control/intake.py``)
-takes each camera's detections to ``base`` with that camera's extrinsic, keeps one order
-watermark per camera and hands the filter the camera's origin and noise model with each
-detection. The filter (:func:`thinkfast.estimate.filter.update`, ``max_lag``) and the launch
-detector fuse them in stamp order: a detection older than the filter's time (another camera's
-newer one arrived first) is fused by an out-of-sequence update, up to ``max_lag`` behind.
+The intake takes each camera's detections to ``base`` with its extrinsic; the filter and the
+launch detector fuse them in stamp order (out of sequence up to ``max_lag`` behind). A camera
+with a wrong extrinsic would pull the fused belief between two places, and the fused belief
+cannot tell which camera is wrong, so :class:`CameraCheck` tests every other camera against a
+second filter fed by the ``reference`` camera alone (a chi-square gate, while that filter is
+settled and its ball slow). A camera is fused once trusted and dropped while inconsistent.
 
-A camera whose extrinsic is wrong sees the ball consistently somewhere else. Fused, it would
-pull the belief between two places, and with the stereo noise model it would dominate the axes it
-measures best: the fused belief itself cannot tell which camera is wrong. :class:`CameraCheck`
-therefore tests every other camera against a second filter fed by the ``reference`` camera alone
-(the default camera): a detection passes when it lies within the chi-square gate of that
-filter's prediction (3 degrees of freedom, the prediction's covariance plus the camera's own
-noise model and ``check_floor``). It is tested only while the reference filter is settled (its
-last ``check_settle`` updates all inliers) and its ball slower than ``check_speed``: the ball in
-the hand, or a slow wind-up. At a release the reference filter lags the ball for a few frames
-while still calling them inliers, and a good camera would look wrong (found on simulated
-wind-ups: docs/RESULTS.md, the sections on two cameras, "The camera check in flight"). A camera
-is fused once ``trust_after`` of its detections passed; it is inconsistent while ``check_fail`` of
-its last ``check_window`` tests failed, and every detection of it is then counted
-``inconsistent_camera`` and dropped (it is still tested: a camera whose detections agree again
-is fused again). While the reference camera has no track (it lost the ball, or never saw it)
-nothing is tested: a trusted camera goes on being fused (one camera dropping out leaves the
-other tracking), one never tested is not. The record is kept for the life of the check (the
-daemon's run): trust earned on one hold carries to the next throws. Without a reference camera
-that sees the holds, set ``check = false`` or make another camera the reference.
+When it tests, trust and inconsistency, and what happens without a reference track:
+docs/DESIGN.md, "Several cameras: the camera check".
 """
 
 from __future__ import annotations

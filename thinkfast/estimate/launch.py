@@ -1,43 +1,16 @@
 """Launch detection: has the ball just left the hand towards the plane?
 
-The ball filter (:mod:`thinkfast.estimate.filter`) spends the hold converging on a ball at rest;
-its steady-state gain is small, so after the release it follows the flight only slowly and
-restarts a few frames later, and its velocity then needs more frames to be trusted. The arm
-cannot wait that long: on a 0.5 s flight every 20 ms of reaction time costs a few per cent of the
-throws (docs/RESULTS.md).
+The ball filter (:mod:`thinkfast.estimate.filter`) converges on a ball at rest during the hold
+and follows the flight only slowly after the release; the arm cannot wait for it. This detector
+fits a free flight (constant velocity, gravity known) by weighted least squares to the newest
+detections, robust to up to ``max_drop`` gross outliers, and declares a launch when ``confirm``
+windows in a row fit their points, approach the plane faster than ``min_speed`` and have left
+the hold. Units: m, s, m/s, in ``base``.
 
-This detector looks at the newest accepted detections only (up to ``window`` of them, at least 4,
-within ``max_span``). It fits a free flight (constant velocity, gravity known; drag is negligible
-over 60-100 ms) by weighted least squares, each point weighted by the stereo noise model (depth
-noise along the viewing ray, growing with range squared, scaled by ``noise_scale`` to cover the
-noisiest throws):
+The fit (state and covariance at the newest stamp) then restarts the filter.
 
-    z_i = p + v (t_i - t_n) - g (t_i - t_n)^2 / 2 e_z + e_i,   e_i ~ N(0, R_i)
-
-robust to up to ``max_drop`` gross outliers: every subset that drops at most that many points is
-fitted at once (one batched solve), and the subset with the lowest chi-square plus a penalty per
-dropped point (the 3-dof ``1 - alpha`` quantile) wins. A launch is declared when, for
-``confirm`` windows in a row,
-
-* the fit explains its points (chi-square below its ``1 - alpha`` quantile with ``3 n - 6``
-  degrees of freedom): a window mixing hold and flight fails this;
-* the ball approaches the plane: ``-vx - sigmas * std(vx) > min_speed``; a ball at rest (or
-  moved by the hand at well under a metre per second) never passes;
-* the newest detection is an inlier of the fit and lies nearer the plane than the hold (the
-  median of the detections before the window) by ``sigmas`` of its depth noise: a burst of
-  outliers away from the camera followed by the held ball looks like an approach to the fit,
-  but not to this test;
-* the window without its newest point passes the same tests (one point never decides); when
-  a dropout leaves it four points, too few for the fit to leave a gross outlier out, the
-  window the detector had before the newest point came (the newest others within
-  ``max_span`` of the one before it) may pass instead.
-
-Requiring two windows in a row means a single gross outlier (which can fake any velocity when it
-is the newest point, where the fit is least able to see it) must also pass the next window, in
-which it sits inside the window and is caught by the residual test.
-
-The fit (state and covariance at the newest stamp) then restarts the filter: it uses every
-flight point, where the filter's own restart uses two.
+The model, the tests a window must pass and why two windows are needed: docs/DESIGN.md,
+"Launch detection".
 """
 
 from __future__ import annotations

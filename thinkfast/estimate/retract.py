@@ -1,26 +1,15 @@
 """Retraction: is the ball of a confirmed throw still in free flight towards the plane?
 
-The launch detector (:mod:`thinkfast.estimate.launch`) confirms a throw from a few detections.
-A feint's forward swing can pass its tests (about 1 % of simulated feints, docs/RESULTS.md,
-"Feints, held balls, starts before release"): the throw is confirmed, the arm leaves home, and
-the ball stops in the hand. The ball filter then loses its speed only slowly and its predicted
-crossing keeps receding, so the throw would never end while the ball stays in view.
+The launch detector (:mod:`thinkfast.estimate.launch`) confirms a throw from a few detections,
+and a feint's forward swing can pass its tests: the arm leaves home and the ball stops in the
+hand, while the filter's predicted crossing keeps receding. From the confirmation on,
+:class:`FlightWatch` fits a free flight to the newest detections (the launch detector's
+weighted, outlier-robust fit) and the throw is *retracted* once ``confirm`` fits in a row
+explain their detections and show the ball approaching the plane slower than ``max_speed``
+(m/s) with confidence. Pure logic; times are arguments [s].
 
-From the confirmation on, :class:`FlightWatch` fits a free flight to the newest detections
-after it (up to ``window`` of them, within ``max_span``, at least 4; the launch detector's
-weighted, outlier-robust fit with its noise model). A fit *shows a ball that is not
-flying towards the plane* when it explains its detections (the launch detector's residual
-chi-square test) and the ball approaches the plane slower than ``max_speed`` with confidence:
-
-    -vx + sigmas * std(vx) < max_speed
-
-A thrown ball leaves the hand at 8.5 m/s or more (docs/FACTS.md) and drag slows it by little
-before the plane, so a fit of its flight never passes this; a ball at rest, or moved by the
-hand, does. The throw is *retracted* once ``confirm`` fits in a row show it. The ball filter's
-own velocity is not used: after an outlier burst the filter restarts from two measurements and
-for a few updates may show any velocity (seen on simulated throws), where the window fit drops
-up to ``[launch] max_drop`` gross outliers and a window it cannot explain counts for nothing.
-Pure logic; times are arguments [s].
+The test, why a thrown ball never passes it and why the filter's velocity is not used:
+docs/DESIGN.md, "Retraction".
 """
 
 from __future__ import annotations

@@ -3,27 +3,12 @@
 ``thinkfast-sim record mcap RECORD -o OUT.mcap`` (and ``replay RECORD --mcap OUT.mcap``). Schemas
 are ROS 2 message definitions (encoding ``ros2msg``), messages CDR (little endian, encoding
 ``cdr``), written with the ``mcap`` package (the ``view`` extra). Messages and schemas come
-from the encoder of the live ROS 2 topics (:mod:`thinkfast.contract.ros`, rosbags' CDR and
-message definitions), so a recorded JointState is the bytes the live topic carries.
+from the encoder of the live ROS 2 topics (:mod:`thinkfast.contract.ros`), so a recorded
+JointState is the bytes the live topic carries. Channels: :data:`TOPICS`; points in ``base``
+[m], joints [rad]; the scene (:mod:`thinkfast.record.scene`) is what the live Foxglove view
+draws.
 
-Channels (:data:`TOPICS`; log and publish time = the record's Unix time):
-
-| topic | type | from |
-|---|---|---|
-| ``/thinkfast/joints/commanded`` | sensor_msgs/msg/JointState | ``egm``: q_cmd, qd_cmd |
-| ``/thinkfast/joints/measured`` | sensor_msgs/msg/JointState | ``egm``: q_fb |
-| ``/thinkfast/detections/raw`` | geometry_msgs/msg/PointStamped | ``raw`` payloads, in base |
-| ``/thinkfast/detections/accepted`` | geometry_msgs/msg/PointStamped | ``detections`` |
-| ``/thinkfast/ball/belief`` | geometry_msgs/msg/PointStamped | ``beliefs``: mean position |
-| ``/thinkfast/ball/crossing`` | geometry_msgs/msg/PointStamped | ``beliefs``: crossing point |
-| ``/thinkfast/decisions`` | std_msgs/msg/String | ``decisions``, one JSON object |
-| ``/thinkfast/events`` | std_msgs/msg/String | ``events``: {"kind", "detail"} |
-| ``/thinkfast/scene`` | foxglove.SceneUpdate (protobuf) | arm, ball, crossing, plan, goals |
-
-Points are in the frame ``base`` (the robot base); joint states name the robot's joints. The
-scene (:mod:`thinkfast.record.scene`, written when ``foxglove-sdk`` is installed and a robot is
-given) is what the live Foxglove view (``thinkfast-run --foxglove``) draws, with the same schema,
-entity ids and the same ROS 2 topics beside it: a layout made live opens the record.
+The channel table and the scene: docs/RECORD_FORMAT.md, "MCAP export".
 """
 
 from __future__ import annotations

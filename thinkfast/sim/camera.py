@@ -2,28 +2,15 @@
 
 Pure: randomness comes from the ``rng`` argument, time from the arguments (no clocks, no I/O).
 The camera frame is REP-103 (x forward along the optical axis, y left, z up); its pose in
-``base`` is a :class:`~thinkfast.contract.detection.CameraExtrinsic`.
+``base`` is a :class:`~thinkfast.contract.detection.CameraExtrinsic`. Units: m, s.
 
-Measurement of a true ball centre ``p = d u`` (depth ``d`` along x, ray ``u = p / d``):
+Each true ball centre is an inlier (stereo depth error along the viewing ray, lateral pixel
+error), an outlier, or not seen (outside the image or the range, a dropout burst, a miss). The
+camera's video mode (:func:`mode_model`) sets the focal length, image size and frame rate.
+Frames are captured every ``1 / rate`` from a random phase, stamped with the capture time plus
+``stamp_bias`` and delivered ``latency`` later.
 
-* inlier: ``p' = (d + e_d) u + (0, e_y, e_z)`` with ``e_d ~ N(0, (d^2 sigma_disp / (f B))^2)``
-  (stereo depth error along the viewing ray, sigma_disp drawn once per throw) and
-  ``e_y, e_z ~ N(0, (d sigma_px / f)^2)`` (lateral pixel error at fixed depth); its covariance is
-  ``sigma_z^2 u u^T + sigma_lat^2 diag(0, 1, 1)``;
-* outlier (probability ``outlier_prob``, plus up to ``blur_outlier_prob`` growing with the ball's
-  motion blur in the image, which is largest near the camera): depth off by 0.3-1.5 m either
-  way (never closer than ``min_range``) and a smaller lateral error;
-* not seen: outside the image (pinhole, principal point at the centre), nearer than
-  ``min_range``, beyond ``max_range``, a dropout (two-state Markov chain: bursts), or, with
-  ``detect_probs`` below 1, missed at its depth (a ball a few pixels wide: VGA).
-
-The camera's video mode (:mod:`thinkfast.contract.camera_mode`; :func:`mode_model`) sets the
-focal length, image size and frame rate; the noise in pixels stays the same, so in metres it
-grows as ``1 / f``.
-
-Frames are captured every ``1 / rate`` from a random phase; the stamp is the capture time
-(docs/INTERFACES.md) plus ``stamp_bias`` (0: exact); each detection is delivered ``latency`` later,
-in capture order unless ``reorder``.
+The noise model in full: docs/CAMERAS.md, "The ZED 2i model".
 """
 
 from __future__ import annotations

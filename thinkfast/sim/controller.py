@@ -4,26 +4,12 @@
 messages from its state, takes ``EgmSensor`` replies as commands, and integrates the servo model
 with :meth:`SimController.step`. :class:`~thinkfast.sim.controller_runner.ControllerRunner`
 puts it on a UDP socket and exchanges one message pair every 4 ms (or flat out), as a real
-controller does.
+controller does. Simulated time advances by the nominal ``dt`` per exchange (s), whatever the
+wall clock does.
 
-Servo model (every number an ASSUMPTION in :class:`ServoConfig`, to calibrate from logged EGM
-feedback; docs/FACTS.md: ABB quotes 10-20 ms lag, field reports 40-80 ms with default gains):
-
-1. transport: a command received at ``t`` takes effect at ``t + delay``;
-2. reference filter: position and speed references through one first-order low pass at
-   ``lowpass_hz`` (EGM's ``\\LpFilter``);
-3. position loop with speed feed-forward: ``v_cmd = kff * qd_ref_f + kp * (q_ref_f - q)``;
-4. velocity loop: first-order lag ``tau_v`` towards ``v_cmd``, with the arm's acceleration and
-   velocity limits, slowing down before the position limits (a stop at ``a_max / 2``), which
-   are hard stops for what is left (at most one integration step of speed).
-
-With ``kff = 1`` a ramp is tracked with a steady lag of about ``delay + 1 / (2 pi lowpass_hz)``.
-Simulated time advances by the nominal ``dt`` per exchange, whatever the wall clock does.
-
-Header stamps: ``seqno`` +1 per ``EgmRobot`` (one per cycle), ``tm`` the simulated time in whole
-ms; with a :class:`ClockJitter`, ``tm`` is a clock that is not hard real-time (a virtual
-controller's wall clock): jitter around the cycle, whole-ms rounding, repeats and jumps after its
-own stalls, while the servo still advances one cycle per packet.
+The servo model (transport delay, reference low pass, position and velocity loops; every number
+an assumption in :class:`ServoConfig`) and the header stamps (``seqno``, ``tm``,
+:class:`ClockJitter`): docs/EGM_CONTROLLER.md, "The simulated controller".
 """
 
 from __future__ import annotations

@@ -2,31 +2,13 @@
 ``thinkfast-cell`` uses, with the controller kit's RAPID program simulated behind them.
 
 For tests and rehearsals on loopback, without RobotStudio. It speaks what
-``abb_robot_client.rws.RWS`` (0.4.0) sends and parses: HTTP/1.1 with digest authentication
-(RFC 7616, MD5, ``qop=auth``; the client answers the first 401 challenge and then sends its
-``Authorization`` header with every request; :mod:`thinkfast.sim.rws_http`), ``?json=1`` on
-every resource, answers as ``application/json`` with the RWS 1.0 shape
-``{"_embedded": {"_state": [...]}}``, actions as ``POST ...?action=NAME`` with form data and
-``204 No Content``, errors as ``400``/``403``/``404`` with
-``{"_embedded": {"status": {"code": N, "msg": "..."}}}``.
+``abb_robot_client.rws.RWS`` sends and parses: HTTP/1.1 with digest authentication
+(:mod:`thinkfast.sim.rws_http`), ``?json=1`` on every resource, JSON answers in the RWS 1.0
+shape, actions as ``POST ...?action=NAME``. The simulated program is the kit's
+``ThinkfastEGM.mod`` reduced to its state machine (:meth:`FakeRwsController._step_program`).
 
-Resources: ``rw/panel/ctrlstate`` (GET; POST ``setctrlstate``), ``rw/panel/opmode``,
-``rw/panel/speedratio``, ``rw/rapid/execution`` (GET; POST ``start``, ``stop``, ``resetpp``),
-``rw/rapid/tasks`` (GET), ``rw/rapid/tasks/{task}`` (POST ``activate``, ``deactivate``),
-``rw/rapid/symbol/data/RAPID/{task}/{name}`` (GET; POST ``set``). Nothing else.
-
-The simulated program is the kit's ``ThinkfastEGM.mod`` (``robots/<name>/controller/``, the
-same RAPID for every robot) reduced to its state machine
-(:meth:`FakeRwsController._step_program`): started from main it is "homing" for ``home_time``,
-then clears ``tf_start_request`` and shows "waiting"; a start request opens a "session" (or,
-with ``egm_peer=False``, the session is "lost" after ``comm_timeout`` and the program stops, as
-on ``ERR_UDPUC_COMM``); a stop request ends the session after ``ramp_out`` and the program
-waits again. Motors off stops the program, as the controller does.
-
-What is NOT modelled: mastership (RW6 takes RAPID mastership implicitly for a variable write
-and fails when another client holds it), RMMP in manual mode, session cookies (``ABBCX``,
-``-http-session-``), subscriptions, the controller's own error code numbers (the codes here
-are the fake's, in the ``-1073...`` range only for their look), and XHTML answers.
+The resources served, the program's states and what is not modelled: docs/CELL_RWS.md, "The
+fake controller".
 """
 
 from __future__ import annotations

@@ -3,35 +3,13 @@ for Robotic Interception of Non-Cooperative Dynamic Targets") on this arm: EKF e
 history-conditioned predictor of independent cubic polynomials, and a receding-horizon
 sequential convex program (a QP per iteration, OSQP), re-solved on every new estimate.
 
-- **Estimation.** The design's EKF, which keeps predicting through dropouts, is the project's
-  own filter: the belief mean ``b.mean[:3]`` (the ball's position in the plane's frame) at
-  ``b.stamp`` is the estimate the predictor is given; nothing else of the belief is used.
-- **Prediction** (:meth:`JplPlanner.predict`): the last ``window`` estimates, independent
-  least-squares cubics x(t), y(t), z(t) (the paper's Vandermonde fit; no motion model), time
-  from ``time_base``; the crossing is the first root of x(t) = plane_x after the latest stamp
-  (the ball comes from +x) within ``[throw] max_tau``. Fewer than 4 estimates: no prediction
-  (the cubic needs 4; the arm waits). ``predictor = "filter"`` takes the filter's own crossing
-  instead, for comparison.
-- **Planning** (:meth:`JplPlanner.solve`): joint 1-3 jerks over ``intervals`` equal steps to
-  the crossing ``controller_lag`` early; the states are the exact triple integrator's (as
-  :func:`~.solver_base.integrate`: linear in the jerks and the start state); boxes on
-  position, velocity, acceleration at every node and on the jerk; cost ``effort_weight * sum
-  |u|^2 dt + terminal_velocity_weight * |v_N|^2``. The terminal constraint ``wc(q_N) =
-  wc_goal`` is linearised with :meth:`WristCentre.jacobian` at the previous iterate's ``q_N``
-  (first: the last solution's in this throw, else the nearest compiled goal's joints) as an
-  equality; the trust region is a box on the change of ``q_N``, the linearised step shortened
-  to fit in it. QPs until the terminal wrist centre moves less than ``scp_tolerance``
-  (``scp_iterations`` at most). One OSQP problem of fixed sparsity, updated in place and
-  warm-started; an infeasible QP means the point cannot be reached in the time left.
+The estimate is the project's own filter's belief mean; :meth:`JplPlanner.predict` fits
+least-squares cubics to the last ``window`` estimates and takes their first crossing of the
+plane; :meth:`JplPlanner.solve` plans joint 1-3 jerks to the crossing ``controller_lag`` early,
+the terminal wrist-centre constraint linearised per QP inside a trust region. Units: m, s, rad.
 
-What differs from the paper, and why: the paper's rover SCP plans bicycle kinematics to a goal
-pose, its reachability cone picking the interception time; here the plane crossing fixes the
-point and the time, the arm is a jerk-limited triple integrator per joint at its real limits
-(:mod:`.solver_base`), the goal is the wrist centre that puts the coplanar shield on the point
-(:mod:`thinkfast.robot.arm_reach`), the plan arrives ``controller_lag`` early (the arm follows
-that late) and a time-optimal stop follows the crossing (the base's segment). No slack on the
-terminal equality: an L1 slack made OSQP's ADMM stall (4000 iterations without converging);
-with the equality, a QP is feasible exactly when the shortened step's point is reachable.
+Estimation, prediction, planning, and what differs from the paper and why: docs/DESIGN.md,
+"The optimisation planners", "jpl".
 """
 
 from __future__ import annotations

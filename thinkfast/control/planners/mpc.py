@@ -1,28 +1,15 @@
 """``mpc``: the fixed-time MPC interceptor ("Real-Time Projectile Interception with a 3-DOF
 Robotic Arm and Fixed-Time MPC", github.com/aceofspades07/3dof-mpc-interceptor) on this arm.
 
-The crossing time is the prediction's, not a decision variable: at each re-solve (20 Hz) one
-nonlinear program over ``N`` equal intervals up to it (CasADi ``nlpsol``, IPOPT), built once and
-re-parameterised (goal, interval length), warm started from the last solution shifted in time;
-minimum effort plus the terminal speed, a hard terminal constraint, box constraints at every
-node. :class:`~.solver_base.SolverPlanner` does the timing, the freeze, the segment and the
-counts; an unreachable crossing is a failed solve (the arm stays, as the design skips it).
-Where it differs from the design, and why:
+The crossing time is the prediction's, not a decision variable: at each re-solve one nonlinear
+program over ``N`` equal intervals up to it (CasADi ``nlpsol``, IPOPT), built once and
+re-parameterised, warm started from the last solution shifted in time; minimum effort plus the
+terminal speed, a hard terminal constraint, box constraints at every node.
+:class:`~.solver_base.SolverPlanner` does the timing, the freeze, the segment and the counts.
+Joint 1-3 jerks on a triple integrator, the wrist centre as the terminal point; ``mpc-soft``
+(``[mpc] terminal = "soft"``) makes that point a penalty. Units: s, m, rad.
 
-- **Jerk-limited triple integrator** (jerk the control, discretised exactly as
-  :func:`~.solver_base.integrate`), not a double integrator: the IRB 1600's jerk limits are
-  real, and the executed pieces are then exactly the solution.
-- **The wrist centre is the terminal constraint** (:mod:`thinkfast.robot.arm_reach`): the point
-  that puts the coplanar shield's centre on the predicted crossing (no wrist angle unknown).
-- **The plan arrives ``controller_lag`` early** (the arm follows its commands that late), and
-  **a time-optimal stop follows the crossing** (the design leaves the arm where it arrives).
-- **Prediction**: the project's filter crossing (``predictor = "filter"``, default) or the
-  design's least-squares fit (``"fit"``: x, y linear, z quadratic, gravity free as the design's
-  or fixed with ``fit_gravity``), fitted to the filter's estimates of the last ``fit_window``
-  seconds: a planner sees beliefs, not the raw detections the design fits.
-- **No hedge** (``hedges`` False): nothing moves before the executor's confirm gate.
-- ``mpc-soft`` (``[mpc] terminal = "soft"``, not the design): the terminal point as a penalty,
-  so that a crossing out of reach in the time left is approached instead of skipped.
+Where it differs from the design, and why: docs/DESIGN.md, "The optimisation planners", "mpc".
 """
 
 from __future__ import annotations

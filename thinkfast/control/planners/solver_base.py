@@ -3,28 +3,13 @@ of one predicted crossing, re-solved on a receding, shrinking horizon.
 
 A subclass predicts where and when the ball crosses the plane (:meth:`SolverPlanner.predict`)
 and solves for joint 1-3 jerks over ``N`` equal intervals up to that time
-(:meth:`SolverPlanner.solve`) such that the wrist centre reaches the point that puts the
-coplanar shield on the crossing (:mod:`thinkfast.robot.arm_reach`), within the arm's position,
-velocity, acceleration and jerk limits. This base does the rest, the same for both:
+(:meth:`SolverPlanner.solve`) within the arm's limits. This base does the rest, the same for
+both: the timing (the plan there ``controller_lag`` before the crossing, open loop within
+``freeze``), plans as cubic ``steer`` segments with a time-optimal stop, failures that never
+raise (the previous plan is kept, the cause counted in :attr:`SolverPlanner.stats`), and no
+hedge. Solve times are on the wall clock but decide nothing in lockstep. Units: s, m, rad.
 
-- **Timing.** The plan must be there ``controller_lag`` before the crossing (the arm follows its
-  commands that late), so the horizon is ``stamp + tau - lag - t_now``. A solve is due at the
-  planner's rate (on the plans' clock: deterministic in lockstep); with less than ``freeze`` left
-  the last plan plays out open loop (the design's failsafe).
-- **Plans as segments.** The solution's jerks are integrated exactly (a triple integrator) into
-  cubic pieces (:class:`~thinkfast.control.pieces.Pieces`), followed by the time-optimal stop
-  from the state at the crossing; the executor's timeline holds it as a ``steer`` segment, so
-  the supervisor, the plan vector of the reply process and the records treat it like any
-  planner's.
-- **Failures never raise.** A solver that fails (infeasible, iteration limit, an exception), a
-  solution whose wrist centre misses its target, or (online) one that came after ``deadline``:
-  the previous plan is kept (at home: the arm stays), and the cause is counted in
-  :attr:`SolverPlanner.stats`.
-- **No hedge**: nothing moves before the launch is confirmed (the executor's confirm gate), as
-  both designs start once a throw is seen.
-
-Solve times are measured on the wall clock (``time.perf_counter``); they decide nothing in
-lockstep (``realtime`` False), so a lockstep run gives the same throws on any machine.
+Each of these in full: docs/DESIGN.md, "The optimisation planners", "What they share".
 """
 
 from __future__ import annotations
