@@ -119,4 +119,3 @@ def state_of(ex) -> CoreState:
         {k: getattr(ex, k) for k in STAGE_KEYS}, {} if ex.check is None else ex.check.as_dict(),
         ex.away, ex.ended,
     )  # fmt: skip
-

@@ -35,7 +35,7 @@ from thinkfast.control.safety_limits import robot_limits as robot_limits  # the 
 # or lost it (thinkfast.daemon.reply_process)
 BRAKE_REASONS = ("signal", "deviation", "nonfinite", "planner_stale", "planner_lost")
 # brakes whose cause lies outside the EGM stream: a restart of the stream (a silence, standby)
-# does not remove them (thinkfast.control.core_faults)
+# does not remove them (thinkfast.control.core)
 KEPT_BRAKES = ("signal", "planner_stale", "planner_lost")
 KINDS = CLAMP_KINDS + tuple(f"brake_{r}" for r in BRAKE_REASONS) + ("init_clamped", "resync")
 
