@@ -61,7 +61,7 @@ def status_message(d: Daemon, now: float) -> dict:
         "brake_reason": sup.brake_reason,
         "planner_errors": d.planner_errors,
         "recorder": d.recorder.status(),
-        "egm_timing": d.link.timing.summary(),
+        "egm_timing": None if d.link.timing is None else d.link.timing.summary(),
         "controller": {
             **(d.controller_state or {}),
             "standby": ctl.standby,
