@@ -26,10 +26,11 @@ from typing import NamedTuple
 import numpy as np
 
 from thinkfast.control.egm_clock import ClockTick, ControllerClock
-from thinkfast.control.executor import FAULT, IDLE, Executor
+from thinkfast.control.executor import FAULT, IDLE
 from thinkfast.control.feedback_rate import FeedbackRate, span_before
 from thinkfast.control.intake import Intake
 from thinkfast.control.link import Feedback
+from thinkfast.control.motion import Motion
 from thinkfast.control.outcome import (
     CoreState,
     DetectionOutcome,
@@ -62,7 +63,8 @@ class ControlCore:
     """Executor + supervisor on the controller's clock, with fault recovery (module doc).
 
     Args:
-        executor: the planner/executor (its ``setpoint(t)`` gives the plan at time t).
+        executor: the motion source (:class:`~thinkfast.control.motion.Motion`): the daemon's
+            executor (detections, queries) or the reply process's plan follower.
         supervisor: the safety supervisor (the last stage before the wire).
         cfg: supervisor and recovery parameters.
         on_event: ``on_event(t, kind, detail)`` for things worth logging and recording.
@@ -72,7 +74,7 @@ class ControlCore:
 
     def __init__(
         self,
-        executor: Executor,
+        executor: Motion,
         supervisor: SafetySupervisor,
         cfg: SafetyConfig,
         on_event=lambda t, kind, detail: None,
@@ -195,9 +197,7 @@ class ControlCore:
         asked for it, so that preparing ahead changes no reply."""
         if self._prepared is not None:
             self._prepared = None
-            retract = getattr(self.ex, "retract", None)
-            if retract is not None:
-                retract()
+            self.ex.retract()
 
     def on_detection(
         self, payload: bytes, now: float | None, t_plan: float, crossing: bool = False

@@ -223,6 +223,10 @@ class Executor:
         home = self.robot.home[self.n_arm :] if self.mode in (RETURNING, IDLE) else None
         return self.wrist.normal_for(ball_v), home
 
+    def retract(self) -> None:
+        """Nothing is taken back: the episode moved on to the time the setpoint was asked for
+        either way (:class:`~thinkfast.control.motion.Motion`; the plan follower forgets)."""
+
     def _end_of_throw(self, t: float) -> None:
         if self.mode not in (TRACKING, EXECUTING):
             return
