@@ -36,11 +36,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from thinkfast.daemon import gc_rule  # noqa: E402
 from thinkfast.decide import backup as bk  # noqa: E402
 from thinkfast.decide import values as vl  # noqa: E402
 from thinkfast.estimate import crossing as dm  # noqa: E402
 from thinkfast.estimate import filter as kf  # noqa: E402
+from thinkfast.link import gc_rule  # noqa: E402
 from thinkfast.machine import machine_info  # noqa: E402
 
 PLANE = 0.8  # m, intercept plane x = PLANE in base

@@ -67,9 +67,9 @@ import numpy as np
 
 from thinkfast.control.safety import SafetyConfig, SafetySupervisor
 from thinkfast.control.safety_limits import make_limits
-from thinkfast.daemon.rt_thread import pin_thread
 from thinkfast.errors import ThinkfastError
 from thinkfast.link.egm_server import EgmServer, parse_hostport
+from thinkfast.link.rt_thread import pin_thread
 from thinkfast.sim.controller import SimController, servo_for
 from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.realtime import log_text

@@ -5,7 +5,7 @@ without the wall clock, so that every run of the same arguments makes the same r
 
 * a simulated controller whose arm follows every command exactly sends each cycle's
   ``EgmRobot`` (real protobuf EGM over real UDP on loopback, ``seqno`` and ``tm`` exact);
-* the reply loop (:class:`~thinkfast.daemon.reply_process.ReplyLoop` with its
+* the reply loop (:class:`~thinkfast.reply.process.ReplyLoop` with its
   :class:`~thinkfast.link.egm_server.EgmServer`) answers it; its clock is the simulated one;
 * the planner side, as the planner process: an executor of the tree that makes the reply loop's
   replans and steps at each reply's controller time (the rows of the shared ring), takes the
@@ -51,13 +51,13 @@ from thinkfast.contract.egm import decode_sensor, encode_robot
 from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
 from thinkfast.control.plan import SIZE, executor_plan
-from thinkfast.daemon import reply_process
-from thinkfast.daemon.reply_process import ReplyLoop
-from thinkfast.daemon.reply_rows import CALL, COL, REPLY, WIDTH
-from thinkfast.daemon.shared_plan import RowRing, Seqlock
 from thinkfast.link.egm import open_egm
 from thinkfast.link.egm_server import EgmServer
 from thinkfast.link.registry import LinkSpec
+from thinkfast.reply import process as reply_process
+from thinkfast.reply.process import ReplyLoop
+from thinkfast.reply.rows import CALL, COL, REPLY, WIDTH
+from thinkfast.reply.shared_plan import RowRing, Seqlock
 from thinkfast.robot.model import default_robot_path, load_robot
 from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe_cameras
 from thinkfast.sim.lockstep import sim_cameras

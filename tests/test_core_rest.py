@@ -5,7 +5,7 @@ controller whose ``tm`` jitters by +-1 ms in whole milliseconds and whose own st
 stamps jump while its servo moves one cycle (``seqno`` +1): the controller time lags the wall
 clock by the stalls. The plans come from the real executor (small compiled tree, real Ruckig)
 through the plan vector, as the planner process publishes them; the executor steps where the
-follower stepped and takes the follower's replans, as :mod:`thinkfast.daemon.split` does.
+follower stepped and takes the follower's replans, as :mod:`thinkfast.daemon.planner_process` does.
 """
 
 import numpy as np

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from thinkfast.daemon.cycle import PREPARE_AHEAD, SILENT, SPIN_LATE, WORK_GUARD, Cycle
+from thinkfast.link.cycle import PREPARE_AHEAD, SILENT, SPIN_LATE, WORK_GUARD, Cycle
 
 DT = 0.004
 

@@ -5,7 +5,7 @@ import gc
 
 import pytest
 
-from thinkfast.daemon import gc_rule
+from thinkfast.link import gc_rule
 
 
 @pytest.fixture

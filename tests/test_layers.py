@@ -18,11 +18,22 @@ ALLOWED = {
     "control": BASE | {"estimate", "decide"},
     "record": BASE | {"control"},
     "link": BASE | {"control"},
-    "daemon": BASE | {"estimate", "decide", "control", "record", "link"},
+    "reply": BASE | {"control", "link"},
+    "daemon": BASE | {"estimate", "decide", "control", "record", "link", "reply"},
     "compile": BASE,
     "perception": BASE,
     "sim": BASE
-    | {"estimate", "decide", "control", "record", "link", "daemon", "compile", "perception"},
+    | {
+        "estimate",
+        "decide",
+        "control",
+        "record",
+        "link",
+        "reply",
+        "daemon",
+        "compile",
+        "perception",
+    },
     "calib": BASE | {"estimate", "decide", "control", "record", "link", "daemon", "sim"},
     "cell": {"errors", "cli_util", "contract"},  # contract: the secured cell's identities
 }

@@ -213,11 +213,11 @@ def test_the_deadline_brakes_on_a_silent_planner_and_resumes_from_the_stop(robot
     from thinkfast.control.config import RunConfig
     from thinkfast.control.plan import SIZE, plan_vector
     from thinkfast.control.segments import STEER, move
-    from thinkfast.daemon.reply_process import ReplyLoop
-    from thinkfast.daemon.reply_rows import CALL, COL, EVENT, EVENTS, REPLY, WIDTH
-    from thinkfast.daemon.shared_plan import RowRing, Seqlock
     from thinkfast.link.egm import egm_feedback, open_egm
     from thinkfast.link.registry import LinkSpec
+    from thinkfast.reply.process import ReplyLoop
+    from thinkfast.reply.rows import CALL, COL, EVENT, EVENTS, REPLY, WIDTH
+    from thinkfast.reply.shared_plan import RowRing, Seqlock
 
     cfg = RunConfig()
     block, ring = Seqlock(SIZE), RowRing(WIDTH)
@@ -297,12 +297,12 @@ def _replies_with_plans_landing(robot, monkeypatch, prepare: bool) -> tuple[np.n
     from thinkfast.control.config import RunConfig
     from thinkfast.control.plan import SIZE, plan_vector
     from thinkfast.control.segments import STEER, move
-    from thinkfast.daemon import reply_process
-    from thinkfast.daemon.reply_process import ReplyLoop
-    from thinkfast.daemon.reply_rows import WIDTH
-    from thinkfast.daemon.shared_plan import RowRing, Seqlock
     from thinkfast.link.egm import egm_feedback, open_egm
     from thinkfast.link.registry import LinkSpec
+    from thinkfast.reply import process as reply_process
+    from thinkfast.reply.process import ReplyLoop
+    from thinkfast.reply.rows import WIDTH
+    from thinkfast.reply.shared_plan import RowRing, Seqlock
 
     now = [100.0]
     clock = SimpleNamespace(time=lambda: now[0], monotonic=lambda: now[0])

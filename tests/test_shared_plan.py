@@ -6,7 +6,7 @@ import multiprocessing
 
 import numpy as np
 
-from thinkfast.daemon.shared_plan import RowRing, Seqlock
+from thinkfast.reply.shared_plan import RowRing, Seqlock
 
 SIZE = 512
 
@@ -81,7 +81,7 @@ def test_the_ring_keeps_order_and_counts_rows_overwritten_before_they_were_read(
 _SMALL_DISK = """
 import resource, sys
 resource.setrlimit(resource.RLIMIT_FSIZE, (65536, 65536))
-from thinkfast.daemon.shared_plan import RowRing
+from thinkfast.reply.shared_plan import RowRing
 from thinkfast.errors import ThinkfastError
 try:
     RowRing(32)

@@ -32,7 +32,7 @@ from thinkfast.control.safety_limits import (
 from thinkfast.control.safety_limits import robot_limits as robot_limits  # the daemon's import
 
 # planner_stale, planner_lost: the reply process had no word from its planner process in time,
-# or lost it (thinkfast.daemon.reply_process)
+# or lost it (thinkfast.reply.process)
 BRAKE_REASONS = ("signal", "deviation", "nonfinite", "planner_stale", "planner_lost")
 # brakes whose cause lies outside the EGM stream: a restart of the stream (a silence, standby)
 # does not remove them (thinkfast.control.core)

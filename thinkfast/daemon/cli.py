@@ -237,7 +237,7 @@ def run(
     spin = math.inf if busy_poll else spin_ahead / 1e3
     kind, extra = Daemon, {}
     if reply_process:
-        from thinkfast.daemon.split import SplitDaemon
+        from thinkfast.daemon.planner_process import SplitDaemon
 
         kind, extra = SplitDaemon, {"stall": _stall_option(test_stall_planner)}
     elif test_stall_planner is not None:

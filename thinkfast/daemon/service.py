@@ -10,7 +10,7 @@ smoothly while the controller still talks to it, then exits 0.
 
 Nothing may delay a reply, so the other work runs right after one: the first queued detection
 is taken at once after a reply, further ones only while, at the cost of the slowest recent one,
-they end before the next ``EgmRobot``'s window opens (:mod:`thinkfast.daemon.cycle`). The
+they end before the next ``EgmRobot``'s window opens (:mod:`thinkfast.link.cycle`). The
 mirrored setpoints and the status go out in the same place, and so do garbage collections
 (automatic collection is off while serving; the interpreter's own thresholds decide).
 
@@ -22,7 +22,7 @@ a time) until a packet comes; with ``spin_ahead`` it spins on the socket inside 
 virtual machine Python runs several times slower right after a sleep), and with ``spin_ahead
 >= dt`` (busy polling) all the time, at the cost of a whole core. ``cpu`` pins the loop's thread
 to one core (and zenoh's threads to the others), ``fifo`` puts it under SCHED_FIFO
-(:mod:`thinkfast.daemon.rt_thread`). docs/BENCHMARKS.md has the figures.
+(:mod:`thinkfast.link.rt_thread`). docs/BENCHMARKS.md has the figures.
 """
 
 from __future__ import annotations
@@ -44,14 +44,14 @@ from thinkfast.control.assembly import CoreAssembly
 from thinkfast.control.config import RunConfig
 from thinkfast.control.link import Feedback
 from thinkfast.control.modes import STAGE_KEYS
-from thinkfast.daemon import gc_rule
-from thinkfast.daemon.cycle import Cycle
 from thinkfast.daemon.home_watch import HomeWatch
 from thinkfast.daemon.options import Endpoints, Modes
-from thinkfast.daemon.rt_thread import pin_thread, set_fifo
 from thinkfast.daemon.status_text import episode_end, peer_text, status_message, summary
 from thinkfast.daemon.zenoh_edge import ZenohIO
+from thinkfast.link import gc_rule
+from thinkfast.link.cycle import Cycle
 from thinkfast.link.registry import LinkSpec, open_link
+from thinkfast.link.rt_thread import pin_thread, set_fifo
 from thinkfast.record.recorder import Recorder
 from thinkfast.record.tables import plane_json
 from thinkfast.robot.model import Robot
@@ -140,7 +140,7 @@ class Daemon:
     # -------------------------------------------------------------- EGM path
     def _open_link(self, endpoints: Endpoints):
         """The controller link ``endpoints.link`` answering with :meth:`_reply`
-        (thinkfast.daemon.split: in the reply process)."""
+        (thinkfast.daemon.planner_process: in the reply process)."""
         spec = LinkSpec(endpoints.egm_bind, endpoints.egm_controller, endpoints.egm_handover,
                         self.cfg.safety.dt)  # fmt: skip
         return open_link(endpoints.link, spec, self._reply)

@@ -1,13 +1,13 @@
 """The isolated EGM reply loop: a process of its own that no planning can delay.
 
-Started by the daemon with ``--reply-process`` (:mod:`thinkfast.daemon.split`, the planner
+Started by the daemon with ``--reply-process`` (:mod:`thinkfast.daemon.planner_process`, the planner
 process), it alone owns the EGM socket, and ``--cpu``/``--fifo`` apply to it alone. Its loop
 does, per ``EgmRobot``: receive, check the peer and the feedback, place the packet on the
 controller's clock, evaluate the current plan at that time, supervise, encode, send
 (:class:`~thinkfast.control.core.ControlCore` around a
 :class:`~thinkfast.control.plan.PlanFollower`: the same catch-up, restart, standby and fault
 policy as the daemon's own loop). Between packets it writes each reply's row to the ring the
-planner reads (:mod:`thinkfast.daemon.reply_rows`), takes a new plan from shared memory (a
+planner reads (:mod:`thinkfast.reply.rows`), takes a new plan from shared memory (a
 seqlock: never waits) and prepares the next reply at once (the setpoint and the supervisor's
 filter for the next cycle, its ``EgmSensor`` body encoded; again after a new plan: the follower
 forgets the one prepared, :meth:`PlanFollower.retract`), so that a packet finds its reply
@@ -18,7 +18,7 @@ deadlines:
   jerk-limited stop (brake ``planner_stale``); once stopped and the planner speaks again, the
   loop plans on from the commanded state (a ``resync`` the planner makes too) and resumes;
 * the planner process gone (this process was re-parented): brake ``planner_lost``, one line on
-  stderr, a status of its own on zenoh (:mod:`thinkfast.daemon.orphan_status`: ``state``
+  stderr, a status of its own on zenoh (:mod:`thinkfast.reply.orphan_status`: ``state``
   ``fault``), and the loop keeps answering, holding the arm, until it is stopped (SIGTERM/SIGINT:
   it brakes while the controller still talks, then ends, as the daemon does).
 
@@ -41,14 +41,15 @@ from thinkfast.control.core import ControlCore
 from thinkfast.control.link import Feedback
 from thinkfast.control.plan import SIZE, PlanFollower, decode_plan
 from thinkfast.control.safety import SafetySupervisor, robot_limits
-from thinkfast.daemon import gc_rule, orphan_status
-from thinkfast.daemon.cycle import Cycle
-from thinkfast.daemon.reply_rows import WIDTH, call_row, event_row, reply_row
-from thinkfast.daemon.rt_thread import pin_thread, set_fifo
-from thinkfast.daemon.shared_plan import RowRing, Seqlock
+from thinkfast.link import gc_rule
+from thinkfast.link.cycle import Cycle
 from thinkfast.link.egm import open_egm
 from thinkfast.link.egm_server import EgmServer
 from thinkfast.link.registry import LinkSpec
+from thinkfast.link.rt_thread import pin_thread, set_fifo
+from thinkfast.reply import orphan_status
+from thinkfast.reply.rows import WIDTH, call_row, event_row, reply_row
+from thinkfast.reply.shared_plan import RowRing, Seqlock
 
 PARENT_CHECK = 0.001  # s: how often the loop looks whether its planner process is still there
 

@@ -1,8 +1,8 @@
 """The rows the reply process writes for the planner process (``--reply-process``).
 
-One home for the layout of :class:`~thinkfast.daemon.shared_plan.RowRing` rows: the reply
-process writes them (:mod:`thinkfast.daemon.reply_process`), the planner process reads them
-(:mod:`thinkfast.daemon.split`). Three kinds, in the order things happened:
+One home for the layout of :class:`~thinkfast.reply.shared_plan.RowRing` rows: the reply
+process writes them (:mod:`thinkfast.reply.process`), the planner process reads them
+(:mod:`thinkfast.daemon.planner_process`). Three kinds, in the order things happened:
 
 * ``CALL``: the reply loop planned again from the commanded state (``PlanFollower.CALLS``: a
   catch-up or supervisor change, a restart, a fault hold, a recovery); the planner makes the same

@@ -32,7 +32,7 @@ def preload() -> None:
 
 
 def start(zenoh_json: str, prefix: str, loop) -> threading.Thread:
-    """Publish ``loop``'s status (a :class:`~thinkfast.daemon.reply_process.ReplyLoop`) from a
+    """Publish ``loop``'s status (a :class:`~thinkfast.reply.process.ReplyLoop`) from a
     daemon thread, on a session of the zenoh configuration ``zenoh_json`` (JSON5)."""
     th = threading.Thread(target=_run, args=(zenoh_json, prefix, loop), daemon=True)
     th.start()

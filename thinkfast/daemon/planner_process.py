@@ -3,8 +3,8 @@
 
 :class:`SplitDaemon` is the :class:`~thinkfast.daemon.service.Daemon` (intake, filter, launch,
 choice, executor, zenoh, recorder, live view, status) with the EGM socket handed to the reply
-process (:mod:`thinkfast.daemon.reply_process`, started with ``spawn``). Instead of answering
-packets it reads the reply rows (:mod:`thinkfast.daemon.reply_rows`): it makes every replan
+process (:mod:`thinkfast.reply.process`, started with ``spawn``). Instead of answering
+packets it reads the reply rows (:mod:`thinkfast.reply.rows`): it makes every replan
 the reply loop made on its executor too, steps the executor at each reply's controller time (so
 the tree's queued edges start, throws end and the arm returns home) and mirrors the reply
 loop's state onto its own control core for the status, the way home and the record. It
@@ -37,8 +37,14 @@ from thinkfast.control.modes import EXECUTING
 from thinkfast.control.plan import CALLS, MODES, SIZE, executor_plan, plan_key
 from thinkfast.control.planner_side import PlannerSide
 from thinkfast.control.safety import BRAKE_REASONS
-from thinkfast.daemon import reply_process
-from thinkfast.daemon.reply_rows import (
+from thinkfast.daemon.service import Daemon
+from thinkfast.errors import ConfigError
+from thinkfast.link.egm_address import EgmAddressError
+from thinkfast.link.egm_server import EgmCounters
+from thinkfast.link.reply_times import ReplyTimes
+from thinkfast.link.rt_thread import set_fifo
+from thinkfast.reply import process as reply_process
+from thinkfast.reply.rows import (
     CALL,
     COL,
     CORE_COUNTS,
@@ -49,13 +55,7 @@ from thinkfast.daemon.reply_rows import (
     WIDTH,
     ip_text,
 )  # fmt: skip
-from thinkfast.daemon.rt_thread import set_fifo
-from thinkfast.daemon.service import Daemon
-from thinkfast.daemon.shared_plan import RowRing, Seqlock
-from thinkfast.errors import ConfigError
-from thinkfast.link.egm_address import EgmAddressError
-from thinkfast.link.egm_server import EgmCounters
-from thinkfast.link.reply_times import ReplyTimes
+from thinkfast.reply.shared_plan import RowRing, Seqlock
 
 log = logging.getLogger("thinkfast.run")
 START_TIMEOUT = 120.0  # s for the reply process to import, bind and report
