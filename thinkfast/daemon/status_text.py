@@ -19,7 +19,7 @@ from thinkfast.control.core import FAULT_REASONS
 from thinkfast.control.executor import FAULT, STAGE_KEYS
 
 if TYPE_CHECKING:
-    from thinkfast.daemon.service import Daemon
+    from thinkfast.daemon.daemon_parts import DaemonParts as Daemon  # not the service's
 
 
 def status_message(d: Daemon, now: float) -> dict:
