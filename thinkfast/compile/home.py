@@ -61,7 +61,7 @@ def solve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config")
     (it turns the disk about its own axis). Deterministic: fixed seeds, fixed order.
 
     Args:
-        robot: the robot placed in the config's plane (``LoadedConfig.robot``'s frame).
+        robot: the robot placed in the config's plane (:func:`placed_robot`'s frame).
         cfg: the compile configuration (plane and goal region).
         source: the config's path, for the message.
 
