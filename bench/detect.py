@@ -8,7 +8,7 @@ figures of issue 7 (detection rate 1-9 m, 3-D error against the noise model, fal
     .venv/bin/python bench/detect.py --zenoh 600     # also: 600 frames at 60 Hz through the
                                                      # real thinkfast-detect process over zenoh
 
-Frames are rendered by thinkfast.sim.frames (4 scenes, taken in turn) and encoded as frame
+Frames are rendered by thinkfast.sim.images (4 scenes, taken in turn) and encoded as frame
 payloads (docs/CAMERA_FRAMES.md); only decoding and detection are timed (what thinkfast-detect
 does per frame besides zenoh), pinned to one core with OpenCV on one thread.
 """
@@ -33,7 +33,7 @@ from thinkfast.perception.config import load_detect_config  # noqa: E402
 from thinkfast.sim.camera import CameraModelConfig  # noqa: E402
 from thinkfast.sim.detect_check import run_check, summary  # noqa: E402
 from thinkfast.sim.frame_stream import RESOLUTIONS  # noqa: E402
-from thinkfast.sim.frames import FrameRenderConfig, FrameRenderer  # noqa: E402
+from thinkfast.sim.images import FrameRenderConfig, FrameRenderer  # noqa: E402
 
 
 def pin_one_core() -> int | None:

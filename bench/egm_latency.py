@@ -70,9 +70,9 @@ from thinkfast.control.safety_limits import make_limits
 from thinkfast.errors import ThinkfastError
 from thinkfast.link.egm_server import EgmServer, parse_hostport
 from thinkfast.link.rt_thread import pin_thread
+from thinkfast.sim.child_log import log_text
 from thinkfast.sim.controller import SimController, servo_for
 from thinkfast.sim.controller_runner import ControllerRunner
-from thinkfast.sim.realtime import log_text
 
 DEFAULT_TREE = Path(__file__).resolve().parents[1] / "trees" / "irb1600_default.h5"
 

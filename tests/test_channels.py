@@ -19,7 +19,7 @@ from thinkfast.record.channels import (  # noqa: E402
     scene_messages,
 )
 from thinkfast.record.format import read_record  # noqa: E402
-from thinkfast.record.mcap import TOPICS, cdr_joint_state, cdr_point_stamped  # noqa: E402
+from thinkfast.record.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped  # noqa: E402
 from thinkfast.record.scene import SCENE_TOPIC  # noqa: E402
 from thinkfast.record.tables import columns  # noqa: E402
 

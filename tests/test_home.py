@@ -82,19 +82,18 @@ def test_a_given_home_off_the_plane_is_refused_with_the_distance(tmp_path):
     0.813 m (the 1.2 m arm's case): refused naming the key, the distance and the fix."""
     from tests.conftest import run_cli
     from thinkfast.compile.config import load_compile_config
+    from thinkfast.compile.home import check_home, home_error, placed_robot
 
     config = _config(tmp_path, ROBOT_TOML, "[plane]\ndistance = 0.813\n[goals]\nspacing = 0.5\n")
     loaded = load_compile_config(config)
     with pytest.raises(ConfigError, match=r"tree\.home.*13\.0 mm off the plane.*solve"):
-        loaded.check_home(loaded.robot())
+        check_home(placed_robot(loaded), loaded.config, str(loaded.path))
     out = tmp_path / "t.h5"
     proc = run_cli("thinkfast-compile", "tree", str(config), "-o", str(out), "--jobs", "1")
     assert proc.returncode == 1 and not out.exists()
     assert "tree.home" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     ok = _config(tmp_path, ROBOT_TOML, '[plane]\ndistance = 0.813\n[tree]\nhome = "solve"\n')
-    from thinkfast.compile.home import home_error
-
-    robot = load_compile_config(ok).robot()
+    robot = placed_robot(load_compile_config(ok))
     assert robot.home_solved and max(home_error(robot, robot.home, 0.813)) < 1e-6
 
 
@@ -104,10 +103,10 @@ def test_a_home_on_the_plane_is_kept_and_the_default_tree_is_unchanged():
     import json
 
     from thinkfast.compile.config import load_compile_config
-    from thinkfast.compile.home import solve_home
+    from thinkfast.compile.home import placed_robot, solve_home
 
     loaded = load_compile_config(ROBOT_TOML.parents[2] / "trees" / "irb1600_default.toml")
-    robot = loaded.robot()
+    robot = placed_robot(loaded)
     assert not robot.home_solved
     params = loaded.parameters(robot)
     assert "home" not in params and "home" not in params["tree"]
@@ -118,10 +117,11 @@ def test_a_home_on_the_plane_is_kept_and_the_default_tree_is_unchanged():
 
 def test_no_home_in_reach_is_refused_naming_the_region(tmp_path):
     from thinkfast.compile.config import load_compile_config
+    from thinkfast.compile.home import placed_robot
 
     far = '[goals]\ny_min = 2.5\ny_max = 3.0\nspacing = 0.3\n[tree]\nhome = "solve"\n'
     with pytest.raises(ConfigError, match=r"goals.*no home.*region's centre"):
-        load_compile_config(_config(tmp_path, ROBOT_TOML, far)).robot()
+        placed_robot(load_compile_config(_config(tmp_path, ROBOT_TOML, far)))
 
 
 def test_throws_for_a_tree_aim_at_its_region(solved_tree):
@@ -148,9 +148,10 @@ def test_verify_checks_a_solved_home_tree(solved_tree):
 def test_the_small_tree_template_still_reads_home_from_robot_toml(tmp_path):
     """The default family (robot.toml gives a home on the plane) compiles as before."""
     from thinkfast.compile.config import load_compile_config
+    from thinkfast.compile.home import placed_robot
 
     text = SMALL_TREE.format(robot=ROBOT_TOML, spacing=0.3, depth=1, subgoal=0.6, radius=0.3)
-    robot = load_compile_config(_config(tmp_path, ROBOT_TOML, text.split("\n", 1)[1])).robot()
+    robot = placed_robot(load_compile_config(_config(tmp_path, ROBOT_TOML, text.split("\n", 1)[1])))
     assert not robot.home_solved
 
 

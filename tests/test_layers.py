@@ -74,7 +74,8 @@ def test_no_runtime_grab_bag_is_left():
 def test_import_linter_contracts_hold():
     """pyproject.toml's [tool.importlinter] contracts (layers from calib/cell and sim down to
     contract; pure kernels free of sockets, zenoh, HDF5 and processes; no bench or test code in
-    the package; what the record, the simulators, calib and cell stay free of) hold."""
+    the package; what the record, the simulators, calib and cell stay free of; no import cycles
+    between siblings: tests/test_import_cycles.py for single modules) hold."""
     import subprocess
     import sys
 

@@ -14,7 +14,7 @@ from thinkfast.perception.config import DetectConfig
 from thinkfast.sim.camera import CameraModelConfig
 from thinkfast.sim.detect_check import CHI2_3_3SIGMA, run_check, summary
 from thinkfast.sim.frame_stream import RESOLUTIONS
-from thinkfast.sim.frames import FrameRenderConfig, FrameRenderer
+from thinkfast.sim.images import FrameRenderConfig, FrameRenderer
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -23,7 +23,7 @@ from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
 from thinkfast.perception.frame import encode_frame, parse_frame
 from thinkfast.sim.camera import CameraModelConfig
-from thinkfast.sim.frames import FrameRenderConfig, FrameRenderer
+from thinkfast.sim.images import FrameRenderConfig, FrameRenderer
 
 # a narrow 320 x 180 camera with the HD720 focal length keeps frames small (0.9 MB) in tests
 CAM = CameraModelConfig(image_size=(320, 180))

@@ -12,7 +12,7 @@ import pytest
 from tests.conftest import compile_small_tree
 from thinkfast.contract.ros import JOINT_NAMES, decode_joint_state, encode_joint_state
 from thinkfast.record.format import read_record
-from thinkfast.record.mcap import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
+from thinkfast.record.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
 from thinkfast.sim.cli import main as sim_main
 
 

@@ -16,7 +16,8 @@ import pytest
 from tests.daemon_harness import free_port, until
 from thinkfast.contract import keys
 from thinkfast.contract.zenoh_session import free_tcp_port, open_peer
-from thinkfast.sim.realtime import log_text, start_daemon, wait_port
+from thinkfast.sim.child_log import log_text
+from thinkfast.sim.realtime import start_daemon, wait_port
 
 
 def test_a_log_read_while_its_writer_writes_keeps_every_line(tmp_path):

@@ -11,6 +11,7 @@ import numpy as np
 from thinkfast.compile.config import LoadedConfig
 from thinkfast.compile.goals import require_reachable, solve_goal_grid
 from thinkfast.compile.grow import GrowInputs, Progress, grow, subgoals
+from thinkfast.compile.home import check_home, placed_robot
 from thinkfast.compile.shield import pad_terminals, sample_spacing
 from thinkfast.machine import library_versions, machine_info
 from thinkfast.robot.batch_fk import BatchFK
@@ -46,10 +47,10 @@ def compile_tree(
     """
     start = time.perf_counter()
     cfg = loaded.config
-    robot = loaded.robot()  # placed in the plane's frame
+    robot = placed_robot(loaded)  # placed in the plane's frame
     grid = solve_goal_grid(robot, cfg.goals, cfg.plane.distance)
     require_reachable(grid, str(loaded.path))
-    loaded.check_home(robot)  # robot.toml's home on this plane (a solved one is)
+    check_home(robot, cfg, str(loaded.path))  # robot.toml's home on this plane (a solved one is)
     reach = grid.goal_index
     goal_q = np.array(grid.q[reach])
     goal_yz = np.array(grid.yz[reach])

@@ -53,11 +53,12 @@ def goals(
     """Solve the IK goal grid on the intercept plane and print it with a summary."""
     from thinkfast.compile.config import load_compile_config
     from thinkfast.compile.goals import require_reachable, solve_goal_grid
+    from thinkfast.compile.home import check_home, placed_robot
     from thinkfast.compile.report import goal_png, goal_summary, goal_table
     from thinkfast.robot.kinematics import Kinematics
 
     loaded = load_compile_config(config)
-    robot = loaded.robot()
+    robot = placed_robot(loaded)
     kin = Kinematics(robot)
     grid = solve_goal_grid(robot, loaded.config.goals, loaded.config.plane.distance, kin)
     print(goal_table(grid, robot, kin.shield(robot.home).centre))
@@ -67,7 +68,7 @@ def goals(
         goal_png(grid, robot, str(png))
         print(f"wrote {png}")
     require_reachable(grid, str(config))
-    loaded.check_home(robot)
+    check_home(robot, loaded.config, str(loaded.path))
 
 
 @app.command()

@@ -141,33 +141,11 @@ class LoadedConfig:
     sha256: str
     robot_path: Path
 
-    def robot(self):
-        """The robot of this config, placed in its plane (``Robot.placed``), with the tree's
-        home (:func:`thinkfast.compile.home.resolve_home`): every pose the compiler computes
-        is in the plane's frame.
-
-        Raises:
-            ConfigError: no home can be solved. robot.toml's home on the plane is checked by
-                :meth:`check_home`, after the goal grid.
-        """
-        from thinkfast.compile.home import resolve_home
-        from thinkfast.robot.model import load_robot
-
-        placed = load_robot(self.robot_path).placed(self.config.plane.pose())
-        return resolve_home(placed, self.config, str(self.path))
-
-    def check_home(self, robot) -> None:
-        """Refuse robot.toml's home when its shield is off this config's plane
-        (:func:`thinkfast.compile.home.check_home`)."""
-        from thinkfast.compile.home import check_home
-
-        check_home(robot, self.config, str(self.path))
-
     def parameters(self, robot) -> dict:
         """The resolved configuration as a tree records it (``parameters``): every key, except
         the plane's pose keys where it has none and ``tree.home`` where it is ``"auto"``, so that
         a config without them is the same tree as before they existed; ``home`` holds a solved
-        home [rad] (``robot``'s, from :meth:`robot`)."""
+        home [rad] (``robot``'s, from :func:`thinkfast.compile.home.placed_robot`)."""
         from thinkfast.config import to_dict
 
         out = {**to_dict(self.config), "plane": self.config.plane.parameters()}

@@ -22,14 +22,14 @@ import math
 
 import numpy as np
 
-from thinkfast.compile.config import CompileConfig
+from thinkfast.compile.config import CompileConfig, LoadedConfig
 from thinkfast.compile.goals import SHIELD_NORMAL, _variants, candidate_problem, normal_error
 from thinkfast.errors import ConfigError
 from thinkfast.robot import fixed_order as fo
 from thinkfast.robot.collision import CollisionChecker
 from thinkfast.robot.ik import solve_shield_ik
 from thinkfast.robot.kinematics import Kinematics
-from thinkfast.robot.model import Robot
+from thinkfast.robot.model import Robot, load_robot
 
 PLANE_TOLERANCE = 0.005  # m: a given home's shield centre within this of the plane
 NORMAL_TOLERANCE = math.radians(2.0)  # rad: and its normal within this of the plane's normal
@@ -61,7 +61,7 @@ def solve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config")
     (it turns the disk about its own axis). Deterministic: fixed seeds, fixed order.
 
     Args:
-        robot: the robot placed in the config's plane (``LoadedConfig.robot``'s frame).
+        robot: the robot placed in the config's plane (:func:`placed_robot`'s frame).
         cfg: the compile configuration (plane and goal region).
         source: the config's path, for the message.
 
@@ -114,6 +114,18 @@ def resolve_home(robot: Robot, cfg: CompileConfig, source: str = "compile config
     if cfg.tree.home == "auto" and robot.home is not None:
         return robot
     return robot.with_home(solve_home(robot, cfg, source))
+
+
+def placed_robot(loaded: LoadedConfig) -> Robot:
+    """The robot of ``loaded``, placed in its plane (``Robot.placed``), with the tree's home
+    (:func:`resolve_home`): every pose the compiler computes is in the plane's frame.
+
+    Raises:
+        ConfigError: no home can be solved. robot.toml's home on the plane is checked by
+            :func:`check_home`, after the goal grid.
+    """
+    placed = load_robot(loaded.robot_path).placed(loaded.config.plane.pose())
+    return resolve_home(placed, loaded.config, str(loaded.path))
 
 
 def check_home(robot: Robot, cfg: CompileConfig, source: str = "compile config") -> None:

@@ -15,7 +15,6 @@ The layout, the type hash, frames and units in full: docs/ROS2.md, "The zenoh la
 
 from __future__ import annotations
 
-import functools
 import math
 import re
 from typing import NamedTuple
@@ -23,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from thinkfast.contract.detection import Detection, encode_detection, parse_detection
+from thinkfast.contract.ros_types import typestore, vision_typestore
 from thinkfast.errors import ConfigError, ThinkfastError
 
 POINT_STAMPED = "geometry_msgs/msg/PointStamped"
@@ -41,22 +41,6 @@ _NAME_TOKEN = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 class RosDecodeError(ThinkfastError):
     """A payload is not the CDR of the message type expected, or an attachment is not
     rmw_zenoh's. The message says which."""
-
-
-@functools.cache
-def typestore():
-    """The rosbags type store of ROS 2 Jazzy (message definitions, CDR codec, type hashes).
-
-    Raises:
-        ConfigError: rosbags is not installed (the ``ros`` extra).
-    """
-    try:
-        from rosbags.typesys import Stores, get_typestore
-    except ImportError:
-        raise ConfigError(
-            "--ros-domain", None, "needs rosbags: pip install 'thinkfast[ros]'"
-        ) from None
-    return get_typestore(Stores.ROS2_JAZZY)
 
 
 # ----------------------------------------------------------------------------- names and keys
@@ -117,8 +101,6 @@ def dds_type_name(msgtype: str) -> str:
 def type_hash(msgtype: str) -> str:
     """REP-2016 type hash ``RIHS01_<64 hex>`` of ``msgtype`` (from its type description)."""
     if msgtype.startswith("vision_msgs/"):  # not in Jazzy's store: registered on first use
-        from thinkfast.contract.ros_vision import vision_typestore
-
         return vision_typestore().hash_rihs01(msgtype)
     return typestore().hash_rihs01(msgtype)
 

@@ -1,10 +1,9 @@
 """``vision_msgs/msg/Detection3DArray`` in (docs/ROS2.md): a ROS 2 detector's 3-D detections as
 the project's detection message.
 
-rosbags' Jazzy store has no vision_msgs, so their definitions (vision_msgs 4.1.1, the Jazzy
-release: fields only, comments left out, as the type hash covers fields only) are registered in
-the store of :func:`thinkfast.contract.ros.typestore` on first use; the CDR codec and the
-REP-2016 type hash are rosbags' as for every other type.
+rosbags' Jazzy store has no vision_msgs, so their definitions are registered in it on first use
+(:func:`thinkfast.contract.ros_types.vision_typestore`); the CDR codec and the REP-2016 type
+hash are rosbags' as for every other type.
 
 One array becomes at most one detection: the ball is one object, so the array's detection with
 the highest hypothesis score is taken (the first on ties); its ``bbox.center.position`` [m] is
@@ -15,41 +14,13 @@ the detection's header stamp (the array's when zero). Frames are the project's (
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from thinkfast.contract.detection import encode_detection
-from thinkfast.contract.ros import RosDecodeError, namespace, seconds, typestore
+from thinkfast.contract.ros import RosDecodeError, namespace, seconds
+from thinkfast.contract.ros_types import vision_typestore
 
 DETECTION_3D_ARRAY = "vision_msgs/msg/Detection3DArray"
-VISION_MSGS = {  # vision_msgs 4.1.1 (ROS 2 Jazzy), msg/*.msg without comments
-    "vision_msgs/msg/ObjectHypothesis": "string class_id\nfloat64 score\n",
-    "vision_msgs/msg/ObjectHypothesisWithPose": (
-        "vision_msgs/ObjectHypothesis hypothesis\ngeometry_msgs/PoseWithCovariance pose\n"
-    ),
-    "vision_msgs/msg/BoundingBox3D": "geometry_msgs/Pose center\ngeometry_msgs/Vector3 size\n",
-    "vision_msgs/msg/Detection3D": (
-        "std_msgs/Header header\nvision_msgs/ObjectHypothesisWithPose[] results\n"
-        "vision_msgs/BoundingBox3D bbox\nstring id\n"
-    ),
-    "vision_msgs/msg/Detection3DArray": (
-        "std_msgs/Header header\nvision_msgs/Detection3D[] detections\n"
-    ),
-}
-
-
-@functools.cache
-def vision_typestore():
-    """The project's rosbags type store with vision_msgs' detection types registered."""
-    from rosbags.typesys import get_types_from_msg
-
-    ts = typestore()
-    types = {}
-    for name, text in VISION_MSGS.items():
-        types.update(get_types_from_msg(text, name))
-    ts.register(types)
-    return ts
 
 
 def detections_3d_topic(prefix: str) -> str:

@@ -13,8 +13,8 @@ from thinkfast.config import from_dict, include_table, load_toml, spec, to_toml
 from thinkfast.contract.camera_mode import DEFAULT_FPS, CameraSetup, check_camera_setup
 from thinkfast.contract.detection import CAMERA_ID, DetectionLimits
 from thinkfast.control.hedge import HedgeConfig
-from thinkfast.control.planners.solver_config import JplConfig, MpcConfig
 from thinkfast.control.safety import SafetyConfig
+from thinkfast.control.solver_config import JplConfig, MpcConfig
 from thinkfast.decide.choice import ChoiceConfig
 from thinkfast.decide.path_value import PathValueConfig
 from thinkfast.decide.values import ValueConfig

@@ -9,7 +9,7 @@ shield along the chosen motion, its goal and text), the goal grid, the joints an
 
 Channels (log time = the daemon's time of the sample [ns since the Unix epoch]; frame ``base``):
 the MCAP export's ROS 2 topics with the same schemas and CDR bytes
-(:data:`thinkfast.record.mcap.TOPICS`; ``/thinkfast/decisions`` carries ``motion``, ``value``,
+(:data:`thinkfast.record.ros_topics.TOPICS`; ``/thinkfast/decisions`` carries ``motion``, ``value``,
 ``best_goal``), ``/thinkfast/scene`` (``foxglove.SceneUpdate``, the entities of
 :data:`thinkfast.record.scene.ENTITY_IDS`) and ``/thinkfast/status`` (JSON, the status message,
 twice a second). Needs the ``foxglove`` extra (``foxglove-sdk``; rosbags for the CDR);

@@ -20,7 +20,7 @@ from thinkfast.control.modes import FAULT
 from thinkfast.control.outcome import CoreState
 
 if TYPE_CHECKING:
-    from thinkfast.daemon.service import Daemon
+    from thinkfast.daemon.daemon_parts import DaemonParts as Daemon  # not the service's
 
 
 def status_message(d: Daemon, now: float) -> dict:

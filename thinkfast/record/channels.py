@@ -5,7 +5,7 @@
 ``crossing``, ``decision``, ``arm``, ``joints``, ``event``, ``status``, ``shield_path``) and turns
 each call into encoded messages handed to ``emit(t, topic, data)``:
 
-* the ROS 2 topics of the MCAP export (:data:`thinkfast.record.mcap.TOPICS`, CDR by the live
+* the ROS 2 topics of the MCAP export (:data:`thinkfast.record.ros_topics.TOPICS`, CDR by the live
   ROS topics' encoder), when ``ros`` is true;
 * the 3D scene on :data:`~thinkfast.record.scene.SCENE_TOPIC` (``foxglove.SceneUpdate``,
   :class:`~thinkfast.record.scene.Scene`): arm and shield, ball belief, crossing, plan, goals;
@@ -24,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 
 from thinkfast.contract.ros import encode_string
-from thinkfast.record.mcap import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
+from thinkfast.record.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
 from thinkfast.record.scene import SCENE_TOPIC, Scene, scene_schema
 
 STATUS_TOPIC = "/thinkfast/status"

@@ -4,9 +4,9 @@
 are ROS 2 message definitions (encoding ``ros2msg``), messages CDR (little endian, encoding
 ``cdr``), written with the ``mcap`` package (the ``view`` extra). Messages and schemas come
 from the encoder of the live ROS 2 topics (:mod:`thinkfast.contract.ros`), so a recorded
-JointState is the bytes the live topic carries. Channels: :data:`TOPICS`; points in ``base``
-[m], joints [rad]; the scene (:mod:`thinkfast.record.scene`) is what the live Foxglove view
-draws.
+JointState is the bytes the live topic carries. Channels:
+:data:`thinkfast.record.ros_topics.TOPICS`; points in ``base`` [m], joints [rad]; the scene
+(:mod:`thinkfast.record.scene`) is what the live Foxglove view draws.
 
 The channel table and the scene: docs/RECORD_FORMAT.md, "MCAP export".
 """
@@ -16,19 +16,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
-from thinkfast.contract.ros import (
-    JOINT_STATE,
-    POINT_STAMPED,
-    STRING,
-    encode_joint_state,
-    encode_point_stamped,
-    encode_string,
-    typestore,
-)
+from thinkfast.contract.ros import encode_string
 from thinkfast.errors import ConfigError
 from thinkfast.record.format import MODES, Record
+from thinkfast.record.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
 from thinkfast.record.tables import (
     columns,
     event_times,
@@ -36,37 +27,6 @@ from thinkfast.record.tables import (
     raw_positions,
     run_config,
 )
-
-FRAME = "base"
-TOPICS = {
-    "/thinkfast/joints/commanded": JOINT_STATE,
-    "/thinkfast/joints/measured": JOINT_STATE,
-    "/thinkfast/detections/raw": POINT_STAMPED,
-    "/thinkfast/detections/accepted": POINT_STAMPED,
-    "/thinkfast/ball/belief": POINT_STAMPED,
-    "/thinkfast/ball/crossing": POINT_STAMPED,
-    "/thinkfast/decisions": STRING,
-    "/thinkfast/events": STRING,
-}
-
-
-def schemas() -> dict[str, str]:
-    """The ROS 2 message definitions (``ros2msg``, with their dependencies, as rosbag2 writes
-    them) of every type in :data:`TOPICS`, from the same type store that encodes them."""
-    ts = typestore()
-    return {typ: ts.generate_msgdef(typ, ros_version=2)[0] for typ in set(TOPICS.values())}
-
-
-def cdr_joint_state(t: float, names, position, velocity=()) -> bytes:
-    """sensor_msgs/msg/JointState at Unix time ``t`` [s]: positions [rad], velocities [rad/s];
-    the live topics' encoder (:func:`thinkfast.contract.ros.encode_joint_state`)."""
-    vel = None if len(velocity) == 0 else velocity
-    return encode_joint_state(t, position, vel, tuple(names))
-
-
-def cdr_point_stamped(t: float, p, frame: str = FRAME) -> bytes:
-    """geometry_msgs/msg/PointStamped at Unix time ``t`` [s]: point (3,) [m] in ``frame``."""
-    return encode_point_stamped(t, np.asarray(p, dtype=float)[:3], frame)
 
 
 # ------------------------------------------------------------------ the record's messages

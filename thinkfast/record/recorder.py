@@ -1,8 +1,8 @@
 """Flight recorder: every detection (raw and accepted), belief, decision, EGM exchange and event.
 
-The daemon's real-time thread calls the row methods (:mod:`~thinkfast.record.rows`;
-:meth:`Recorder.egm` on every reply): each copies its row into a preallocated batch (no system
-call; its cost: docs/BENCHMARKS.md, "Flight recorder"). Batches
+The daemon's real-time thread calls the row methods (:meth:`Recorder.egm` on every reply,
+``detection``, ``belief``, ``decision``, ``raw``, ``event``): each copies its row into a
+preallocated batch (no system call; its cost: docs/BENCHMARKS.md, "Flight recorder"). Batches
 go as frames (:mod:`~thinkfast.record.wire`) through a non-blocking pipe to a writer
 process (:mod:`~thinkfast.record.writer`) that appends them to chunked HDF5 datasets and
 commits the file every half second: the file on disk is a complete record at any moment
@@ -20,15 +20,18 @@ checks the path at once (:class:`RecorderError`). Not thread-safe: one thread ca
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import time
 from pathlib import Path
 
+import numpy as np
+
 from thinkfast.errors import RecorderError
-from thinkfast.record.format import FORMAT, SCHEMA_VERSION, STREAMS, read_detections
+from thinkfast.record.format import FORMAT, MODES, SCHEMA_VERSION, STREAMS, read_detections
 from thinkfast.record.pipe import WriterGone, WriterPipe, check_target
-from thinkfast.record.rows import TABLE_ROWS, VAR_BYTES, RowMethods
+from thinkfast.record.wire import STREAM_ID, TableBatch, VarBatch
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "STREAMS", "Recorder", "RecorderError", "read_detections"]
 
@@ -40,9 +43,12 @@ PIPE_BYTES = 1 << 20  # asked pipe capacity (Linux F_SETPIPE_SZ; 64 KiB if refus
 # s: a writer process not ready after START_TIMEOUT fails the start (a loaded host may take
 # seconds to start a Python process); one not done CLOSE_TIMEOUT after close is killed
 START_TIMEOUT, CLOSE_TIMEOUT = 60.0, 1.5
+TABLE_ROWS = 256  # rows per table batch
+VAR_ROWS, VAR_BYTES = 64, 256 * 1024  # rows and bytes per variable-length batch (and per row)
+MODE_INDEX = {m: float(i) for i, m in enumerate(MODES)}
 
 
-class Recorder(RowMethods):
+class Recorder:
     """Streams rows to ``path`` through a writer process (a no-op recorder when ``path`` is None).
 
     Args:
@@ -97,6 +103,133 @@ class Recorder(RowMethods):
         writer adds at most ``writer.COMMIT_BYTES`` of uncommitted changes)."""
         pipe = self._pipe.capacity if self._pipe else 0
         return pipe + 8 * TABLE_ROWS * (6 + 57 + 5 + 21) + 2 * VAR_BYTES
+
+    # -------------------------------------------------------------- rows (real-time thread)
+    # Each row method copies its row into a preallocated batch (:mod:`~thinkfast.record.wire`)
+    # and returns; it never raises (a row it cannot take is dropped and counted, one warning
+    # per stream). It ships (``_ship``) only when its batch is full, or (except ``egm``) when
+    # the batches are MAX_AGE old.
+    def egm(self, t: float, seqno: int, q_fb, q_cmd, qd_cmd, braking: bool) -> None:
+        """One EGM exchange: feedback [rad], setpoint sent [rad, rad/s], braking."""
+        b = self._egm
+        if b is None:
+            return
+        try:
+            n = b.n
+            if n == b.cap:
+                return self._overflow()
+            r = b.rows[n]
+            r[0], r[1], r[2:8], r[8:14], r[14:20], r[20] = t, seqno, q_fb, q_cmd, qd_cmd, braking
+            b.n = n + 1
+            if n + 1 == b.cap:  # (not by age: the other row methods and service() do that)
+                self._ship()
+        except Exception as exc:  # noqa: BLE001 - never raise into the EGM loop
+            self._bad_row("egm", exc)
+
+    def detection(self, t: float, stamp: float, p: np.ndarray, seq: int | None) -> None:
+        """An accepted detection: receive time and stamp [s], position in base [m], seq."""
+        b = self._det
+        if b is None:
+            return
+        try:
+            if b.n == b.cap:
+                return self._overflow()
+            r = b.rows[b.n]
+            r[0], r[1], r[2:5], r[5] = t, stamp, p, -1 if seq is None else seq
+            b.n += 1
+            self._after(b)
+        except Exception as exc:  # noqa: BLE001
+            self._bad_row("detections", exc)
+
+    def belief(self, t: float, belief, crossing) -> None:
+        """The filter belief (``.t``, ``.mean`` (6,), ``.cov`` (6, 6)) and its plane crossing
+        (``.ok``, ``.mean`` (3,), ``.cov`` (3, 3)) at time ``t`` [s]."""
+        b = self._bel
+        if b is None:
+            return
+        try:
+            if b.n == b.cap:
+                return self._overflow()
+            r = b.rows[b.n]
+            r[0], r[1], r[2:8], r[8:44] = t, belief.t, belief.mean, np.ravel(belief.cov)
+            r[44], r[45:48], r[48:57] = bool(crossing.ok), crossing.mean, np.ravel(crossing.cov)
+            b.n += 1
+            self._after(b)
+        except Exception as exc:  # noqa: BLE001
+            self._bad_row("beliefs", exc)
+
+    def decision(self, t: float, mode: str, node: int, value: float, best_goal: int) -> None:
+        """Planner state: mode (index in MODES, -1 if unknown), node, its value, best goal."""
+        b = self._dec
+        if b is None:
+            return
+        try:
+            if b.n == b.cap:
+                return self._overflow()
+            b.rows[b.n] = (t, MODE_INDEX.get(mode, -1.0), node, value, best_goal)
+            b.n += 1
+            self._after(b)
+        except Exception as exc:  # noqa: BLE001
+            self._bad_row("decisions", exc)
+
+    def raw(self, t: float, payload: bytes) -> None:
+        """A detection payload as received at ``t`` [s]."""
+        if self._raw is not None:
+            try:
+                self._var(self._raw, t, (bytes(payload),))
+            except Exception as exc:  # noqa: BLE001
+                self._bad_row("raw", exc)
+
+    def event(self, t: float, kind: str, detail: dict) -> None:
+        """Something the daemon reports at ``t`` [s]: ``kind`` and a JSON-able ``detail``
+        (values JSON cannot hold are written as their ``str``)."""
+        if self._ev is not None:
+            try:
+                d = json.dumps(detail, default=str, separators=(",", ":")).encode()
+                self._var(self._ev, t, (str(kind).encode("utf-8", "replace"), d))
+            except Exception as exc:  # noqa: BLE001 - e.g. a circular detail
+                self._bad_row("events", exc)
+
+    def _var(self, b: VarBatch, t: float, fields: tuple[bytes, ...]) -> None:
+        size = sum(map(len, fields))
+        if not b.fits(size):
+            if size <= b.cap_bytes and time.monotonic() >= self._retry_at:
+                self._ship()
+            if not b.fits(size):
+                self.dropped += 1
+                return
+        b.add(float(t), fields, size)
+        self._after(b)
+
+    def _after(self, b) -> None:
+        if b.full() or time.monotonic() >= self._due:
+            self._ship()
+
+    def _overflow(self) -> None:
+        self.dropped += 1
+        if time.monotonic() >= self._retry_at:
+            self._ship()
+
+    def _bad_row(self, stream: str, exc: Exception) -> None:
+        self.dropped += 1
+        if stream not in self._warned:
+            self._warned.add(stream)
+            log.warning("flight record: refused a %s row (%s); such rows are dropped", stream, exc)
+
+    def _hot(self, on: bool) -> None:
+        """Create (or drop: the row methods then return at once) the batches."""
+        if not on:
+            self._raw = self._det = self._bel = self._dec = self._egm = self._ev = None
+            self._batches: tuple = ()
+            return
+        s = STREAM_ID
+        self._raw = VarBatch(s["raw"], VAR_ROWS, VAR_BYTES)
+        self._det = TableBatch(s["detections"], 6, TABLE_ROWS)
+        self._bel = TableBatch(s["beliefs"], 57, TABLE_ROWS)
+        self._dec = TableBatch(s["decisions"], 5, TABLE_ROWS)
+        self._egm = TableBatch(s["egm"], 21, TABLE_ROWS)
+        self._ev = VarBatch(s["events"], VAR_ROWS, VAR_BYTES)
+        self._batches = (self._raw, self._det, self._bel, self._dec, self._egm, self._ev)
 
     # -------------------------------------------------------------- idle time
     def service(self) -> None:

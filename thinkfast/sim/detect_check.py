@@ -18,7 +18,7 @@ from thinkfast.perception.config import DetectConfig
 from thinkfast.perception.detect import Found, detect
 from thinkfast.perception.frame import parse_frame
 from thinkfast.sim.camera import CameraModelConfig
-from thinkfast.sim.frames import FrameRenderer
+from thinkfast.sim.images import FrameRenderer
 
 CHI2_3_3SIGMA = 14.156  # chi-square, 3 dof, at the two-sided 3-sigma probability 0.9973
 

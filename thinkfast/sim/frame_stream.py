@@ -2,7 +2,7 @@
 
 ``thinkfast-sim run --frames`` uses this instead of publishing detections: every frame of a
 throw (the camera model's frame grid, from the ball's appearance in the hand to just past the
-plane) is rendered by :class:`~thinkfast.sim.frames.FrameRenderer` and published on
+plane) is rendered by :class:`~thinkfast.sim.images.FrameRenderer` and published on
 ``<prefix>/camera/frame`` at capture time plus the bridge's latency; a ``thinkfast-detect``
 process turns them into detections for the daemon.
 """
@@ -27,8 +27,8 @@ from thinkfast.contract import keys
 from thinkfast.contract.camera_mode import ZED_MODES
 from thinkfast.contract.frames import CameraExtrinsic
 from thinkfast.sim.camera import CameraModelConfig
-from thinkfast.sim.frames import FrameRenderConfig, FrameRenderer
-from thinkfast.sim.realtime import log_text
+from thinkfast.sim.child_log import log_text
+from thinkfast.sim.images import FrameRenderConfig, FrameRenderer
 from thinkfast.sim.throws import Throw, ball_states, observed_until
 
 RESOLUTIONS = {k.lower(): (m.image_size, m.focal_px) for k, m in ZED_MODES.items()}

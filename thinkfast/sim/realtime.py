@@ -10,7 +10,6 @@ compare it with the throw's true flight. A feint is judged by
 from __future__ import annotations
 
 import collections
-import os
 import signal
 import subprocess
 import sys
@@ -29,6 +28,7 @@ from thinkfast.decide.tree_view import BALL_RADIUS
 from thinkfast.robot.kinematics import Kinematics
 from thinkfast.robot.model import Robot
 from thinkfast.sim.camera import CameraModelConfig, mode_model, observe
+from thinkfast.sim.child_log import log_text
 from thinkfast.sim.controller import SimController, servo_for
 from thinkfast.sim.controller_runner import ControllerRunner
 from thinkfast.sim.judge import FEINT_WINDOW, judge, judge_feint
@@ -116,14 +116,6 @@ def start_daemon(
 def daemon_log(proc: subprocess.Popen) -> str:
     """What a daemon started by :func:`start_daemon` wrote to stderr so far."""
     return log_text(proc.log)
-
-
-def log_text(log) -> str:
-    """The whole of ``log``, a file a child process writes through (its stderr), read with
-    ``pread``: the child and this process share one file offset, and a ``seek(0)`` here while
-    the child writes would put its next line over the start of the file."""
-    fd = log.fileno()
-    return os.pread(fd, os.fstat(fd).st_size, 0).decode("utf-8", "replace")
 
 
 def daemon_says(proc: subprocess.Popen, text: str, timeout: float) -> str | None:

@@ -11,7 +11,7 @@ from thinkfast.perception.colour import colour_mask
 from thinkfast.perception.config import ColourConfig
 from thinkfast.perception.frame import Frame, parse_frame
 from thinkfast.sim.camera import CameraModelConfig, depth_sigma
-from thinkfast.sim.frames import FrameRenderConfig, FrameRenderer
+from thinkfast.sim.images import FrameRenderConfig, FrameRenderer
 
 CAM = CameraModelConfig()
 F = CAM.focal_px
