@@ -12,16 +12,16 @@ import pytest
 
 pytest.importorskip("foxglove")
 
-from thinkfast.record.channels import (  # noqa: E402
+from thinkfast.record.format import read_record  # noqa: E402
+from thinkfast.record.tables import columns  # noqa: E402
+from thinkfast.view.channels import (  # noqa: E402
     STATUS_TOPIC,
     ChannelPainter,
     channel_specs,
     scene_messages,
 )
-from thinkfast.record.format import read_record  # noqa: E402
-from thinkfast.record.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped  # noqa: E402
-from thinkfast.record.scene import SCENE_TOPIC  # noqa: E402
-from thinkfast.record.tables import columns  # noqa: E402
+from thinkfast.view.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped  # noqa: E402
+from thinkfast.view.scene import SCENE_TOPIC  # noqa: E402
 
 GOLDEN = Path(__file__).parent / "data" / "record_v1_golden.h5"
 
@@ -66,7 +66,7 @@ def test_every_painter_call_is_messages_on_the_advertised_channels(robot):
 def test_a_records_mcap_carries_the_live_scene_schema_and_its_entities(robot, tmp_path):
     from mcap.reader import make_reader
 
-    from thinkfast.record.mcap import write_mcap
+    from thinkfast.view.mcap import write_mcap
 
     rec = read_record(GOLDEN)
     out = tmp_path / "g.mcap"

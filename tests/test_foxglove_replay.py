@@ -2,7 +2,7 @@
 client (tests/foxglove_client.py: the protocol, protobuf and CDR decoded from what the server
 advertises). ``thinkfast-sim run --foxglove`` hands the option to the daemon it starts (the
 daemon's view: its scheduler, its painter); ``thinkfast-sim replay RECORD --foxglove``
-(thinkfast/daemon/foxglove_replay.py) plays that run's flight record at its pace, and the client
+(thinkfast/view/foxglove_replay.py) plays that run's flight record at its pace, and the client
 gets the MCAP's scene messages byte for byte and the record's joints and events."""
 
 from __future__ import annotations
@@ -20,12 +20,12 @@ pytest.importorskip("websocket")
 
 from tests.foxglove_client import listen, protobuf_class, ros2_decoder  # noqa: E402
 from thinkfast.contract.zenoh_session import free_tcp_port  # noqa: E402
-from thinkfast.daemon.foxglove_replay import Played, play  # noqa: E402
-from thinkfast.record.channels import scene_messages  # noqa: E402
 from thinkfast.record.format import read_record  # noqa: E402
-from thinkfast.record.replay import decimate, plane_and_goals  # noqa: E402
-from thinkfast.record.scene import SCENE_TOPIC  # noqa: E402
 from thinkfast.record.tables import columns  # noqa: E402
+from thinkfast.view.channels import scene_messages  # noqa: E402
+from thinkfast.view.foxglove_replay import Played, play  # noqa: E402
+from thinkfast.view.replay import decimate, plane_and_goals  # noqa: E402
+from thinkfast.view.scene import SCENE_TOPIC  # noqa: E402
 
 BIN = Path(sys.executable).parent
 START = 180.0  # s: time limits for a slow host (waits end on conditions, far sooner)

@@ -18,8 +18,8 @@ pytest.importorskip("websocket")
 from tests.daemon_harness import DaemonRun, ballistic_throw, publish_throw  # noqa: E402
 from tests.foxglove_client import listen, protobuf_class, ros2_decoder  # noqa: E402
 from thinkfast.contract.zenoh_session import free_tcp_port  # noqa: E402
-from thinkfast.daemon.foxglove_view import foxglove_address  # noqa: E402
 from thinkfast.errors import ConfigError  # noqa: E402
+from thinkfast.view.foxglove import foxglove_address  # noqa: E402
 
 AIM = (0.25, 1.25)  # y, z [m] on the plane where the simulated ball crosses
 

@@ -19,7 +19,8 @@ ALLOWED = {
     "record": BASE | {"control"},
     "link": BASE | {"control"},
     "reply": BASE | {"control", "link"},
-    "daemon": BASE | {"estimate", "decide", "control", "record", "link", "reply"},
+    "view": BASE | {"estimate", "decide", "control", "record", "link"},
+    "daemon": BASE | {"estimate", "decide", "control", "record", "link", "reply", "view"},
     "compile": BASE,
     "perception": BASE,
     "sim": BASE
@@ -30,11 +31,12 @@ ALLOWED = {
         "record",
         "link",
         "reply",
+        "view",
         "daemon",
         "compile",
         "perception",
     },
-    "calib": BASE | {"estimate", "decide", "control", "record", "link", "daemon", "sim"},
+    "calib": BASE | {"estimate", "decide", "control", "record", "link", "view", "daemon", "sim"},
     "cell": {"errors", "cli_util", "contract"},  # contract: the secured cell's identities
 }
 

@@ -12,8 +12,8 @@ import pytest
 from tests.conftest import compile_small_tree
 from thinkfast.contract.ros import JOINT_NAMES, decode_joint_state, encode_joint_state
 from thinkfast.record.format import read_record
-from thinkfast.record.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
 from thinkfast.sim.cli import main as sim_main
+from thinkfast.view.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
 
 
 @pytest.fixture(scope="module")
@@ -159,8 +159,8 @@ def test_a_record_is_drawn_with_the_robot_it_was_flown_with(recorded, tmp_path):
 
     from thinkfast.errors import RobotModelError
     from thinkfast.record.format import read_record
-    from thinkfast.record.replay import record_robot
     from thinkfast.record.tables import record_plane, run_config
+    from thinkfast.view.replay import record_robot
 
     tree, path = recorded
     rec = read_record(path)
@@ -184,7 +184,7 @@ def test_a_bad_record_is_one_error_naming_the_file(tmp_path):
 
 
 def test_json_of_decisions_is_valid(recorded):
-    from thinkfast.record.mcap import record_messages
+    from thinkfast.view.mcap import record_messages
 
     _, record = recorded
     msgs = record_messages(read_record(record), [f"joint_{i}" for i in range(1, 7)])

@@ -1,11 +1,11 @@
 """The Rerun painter's text: one line per chosen motion (its geometry: tests/test_scene.py; the
-painter on a real stream: tests/test_live_view.py)."""
+painter on a real stream: tests/test_view_live.py)."""
 
 from __future__ import annotations
 
 import pytest
 
-from thinkfast.daemon.rerun_painter import motion_text
+from thinkfast.view.rerun_painter import motion_text
 
 
 @pytest.mark.parametrize(

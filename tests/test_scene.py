@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from thinkfast.record.scene import (
+from thinkfast.view.scene import (
     ENTITY_IDS,
     Scene,
     _quat_from_x,

@@ -90,7 +90,7 @@ def test_the_recorded_console_shows_state_controller_and_egm(daemons):
 
 @pytest.mark.realtime
 @pytest.mark.skipif(shutil.which("tmux") is None, reason="needs tmux")
-def test_live_view_in_a_terminal(daemons, tmp_path):
+def test_view_live_in_a_terminal(daemons, tmp_path):
     a, _ = daemons
     name = f"tf{uuid.uuid4().hex[:8]}"
     cmd = f"{EXE} status --key-prefix lab_a --zenoh-connect {a} --rate 4; echo EXIT=$?; sleep 30"

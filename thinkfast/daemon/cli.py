@@ -175,11 +175,11 @@ def run(
     setup_logging(log_level, log_format)
     zenoh_logging(log_format)
     if rerun is not None:
-        from thinkfast.daemon.live_view import parse_sink
+        from thinkfast.view.live import parse_sink
 
         parse_sink(rerun)
     if foxglove is not None:
-        from thinkfast.daemon.foxglove_view import foxglove_address as parse_fox
+        from thinkfast.view.foxglove import foxglove_address as parse_fox
 
         if rerun is not None:
             raise ConfigError("--foxglove", None, "not with --rerun: one live view at a time")
@@ -247,11 +247,11 @@ def run(
         **extra,
     )  # fmt: skip
     if rerun is not None:
-        from thinkfast.daemon.live_view import daemon_view
+        from thinkfast.view.live import daemon_view
 
         daemon.view = daemon_view(rerun, robot, daemon.runtime_tree, cfg)
     if foxglove is not None:
-        from thinkfast.daemon.foxglove_view import FoxgloveView
+        from thinkfast.view.foxglove import FoxgloveView
 
         daemon.view = FoxgloveView(*fox, robot, daemon.runtime_tree, cfg)
         logging.getLogger("thinkfast.run").info("foxglove on ws://%s:%d", fox[0], daemon.view.port)

@@ -16,11 +16,11 @@ if TYPE_CHECKING:
     from thinkfast.control.link import ControllerLink
     from thinkfast.control.safety import SafetySupervisor
     from thinkfast.daemon.home_watch import HomeWatch
-    from thinkfast.daemon.live_view import DaemonView
     from thinkfast.daemon.options import Modes
     from thinkfast.daemon.zenoh_edge import ZenohIO
     from thinkfast.record.recorder import Recorder
     from thinkfast.robot.model import Robot
+    from thinkfast.view.live import DaemonView
 
 
 class DaemonParts(Protocol):

@@ -80,7 +80,7 @@ class Daemon:
         view=None,
     ):
         self.cfg, self.robot, self.planner, self.modes = cfg, robot, planner, modes
-        self.view = view  # live view (daemon/live_view.DaemonView: Rerun or Foxglove) or None
+        self.view = view  # live view (view/live.DaemonView: Rerun or Foxglove) or None
         self.tree_meta = tree.meta
         self.tree_fingerprint = tree_fingerprint(tree)  # `thinkfast-compile diff` prints it too
         self.cycle, self.cpu, self.fifo = Cycle(cfg.safety.dt, spin_ahead), cpu, fifo

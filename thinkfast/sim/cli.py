@@ -273,8 +273,8 @@ def replay(
     if rerun is not None or mcap is not None:
         convert(record, rerun, mcap, tree, scene)
     if foxglove is not None:
-        from thinkfast.daemon.foxglove_replay import record_to_foxglove
         from thinkfast.record.format import read_record
+        from thinkfast.view.foxglove_replay import record_to_foxglove
 
         record_to_foxglove(read_record(record), *fox, tree, speed)
         return
@@ -304,8 +304,8 @@ def replay(
 
 def _foxglove_replay_address(text: str, zenoh_connect) -> tuple[str, int]:
     """``--foxglove`` of replay: (host, port); not with ``--zenoh-connect``."""
-    from thinkfast.daemon.foxglove_view import foxglove_address
     from thinkfast.errors import ConfigError
+    from thinkfast.view.foxglove import foxglove_address
 
     if zenoh_connect:
         raise ConfigError("--foxglove", None, "not with --zenoh-connect: the daemon receiving "

@@ -41,13 +41,13 @@ def live_view_args(rerun: str | None, foxglove: str | None) -> tuple[str, ...]:
         ConfigError: a bad sink or address, or both options (one live view at a time).
     """
     if rerun is not None:
-        from thinkfast.daemon.live_view import parse_sink
+        from thinkfast.view.live import parse_sink
 
         parse_sink(rerun)
     if foxglove is None:
         return () if rerun is None else ("--rerun", rerun)
-    from thinkfast.daemon.foxglove_view import foxglove_address
     from thinkfast.errors import ConfigError
+    from thinkfast.view.foxglove import foxglove_address
 
     foxglove_address(foxglove)
     if rerun is not None:

@@ -29,14 +29,14 @@ def convert(
 
     sink = None
     if rerun is not None:
-        from thinkfast.daemon.live_view import parse_sink
+        from thinkfast.view.live import parse_sink
 
         sink = parse_sink(rerun)  # before reading: a bad option fails at once
     rec = read_record(record)
     if mcap is not None:
-        from thinkfast.record.mcap import write_mcap
-        from thinkfast.record.replay import record_robot
         from thinkfast.record.tables import run_config
+        from thinkfast.view.mcap import write_mcap
+        from thinkfast.view.replay import record_robot
 
         cfg = run_config(rec)
         robot = record_robot(rec, cfg, tree)
@@ -44,7 +44,7 @@ def convert(
         counts = write_mcap(rec, mcap, robot.joint_names, extra)
         print(f"wrote {sum(counts.values())} messages on {len(counts)} topics to {mcap}")
     if sink is not None:
-        from thinkfast.daemon.record_view import record_to_rerun
+        from thinkfast.view.record_rerun import record_to_rerun
 
         counts = record_to_rerun(rec, sink, tree)
         what = ", ".join(f"{n} {k}" for k, n in counts.items())
@@ -60,7 +60,7 @@ def _scene(rec, robot, tree: Path | None) -> tuple:
     import importlib.util
 
     from thinkfast.errors import ConfigError
-    from thinkfast.record.replay import plane_and_goals
+    from thinkfast.view.replay import plane_and_goals
 
     if importlib.util.find_spec("foxglove") is None:
         raise ConfigError("--scene", None, "needs foxglove-sdk: pip install 'thinkfast[foxglove]'")

@@ -1,8 +1,8 @@
 """A flight record drawn by a painter: the live views' calls, offline.
 
 :func:`log_record` calls a painter (the Rerun view's
-:class:`~thinkfast.daemon.rerun_painter.Painter`, or
-:class:`~thinkfast.record.channels.ChannelPainter` for Foxglove's scene in the MCAP export)
+:class:`~thinkfast.view.rerun_painter.Painter`, or
+:class:`~thinkfast.view.channels.ChannelPainter` for Foxglove's scene in the MCAP export)
 with what the record holds, at the record's Unix times: raw and accepted detections, beliefs and
 their plane crossings, decisions (mode, node, value, best goal; a record keeps no motion, so no
 shield path), the arm at the commanded and measured joints (EGM rows, at most ``joint_rate`` per

@@ -2,9 +2,9 @@
 
 :class:`Painter` turns detections, the filter belief, the plane crossing, the decision and the
 joints into the entities of :data:`ENTITIES` on the ``time`` timeline (Unix time [s]). Used by
-the daemon live (:mod:`thinkfast.daemon.live_view`) and by ``thinkfast-sim replay --rerun``
-offline (:mod:`thinkfast.daemon.record_view`). The geometry it draws is pure (ellipsoids,
-quaternions, the crossing on the plane: :mod:`thinkfast.record.scene`, shared with the Foxglove
+the daemon live (:mod:`thinkfast.view.live`) and by ``thinkfast-sim replay --rerun``
+offline (:mod:`thinkfast.view.record_rerun`). The geometry it draws is pure (ellipsoids,
+quaternions, the crossing on the plane: :mod:`thinkfast.view.scene`, shared with the Foxglove
 view). ``rerun`` is imported when a painter is made.
 """
 
@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from thinkfast.record.scene import ELLIPSOID_SIGMAS, ellipsoid, matrix_quat, plane_cov
+from thinkfast.view.scene import ELLIPSOID_SIGMAS, ellipsoid, matrix_quat, plane_cov
 
 __all__ = ["ELLIPSOID_SIGMAS", "ENTITIES", "Painter", "ellipsoid", "matrix_quat", "plane_cov"]
 TIMELINE = "time"  # Unix time [s]

@@ -1,6 +1,6 @@
 """The ROS 2 topics of a flight record (:data:`TOPICS`) with their message definitions and
-encoders: the MCAP export's (:mod:`thinkfast.record.mcap`) and the live Foxglove view's
-(:mod:`thinkfast.record.channels`). Messages and definitions come from the encoder of the live
+encoders: the MCAP export's (:mod:`thinkfast.view.mcap`) and the live Foxglove view's
+(:mod:`thinkfast.view.channels`). Messages and definitions come from the encoder of the live
 ROS 2 topics (:mod:`thinkfast.contract.ros`), so a recorded JointState is the bytes the live
 topic carries. Points are in the frame ``base`` (:data:`FRAME`, the robot base).
 """

@@ -1,14 +1,14 @@
 """thinkfast's quantities as Foxglove channels: the live Foxglove view's and the MCAP's.
 
 :class:`ChannelPainter` has the painter methods of the Rerun view
-(:class:`~thinkfast.daemon.rerun_painter.Painter`: ``raw``, ``accepted``, ``belief``,
+(:class:`~thinkfast.view.rerun_painter.Painter`: ``raw``, ``accepted``, ``belief``,
 ``crossing``, ``decision``, ``arm``, ``joints``, ``event``, ``status``, ``shield_path``) and turns
 each call into encoded messages handed to ``emit(t, topic, data)``:
 
-* the ROS 2 topics of the MCAP export (:data:`thinkfast.record.ros_topics.TOPICS`, CDR by the live
+* the ROS 2 topics of the MCAP export (:data:`thinkfast.view.ros_topics.TOPICS`, CDR by the live
   ROS topics' encoder), when ``ros`` is true;
-* the 3D scene on :data:`~thinkfast.record.scene.SCENE_TOPIC` (``foxglove.SceneUpdate``,
-  :class:`~thinkfast.record.scene.Scene`): arm and shield, ball belief, crossing, plan, goals;
+* the 3D scene on :data:`~thinkfast.view.scene.SCENE_TOPIC` (``foxglove.SceneUpdate``,
+  :class:`~thinkfast.view.scene.Scene`): arm and shield, ball belief, crossing, plan, goals;
 * the daemon's status message on :data:`STATUS_TOPIC` (JSON), live only.
 
 The live view (``thinkfast-run --foxglove``) emits into the Foxglove SDK's channels; the MCAP
@@ -24,8 +24,8 @@ from collections.abc import Callable
 import numpy as np
 
 from thinkfast.contract.ros import encode_string
-from thinkfast.record.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
-from thinkfast.record.scene import SCENE_TOPIC, Scene, scene_schema
+from thinkfast.view.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
+from thinkfast.view.scene import SCENE_TOPIC, Scene, scene_schema
 
 STATUS_TOPIC = "/thinkfast/status"
 GOALS_PERIOD = 2.0  # s between repeats of the static goal grid (for clients that join later)
@@ -67,7 +67,7 @@ class ChannelPainter:
         """Every method once, emitting nothing: what is made on first use (rosbags' type store
         and its generated serialisers, imports) is made here, before the daemon serves. A cold
         first step measured at milliseconds would otherwise wait for its decaying cost estimate
-        (live_view.WAIT_DECAY) and hold the view's queue for seconds."""
+        (view/live.WAIT_DECAY) and hold the view's queue for seconds."""
         emit, self.emit = self.emit, lambda t, topic, data: None
         try:
             q = np.asarray(robot.any_q, dtype=float)
@@ -151,8 +151,8 @@ class ChannelPainter:
 def scene_messages(record, robot, plane_x, goal_yz, joint_rate: float = 50.0) -> list:
     """The scene of ``record`` (arm at most ``joint_rate`` per second, beliefs, crossings,
     decisions) as (Unix time [s], :data:`SCENE_TOPIC`, SceneUpdate bytes), in time order."""
-    from thinkfast.record.replay import log_record
     from thinkfast.record.tables import run_config
+    from thinkfast.view.replay import log_record
 
     out: list[tuple[float, str, bytes]] = []
     p = ChannelPainter(lambda t, topic, data: out.append((t, topic, data)), robot,

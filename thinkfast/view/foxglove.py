@@ -1,29 +1,29 @@
 """Live view in Foxglove (``thinkfast-run --foxglove [HOST:]PORT``): the Foxglove SDK's
 WebSocket server in the daemon, fed by the Rerun view's own scheduler
-(:class:`~thinkfast.daemon.live_view.DaemonView`: references queued at detection time, steps of
+(:class:`~thinkfast.view.live.DaemonView`: references queued at detection time, steps of
 one or two messages run between EGM replies only when their measured cost fits the time left in
-the cycle) through :class:`~thinkfast.record.channels.ChannelPainter` instead of the Rerun
+the cycle) through :class:`~thinkfast.view.channels.ChannelPainter` instead of the Rerun
 painter. So the scene is the Rerun view's: arm and shield (commanded and measured), the ball's
 belief (mean, velocity, covariance ellipsoid), the crossing Gaussian on the plane, the plan (the
 shield along the chosen motion, its goal and text), the goal grid, the joints and the status.
 
 Channels (log time = the daemon's time of the sample [ns since the Unix epoch]; frame ``base``):
 the MCAP export's ROS 2 topics with the same schemas and CDR bytes
-(:data:`thinkfast.record.ros_topics.TOPICS`; ``/thinkfast/decisions`` carries ``motion``, ``value``,
+(:data:`thinkfast.view.ros_topics.TOPICS`; ``/thinkfast/decisions`` carries ``motion``, ``value``,
 ``best_goal``), ``/thinkfast/scene`` (``foxglove.SceneUpdate``, the entities of
-:data:`thinkfast.record.scene.ENTITY_IDS`) and ``/thinkfast/status`` (JSON, the status message,
+:data:`thinkfast.view.scene.ENTITY_IDS`) and ``/thinkfast/status`` (JSON, the status message,
 twice a second). Needs the ``foxglove`` extra (``foxglove-sdk``; rosbags for the CDR);
 imported only with the option. The same server and channels play flight records
-(``thinkfast-sim replay --foxglove``, :mod:`thinkfast.daemon.foxglove_replay`).
+(``thinkfast-sim replay --foxglove``, :mod:`thinkfast.view.foxglove_replay`).
 """
 
 from __future__ import annotations
 
 import threading
 
-from thinkfast.daemon.live_view import DaemonView
 from thinkfast.errors import ConfigError
 from thinkfast.link.egm_address import EgmAddressError, parse_hostport
+from thinkfast.view.live import DaemonView
 
 BACKLOG = 4096  # messages queued per client before a slow one is dropped (the SDK's policy)
 
@@ -42,7 +42,7 @@ def foxglove_address(text: str) -> tuple[str, int]:
 
 class FoxgloveSink:
     """The SDK's server and one channel per topic of
-    :func:`~thinkfast.record.channels.channel_specs`; :meth:`emit` logs one message.
+    :func:`~thinkfast.view.channels.channel_specs`; :meth:`emit` logs one message.
 
     Args:
         host, port: where the WebSocket server listens (port 0: any free one, see ``port``).
@@ -59,7 +59,7 @@ class FoxgloveSink:
         except ImportError:
             raise ConfigError("--foxglove", None, "needs foxglove-sdk: pip install "
                               "'thinkfast[foxglove]'") from None  # fmt: skip
-        from thinkfast.record.channels import channel_specs
+        from thinkfast.view.channels import channel_specs
 
         self.subscriptions = Subscriptions() if count else None
         listener = None if self.subscriptions is None else self.subscriptions.listener()
@@ -125,7 +125,7 @@ class FoxgloveView(DaemonView):
     """
 
     def __init__(self, host: str, port: int, robot, tree_view, cfg, joint_rate: float = 50.0):
-        from thinkfast.record.channels import ChannelPainter
+        from thinkfast.view.channels import ChannelPainter
 
         self.sink = FoxgloveSink(host, port)
         painter = ChannelPainter(self.sink.emit, robot, tree_view.plane_x, tree_view.goal_yz)

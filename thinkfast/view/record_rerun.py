@@ -1,7 +1,7 @@
 """A flight record in the Rerun viewer: the live view's entities, offline (docs/LIVE_VIEW.md).
 
 ``thinkfast-sim replay RECORD --rerun ...`` and ``thinkfast-sim record view``. What the record
-holds is drawn with the live view's :class:`~thinkfast.daemon.rerun_painter.Painter` on the same
+holds is drawn with the live view's :class:`~thinkfast.view.rerun_painter.Painter` on the same
 ``time`` timeline (the record's Unix times): raw and accepted detections, beliefs and their
 plane crossings, decisions (mode, node, value, best goal; a record keeps no motion, so no
 shield path), the arm at the commanded and measured joints (EGM rows, at most ``joint_rate``
@@ -12,23 +12,23 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from thinkfast.daemon.live_view import ViewSink, open_stream
-from thinkfast.daemon.rerun_painter import Painter
 from thinkfast.record.format import Record
-from thinkfast.record.replay import log_record, plane_and_goals
 from thinkfast.record.tables import run_config
+from thinkfast.view.live import ViewSink, open_stream
+from thinkfast.view.replay import log_record, plane_and_goals
+from thinkfast.view.rerun_painter import Painter
 
 
 def drawing_inputs(record: Record, tree: Path | None):
     """What a view draws ``record`` with: (its run configuration, the robot it names, the
     plane's x [m] or None, the goal grid (G, 2) [m] or None; see
-    :func:`~thinkfast.record.replay.plane_and_goals`).
+    :func:`~thinkfast.view.replay.plane_and_goals`).
 
     Raises:
         ConfigError: the record's run configuration does not validate.
         TreeFileError: ``tree`` cannot be read.
     """
-    from thinkfast.record.replay import record_robot
+    from thinkfast.view.replay import record_robot
 
     cfg = run_config(record)
     return (cfg, record_robot(record, cfg, tree), *plane_and_goals(record, tree))

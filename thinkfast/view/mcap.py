@@ -5,8 +5,8 @@ are ROS 2 message definitions (encoding ``ros2msg``), messages CDR (little endia
 ``cdr``), written with the ``mcap`` package (the ``view`` extra). Messages and schemas come
 from the encoder of the live ROS 2 topics (:mod:`thinkfast.contract.ros`), so a recorded
 JointState is the bytes the live topic carries. Channels:
-:data:`thinkfast.record.ros_topics.TOPICS`; points in ``base`` [m], joints [rad]; the scene
-(:mod:`thinkfast.record.scene`) is what the live Foxglove view draws.
+:data:`thinkfast.view.ros_topics.TOPICS`; points in ``base`` [m], joints [rad]; the scene
+(:mod:`thinkfast.view.scene`) is what the live Foxglove view draws.
 
 The channel table and the scene: docs/RECORD_FORMAT.md, "MCAP export".
 """
@@ -19,7 +19,6 @@ from pathlib import Path
 from thinkfast.contract.ros import encode_string
 from thinkfast.errors import ConfigError
 from thinkfast.record.format import MODES, Record
-from thinkfast.record.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
 from thinkfast.record.tables import (
     columns,
     event_times,
@@ -27,6 +26,7 @@ from thinkfast.record.tables import (
     raw_positions,
     run_config,
 )
+from thinkfast.view.ros_topics import TOPICS, cdr_joint_state, cdr_point_stamped, schemas
 
 
 # ------------------------------------------------------------------ the record's messages
@@ -91,8 +91,8 @@ def write_mcap(
     messages = record_messages(record, list(joint_names))
     specs = {t: (typ, "ros2msg", schemas()[typ].encode(), "cdr") for t, typ in TOPICS.items()}
     if scene is not None:
-        from thinkfast.record.channels import channel_specs, scene_messages
-        from thinkfast.record.scene import SCENE_TOPIC
+        from thinkfast.view.channels import channel_specs, scene_messages
+        from thinkfast.view.scene import SCENE_TOPIC
 
         specs[SCENE_TOPIC] = channel_specs(status=False)[SCENE_TOPIC]
         messages = sorted(messages + scene_messages(record, *scene), key=lambda m: m[0])

@@ -1,4 +1,4 @@
-"""Live view with Rerun (thinkfast/daemon/live_view.py, docs/LIVE_VIEW.md): the --rerun option,
+"""Live view with Rerun (thinkfast/view/live.py, docs/LIVE_VIEW.md): the --rerun option,
 the geometry it draws, and a real simulated throw (daemon process, EGM over UDP, zenoh) saved to
 an .rrd file and read back with the Rerun SDK."""
 
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from tests.conftest import compile_small_tree
-from thinkfast.daemon.live_view import DEFAULT_CONNECT, ViewSink, parse_sink
-from thinkfast.daemon.rerun_painter import ENTITIES
 from thinkfast.errors import ConfigError
+from thinkfast.view.live import DEFAULT_CONNECT, ViewSink, parse_sink
+from thinkfast.view.rerun_painter import ENTITIES
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -125,9 +125,9 @@ def test_a_view_step_runs_only_when_its_measured_cost_fits_the_time_left(tmp_pat
     from types import SimpleNamespace
 
     from thinkfast.control.config import RunConfig
-    from thinkfast.daemon.live_view import DaemonView, open_stream, parse_sink
-    from thinkfast.daemon.rerun_painter import Painter
     from thinkfast.robot.model import load_robot
+    from thinkfast.view.live import DaemonView, open_stream, parse_sink
+    from thinkfast.view.rerun_painter import Painter
 
     robot = load_robot()
     rec = open_stream(parse_sink(f"save={tmp_path / 'v.rrd'}"), "gate")

@@ -2,7 +2,7 @@
 
 * Geometry (pure): :func:`ellipsoid` (half-axes and orientation of a covariance's
   ``ELLIPSOID_SIGMAS`` ellipsoid), :func:`matrix_quat`, :func:`plane_cov` (the crossing Gaussian
-  flat on the plane). Drawn by the Rerun painter (:mod:`thinkfast.daemon.rerun_painter`) and by
+  flat on the plane). Drawn by the Rerun painter (:mod:`thinkfast.view.rerun_painter`) and by
   :class:`Scene`.
 * :class:`Scene`: the same quantities as ``foxglove.SceneEntity`` objects (frame ``base``) on the
   topic :data:`SCENE_TOPIC`, one entity id per quantity (:data:`ENTITY_IDS`): a later update of

@@ -5,8 +5,8 @@ Three layers:
 * :func:`parse_sink` / :func:`open_stream`: the ``--rerun`` option (``spawn``, ``connect[=URL]``,
   ``save=FILE.rrd``) and the Rerun recording stream it opens. ``rerun-sdk`` is optional (the
   ``view`` extra); it is imported only here, and only when the option is given.
-* :class:`~thinkfast.daemon.rerun_painter.Painter` turns thinkfast's arrays into Rerun entities
-  (:mod:`thinkfast.daemon.rerun_painter`).
+* :class:`~thinkfast.view.rerun_painter.Painter` turns thinkfast's arrays into Rerun entities
+  (:mod:`thinkfast.view.rerun_painter`).
 * :class:`DaemonView`: the daemon's side. :meth:`DaemonView.on_detection` only queues references
   to immutable objects (the payload, the accepted detection, the belief, the segment); the work
   is done by :meth:`DaemonView.service`, which the daemon calls in its idle time (after the
@@ -26,8 +26,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from thinkfast.daemon.rerun_painter import Painter, motion_text
 from thinkfast.errors import ConfigError
+from thinkfast.view.rerun_painter import Painter, motion_text
 
 APP_ID = "thinkfast"
 DEFAULT_CONNECT = "rerun+http://127.0.0.1:9876/proxy"
@@ -111,8 +111,8 @@ class DaemonView:
     """The daemon's live view (module doc): queue at detection time, log in idle time.
 
     Args:
-        painter: the painter of the stream (:class:`~thinkfast.daemon.rerun_painter.Painter`,
-            or :class:`~thinkfast.record.channels.ChannelPainter` for Foxglove).
+        painter: the painter of the stream (:class:`~thinkfast.view.rerun_painter.Painter`,
+            or :class:`~thinkfast.view.channels.ChannelPainter` for Foxglove).
         cfg: the run configuration (camera extrinsic, detection limits, gravity).
         tree_view: the runtime tree (goal joints for the chosen goal).
         joint_rate: joint samples logged per second at most [Hz].

@@ -1,10 +1,10 @@
 """A flight record played on the Foxglove server at its own pace (``thinkfast-sim replay RECORD
 --foxglove [HOST:]PORT``, docs/LIVE_VIEW.md).
 
-The live Foxglove view's server and channels (:class:`~thinkfast.daemon.foxglove_view.
+The live Foxglove view's server and channels (:class:`~thinkfast.view.foxglove.
 FoxgloveSink`, without the status channel: a record keeps none) and its one painter
-(:class:`~thinkfast.record.channels.ChannelPainter`), fed the calls the Rerun replay and the
-MCAP's scene are drawn from (:func:`~thinkfast.record.replay.timed_calls`: raw and accepted
+(:class:`~thinkfast.view.channels.ChannelPainter`), fed the calls the Rerun replay and the
+MCAP's scene are drawn from (:func:`~thinkfast.view.replay.timed_calls`: raw and accepted
 detections, beliefs, crossings, decisions, the arm and joints at most ``joint_rate`` per second,
 events) at the record's pace: the call at record time ``t`` goes out at wall time
 ``start + (t - t0) / speed`` on an absolute schedule (a late one goes out at once and delays no
@@ -79,10 +79,10 @@ def record_to_foxglove(
         ConfigError: foxglove-sdk missing, or the record's run configuration does not validate.
         TreeFileError: ``tree`` cannot be read.
     """
-    from thinkfast.daemon.foxglove_view import FoxgloveSink
-    from thinkfast.daemon.record_view import drawing_inputs
-    from thinkfast.record.channels import ChannelPainter
-    from thinkfast.record.replay import timed_calls
+    from thinkfast.view.channels import ChannelPainter
+    from thinkfast.view.foxglove import FoxgloveSink
+    from thinkfast.view.record_rerun import drawing_inputs
+    from thinkfast.view.replay import timed_calls
 
     cfg, robot, px, goal_yz = drawing_inputs(record, tree)
     calls = timed_calls(record, cfg, joint_rate, crossings=px is not None)
