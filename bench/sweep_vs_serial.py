@@ -52,8 +52,8 @@ def main() -> int:
     args = ap.parse_args()
 
     from thinkfast.config import to_toml
-    from thinkfast.sim.sweep import compile_text, load_sweep
-    from thinkfast.sim.sweep_store import SweepStore
+    from thinkfast.sweep.spec import compile_text, load_sweep
+    from thinkfast.sweep.store import SweepStore
     from thinkfast.tree.file import load_tree, tree_fingerprint
 
     spec = load_sweep(args.sweep)

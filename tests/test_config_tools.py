@@ -22,7 +22,7 @@ EXAMPLES = ROOT / "examples"
 COMMANDS = {
     "thinkfast-compile": "thinkfast.compile.cli",
     "thinkfast-run": "thinkfast.daemon.cli",
-    "thinkfast-sim": "thinkfast.sim.cli",
+    "thinkfast-sim": "thinkfast.sweep.cli",
     "thinkfast-detect": "thinkfast.perception.cli",
     "thinkfast-zed": "thinkfast.perception.zed_cli",
     "thinkfast-calib": "thinkfast.calib.cli",  # skipped until that command exists

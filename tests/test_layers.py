@@ -36,6 +36,7 @@ ALLOWED = {
         "compile",
         "perception",
     },
+    "sweep": BASE | {"control", "compile", "sim"},
     "calib": BASE | {"estimate", "decide", "control", "record", "link", "view", "daemon", "sim"},
     "cell": {"errors", "cli_util", "contract"},  # contract: the secured cell's identities
 }

@@ -151,7 +151,7 @@ def test_a_lockstep_run_with_the_registered_planner_flies(toy, small_tree_015, r
 
 
 def test_a_sweep_file_takes_the_registered_planner(toy, tmp_path):
-    from thinkfast.sim.sweep import load_sweep
+    from thinkfast.sweep.spec import load_sweep
 
     small_tree_config(tmp_path, spacing=0.45, depth=1).rename(tmp_path / "base.toml")
     path = tmp_path / "sweep.toml"

@@ -85,7 +85,7 @@ def reference(sweep_dir):
     from thinkfast.sim.camera import CameraModelConfig
     from thinkfast.sim.controller import ServoConfig
     from thinkfast.sim.lockstep import World
-    from thinkfast.sim.sweep import compile_text, load_sweep
+    from thinkfast.sweep.spec import compile_text, load_sweep
     from thinkfast.tree.file import load_tree, tree_fingerprint
 
     spec = load_sweep(sweep_dir / "sweep.toml")
@@ -110,10 +110,10 @@ def reference(sweep_dir):
 def local_run(sweep_dir):
     """The sweep through an embedded Dask cluster of 2 worker processes."""
     from thinkfast.sim.cluster import open_client
-    from thinkfast.sim.sweep import load_sweep
-    from thinkfast.sim.sweep_report import write_results
-    from thinkfast.sim.sweep_run import run_sweep
-    from thinkfast.sim.sweep_store import SweepStore
+    from thinkfast.sweep.report import write_results
+    from thinkfast.sweep.run import run_sweep
+    from thinkfast.sweep.spec import load_sweep
+    from thinkfast.sweep.store import SweepStore
 
     spec = load_sweep(sweep_dir / "sweep.toml")
     store = SweepStore(sweep_dir / "local")
@@ -162,8 +162,8 @@ def test_the_bench_command_gives_the_sweep_points_result(reference):
 
 def test_a_rerun_computes_only_what_is_missing(local_run, reference, tmp_path):
     from thinkfast.sim.cluster import open_client
-    from thinkfast.sim.sweep_run import run_sweep
-    from thinkfast.sim.sweep_store import SweepStore
+    from thinkfast.sweep.run import run_sweep
+    from thinkfast.sweep.store import SweepStore
 
     spec, store, _ = local_run
     copy = SweepStore(tmp_path / "copy")
@@ -269,8 +269,8 @@ def test_a_separate_cluster_runs_bench_and_a_sweep_that_survives_a_killed_worker
     assert proc.returncode == 0, proc.stderr
     assert without_seconds(json.loads(proc.stdout)) == summary0
 
-    from thinkfast.sim.sweep import load_sweep
-    from thinkfast.sim.sweep_store import SweepStore
+    from thinkfast.sweep.spec import load_sweep
+    from thinkfast.sweep.store import SweepStore
 
     directory = tmp_path / "s"
     directory.mkdir()
@@ -283,7 +283,7 @@ def test_a_separate_cluster_runs_bench_and_a_sweep_that_survives_a_killed_worker
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("THINKFAST_DEBUG", None)
     sweep = subprocess.Popen(
-        [sys.executable, "-c", "from thinkfast.sim.cli import main; main()", "sweep", str(path),
+        [sys.executable, "-c", "from thinkfast.sweep.cli import main; main()", "sweep", str(path),
          "-o", str(out.root), "--scheduler", addr, "--json", "--no-png"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
     )  # fmt: skip
@@ -314,7 +314,7 @@ def test_a_separate_cluster_runs_bench_and_a_sweep_that_survives_a_killed_worker
 
 def test_sweep_files_are_checked_key_by_key(tmp_path):
     from thinkfast.errors import ConfigError
-    from thinkfast.sim.sweep import load_sweep
+    from thinkfast.sweep.spec import load_sweep
 
     path = write_sweep(tmp_path)
     text = path.read_text()
@@ -344,7 +344,7 @@ def test_sweep_files_are_checked_key_by_key(tmp_path):
 
 
 def test_the_example_and_benchmark_sweeps_load():
-    from thinkfast.sim.sweep import load_sweep
+    from thinkfast.sweep.spec import load_sweep
 
     example = load_sweep(ROOT / "examples" / "SWEEP.toml")
     assert (len(example.points), len({p.tree_key for p in example.points})) == (8, 4)

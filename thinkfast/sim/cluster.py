@@ -11,7 +11,7 @@ Each throw's camera noise is seeded by its index (:func:`thinkfast.sim.bench.thr
 worker builds its lockstep world once per (tree, runtime config), exactly as a ``bench``
 process does: results are identical for any number of workers or chunk size.
 
-A sweep is run on a client by :func:`thinkfast.sim.sweep_run.run_sweep`; when a worker dies,
+A sweep is run on a client by :func:`thinkfast.sweep.run.run_sweep`; when a worker dies,
 Dask runs its unfinished tasks elsewhere.
 """
 

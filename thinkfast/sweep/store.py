@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from thinkfast.sim.lockstep import Outcome
-from thinkfast.sim.sweep import Point, Sweep
+from thinkfast.sweep.spec import Point, Sweep
 
 # --- outcomes on disk -----------------------------------------------------------------------
 

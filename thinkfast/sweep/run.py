@@ -1,6 +1,6 @@
 """Run a sweep on a client (:mod:`thinkfast.sim.cluster`): trees first, then every point's
 chunks of throws, each finished chunk and point written to the results directory as it arrives
-(:class:`~thinkfast.sim.sweep_store.SweepStore`); a rerun after any interruption recomputes only
+(:class:`~thinkfast.sweep.store.SweepStore`); a rerun after any interruption recomputes only
 what is missing, and a point whose tasks failed is reported, not written.
 """
 
@@ -60,8 +60,8 @@ def run_sweep(sweep, store, client, progress: Callable | None = None) -> SweepRe
 
     A compile that fails fails its points (named in ``report.failures``); the others go on.
     """
-    from thinkfast.sim.sweep import compile_text
-    from thinkfast.sim.sweep_store import point_doc
+    from thinkfast.sweep.spec import compile_text
+    from thinkfast.sweep.store import point_doc
 
     t0 = time.perf_counter()
     rep = SweepReport(points=len(sweep.points))

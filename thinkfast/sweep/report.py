@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from thinkfast.config import to_dict
-from thinkfast.sim.sweep import Sweep
-from thinkfast.sim.sweep_store import SweepStore, write_atomic
+from thinkfast.sweep.spec import Sweep
+from thinkfast.sweep.store import SweepStore, write_atomic
 
 COLUMNS = (
     "point", "planner", "throws", "blocked", "rate", "ci95_lo", "ci95_hi", "rate_of_feasible",
