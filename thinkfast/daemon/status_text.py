@@ -20,10 +20,10 @@ from thinkfast.control.modes import FAULT
 from thinkfast.control.outcome import CoreState
 
 if TYPE_CHECKING:
-    from thinkfast.daemon.daemon_parts import DaemonParts as Daemon  # not the service's
+    from thinkfast.daemon.daemon_parts import DaemonParts
 
 
-def status_message(d: Daemon, now: float) -> dict:
+def status_message(d: DaemonParts, now: float) -> dict:
     """The status message (docs/INTERFACES.md: at least stamp and state)."""
     ctl, sup = d.control, d.supervisor
     st = ctl.state()
@@ -75,7 +75,7 @@ def status_message(d: Daemon, now: float) -> dict:
     }
 
 
-def cell_text(d: Daemon) -> dict:
+def cell_text(d: DaemonParts) -> dict:
     """The cell the daemon runs (in the status and the start-up summary): its robot (name,
     robot.toml, its sha256), the tree's fingerprint and the plane's distance x [m]."""
     robot = d.robot
@@ -90,7 +90,7 @@ def cell_text(d: Daemon) -> dict:
     }
 
 
-def summary(d: Daemon) -> dict:
+def summary(d: DaemonParts) -> dict:
     """What the daemon runs with (logged at start-up)."""
     cfg, robot, meta = d.cfg, d.robot, d.tree_meta
     return {
