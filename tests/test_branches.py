@@ -17,6 +17,7 @@ from path_mc import model_block
 
 from thinkfast.control.config import RunConfig
 from thinkfast.control.executor import EXECUTING, Executor
+from thinkfast.control.planners.base import follow
 from thinkfast.control.segments import EDGE, STEER, hold
 from thinkfast.decide.branches import BranchTable, continuation_paths
 from thinkfast.decide.choice import BRANCH, DIRECT, BranchPoint, Chooser
@@ -169,12 +170,12 @@ def test_the_executor_follows_a_chosen_edge_and_the_child_chosen_for_its_end(rtr
     at = ex.planner.branch_point(0.2)
     assert at == BranchPoint(0, 0.2)  # home at rest: the root
     child = int(t.child_start[0] + 1)
-    ex.planner.take_branch(child, at, 0.2, ex.episode)
+    follow(ex.timeline, ex.episode, ex.planner.take_branch(child, at, 0.2))
     assert ex.segment.kind == EDGE and ex.segment.ref == child and ex.episode.path == [child]
     grand = int(t.child_start[child] + t.child_count[child] - 1)
     at = ex.planner.branch_point(0.25)
     assert at == BranchPoint(child, 0.2 + eps)  # the end of the edge in progress
-    ex.planner.take_branch(grand, at, 0.25, ex.episode)
+    follow(ex.timeline, ex.episode, ex.planner.take_branch(grand, at, 0.25))
     assert ex.timeline.pending == (grand, 0.2 + eps) and ex.segment.ref == child  # not yet
     states, times = [], 0.2 + np.arange(0, 2 * eps + 1e-9, 0.004)
     for tick in times:
@@ -197,10 +198,12 @@ def test_no_branch_point_off_the_tree_and_a_replaced_edge_drops_its_pending_chil
     t = rtree.compiled
     ex = _executor(rtree, robot)
     child = int(t.child_start[0])
-    ex.planner.take_branch(child, ex.planner.branch_point(0.0), 0.0, ex.episode)
+    follow(
+        ex.timeline, ex.episode, ex.planner.take_branch(child, ex.planner.branch_point(0.0), 0.0)
+    )
     at = ex.planner.branch_point(0.05)
     grand = int(t.child_start[child])
-    ex.planner.take_branch(grand, at, 0.05, ex.episode)
+    follow(ex.timeline, ex.episode, ex.planner.take_branch(grand, at, 0.05))
     assert ex.timeline.pending is not None
     # a direct move replaces the edge: its switch is void
     ex.timeline.steer_to(rtree.goal_q[3, :3], 3, 0.06)

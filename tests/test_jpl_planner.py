@@ -19,7 +19,7 @@ import pytest
 
 from thinkfast.control.config import RunConfig
 from thinkfast.control.planners import registry
-from thinkfast.control.planners.base import Belief, EpisodeLog
+from thinkfast.control.planners.base import Belief, EpisodeLog, follow
 from thinkfast.control.planners.jpl import JplPlanner, cubic_fit, first_root
 from thinkfast.control.planners.solver_base import FAILURES, integrate
 from thinkfast.control.segments import STEER
@@ -34,6 +34,13 @@ FRAME = 0.02  # s: 50 Hz estimates
 LATENCY = 0.02  # s: a belief reaches the planner this long after its stamp
 RELEASE = 1.0  # s: on the plans' clock
 START = np.array([4.0, -0.3, 1.4])  # m: the ball at release, in the plane's frame
+
+
+def decide(pl, b, ep):
+    """The planner's decision on ``b``, applied to its timeline as the executor applies it."""
+    act = pl.decide(b, ep)
+    follow(pl.timeline, ep, act.follow)
+    return act
 
 
 @pytest.fixture(scope="module")
@@ -160,7 +167,7 @@ def fly(pl: JplPlanner, rtree, aim, flight, until: float):
     for stamp in RELEASE + FRAME * np.arange(1, int(round(until / FRAME)) + 1):
         b = belief(rtree, state, stamp, not np.isnan(t_start), t_start)
         before = pl.stats.adopted
-        act = pl.decide(b, ep)
+        act = decide(pl, b, ep)
         if act.leave and np.isnan(t_start):
             t_start = b.t_now
         if pl.stats.adopted > before:
@@ -194,6 +201,6 @@ def test_a_failed_solve_keeps_the_previous_plan_and_is_counted(rtree, robot):
     assert seg.kind == STEER and adopted >= 1
     pl.a_max = pl.a_max * 1e-3  # the next QP cannot follow the plan in progress: infeasible
     state, _ = ballistic(aim, flight, rtree.plane_x)
-    act = pl.decide(belief(rtree, state, RELEASE + 0.22, True, RELEASE), EpisodeLog())
+    act = decide(pl, belief(rtree, state, RELEASE + 0.22, True, RELEASE), EpisodeLog())
     assert not act.leave and pl.timeline.segment is seg and pl.stats.adopted == adopted
     assert pl.stats.failed["infeasible"] == 1 and pl.stats.solves == adopted + 1

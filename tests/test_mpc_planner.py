@@ -21,7 +21,7 @@ import pytest
 
 from thinkfast.control.config import RunConfig
 from thinkfast.control.planners import registry
-from thinkfast.control.planners.base import Belief, EpisodeLog
+from thinkfast.control.planners.base import Belief, EpisodeLog, follow
 from thinkfast.control.planners.mpc import MpcPlanner, ipopt_reason
 from thinkfast.control.planners.solver_base import integrate
 from thinkfast.control.segments import STEER
@@ -34,6 +34,13 @@ from thinkfast.tree.file import load_tree
 CFG = RunConfig()
 G = CFG.filter.gravity
 TOL = 1e-6  # of the limits: IPOPT's bounds hold to its tolerance
+
+
+def decide(pl, b, ep):
+    """The planner's decision on ``b``, applied to its timeline as the executor applies it."""
+    act = pl.decide(b, ep)
+    follow(pl.timeline, ep, act.follow)
+    return act
 
 
 @pytest.fixture(scope="module")
@@ -141,7 +148,7 @@ def test_decide_puts_the_shield_on_the_predicted_point_at_the_crossing_less_the_
 ):
     yz = np.array([0.1, 1.1])
     b = _belief(rtree, _ball(yz, 0.4, rtree.plane_x), t_now=0.01)
-    act = planner.decide(b, EpisodeLog())
+    act = decide(planner, b, EpisodeLog())
     assert act.leave and planner.stats.adopted == 1 and planner.stats.solves == 1
     seg = planner.timeline.segment
     assert seg.kind == STEER and seg.t0 == 0.01
@@ -156,16 +163,16 @@ def test_decide_puts_the_shield_on_the_predicted_point_at_the_crossing_less_the_
     assert np.allclose(end[3:], 0.0, atol=1e-9)  # at rest once the stop after it ended
     assert np.allclose(end, seg.end, atol=1e-6)
     # the next belief is not due before the rate's period: the plan goes on
-    assert not planner.decide(b._replace(t_now=0.03), EpisodeLog()).leave
+    assert not decide(planner, b._replace(t_now=0.03), EpisodeLog()).leave
     assert planner.stats.solves == 1 and planner.timeline.segment is seg
 
 
 def test_a_failed_solve_keeps_the_segment_in_progress_and_is_counted(planner, rtree):
     ok = _belief(rtree, _ball(np.array([0.1, 1.1]), 0.4, rtree.plane_x), t_now=0.01)
-    assert planner.decide(ok, EpisodeLog()).leave
+    assert decide(planner, ok, EpisodeLog()).leave
     seg = planner.timeline.segment
     far = _belief(rtree, _ball(np.array([3.0, 1.1]), 0.4, rtree.plane_x), t_now=0.07)
-    act = planner.decide(far, EpisodeLog())
+    act = decide(planner, far, EpisodeLog())
     assert not act.leave and planner.timeline.segment is seg
     failed = planner.stats.failed
     assert failed["infeasible"] + failed["iterations"] == 1 and planner.stats.solves == 2

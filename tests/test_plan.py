@@ -10,6 +10,7 @@ from thinkfast.control.config import RunConfig
 from thinkfast.control.executor import Executor
 from thinkfast.control.intake import Intake
 from thinkfast.control.plan import Pieces, PlanFollower, decode_plan, executor_plan
+from thinkfast.control.planners.base import follow
 from thinkfast.robot.steering import Steering
 from thinkfast.sim.camera import CameraModelConfig, detection_payload, observe
 from thinkfast.sim.controller import ServoConfig
@@ -101,13 +102,13 @@ def test_the_queued_child_edge_is_announced_as_the_tree_planner_will_start_it(wo
     child = next(c for c in range(1, len(parent)) if parent[c] == 0 and (parent == c).any())
     grandchild = int(np.flatnonzero(parent == child)[0])
     ep = EpisodeLog()
-    ex.planner.start_edge(child, 0.0, ep)
+    follow(ex.timeline, ep, ex.planner.start_edge(child, 0.0))
     t_switch = world.tree.eps
     ex.timeline.pending = (grandchild, t_switch)
     announced = ex.planner.pending_segment()
     plan = decode_plan(executor_plan(ex, 1, 0))
     assert len(plan.segments) == 2 and plan.segments[1].t0 == t_switch
-    ex.planner.advance(t_switch, ep)
+    follow(ex.timeline, ep, ex.planner.advance(t_switch, ep))
     started = ex.timeline.segment
     assert started.ref == grandchild == announced.ref and started.t0 == announced.t0
     for s in np.linspace(0.0, started.duration, 25):

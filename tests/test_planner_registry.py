@@ -35,8 +35,7 @@ class FirstGuess(Planner):
         if b.executing or not c.ok:
             return STAY
         goal = self.tree.nearest_goal(c.mean[:2])
-        self.timeline.steer_to(self.tree.goal_q[goal, :3], goal, b.t_now)
-        return Act(leave=True, value=1.0)
+        return Act(leave=True, value=1.0, follow=self.steer(goal, b.t_now))
 
 
 @pytest.fixture

@@ -27,7 +27,7 @@ from thinkfast.control.gate import ThrowGate
 from thinkfast.control.hedge_stage import hedge_stage
 from thinkfast.control.modes import EXECUTING, FAULT, IDLE, RETURNING, STAGE_KEYS, TRACKING, Mode
 from thinkfast.control.planners import registry
-from thinkfast.control.planners.base import Belief, EpisodeLog
+from thinkfast.control.planners.base import Belief, EpisodeLog, follow
 from thinkfast.control.segments import EDGE, RETURN, Segment, WristTracker
 from thinkfast.control.timeline import ARM_HOME, Timeline
 from thinkfast.decide.tree_view import RuntimeTree
@@ -170,6 +170,7 @@ class Executor:
         fb = gate.belief
         b = Belief(t_now, stamp, c, fb.mean, executing, ep.t_start, fb.cov, fb.r)
         act = self.planner.decide(b, ep)
+        follow(self.timeline, ep, act.follow)  # the planner decides, the executor applies
         if act.leave and self.mode == TRACKING:
             self._leave(t_now)
         if act.value is not None:
@@ -186,7 +187,7 @@ class Executor:
         wall time ``t``."""
         self._end_of_throw(t)
         if self.mode == EXECUTING:
-            self.planner.advance(t, self.episode)
+            follow(self.timeline, self.episode, self.planner.advance(t, self.episode))
         n, m = self.n_arm, self.wrist.n  # joints of the timeline, of the wrist
         s = self.timeline.state(t)
         w = self.wrist.step(t, s[:n], *self.wrist_inputs())

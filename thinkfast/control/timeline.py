@@ -65,10 +65,15 @@ class Timeline:
             np.all(np.abs(s[:n] - self.home) < ARM_HOME) and np.all(np.abs(s[n:]) < ARM_HOME)
         )
 
+    def steer_segment(self, target: np.ndarray, ref: int, t: float) -> Segment | None:
+        """The move to rest at ``target`` (n_arm,) [rad] (goal ``ref``) from the commanded state
+        at ``t``, or None when Ruckig fails (pure: the timeline is not changed)."""
+        return move(self.steer, STEER, self.segment.state(t), target, t, ref)
+
     def steer_to(self, target: np.ndarray, ref: int, t: float) -> None:
         """Move to rest at ``target`` (n_arm,) [rad] (goal ``ref``) from the commanded state at
         ``t``; the segment in progress stays when Ruckig fails."""
-        seg = move(self.steer, STEER, self.segment.state(t), target, t, ref)
+        seg = self.steer_segment(target, ref, t)
         if seg is not None:
             self.segment = seg
             self.pending = None

@@ -1,28 +1,15 @@
 """The planner interface: what a planner of the executor is given and what it returns.
 
-A planner decides where the arm goes once a throw is confirmed. It is built once per executor
-from the runtime tree, the robot, the runtime config and the executor's segment timeline
-(:class:`~thinkfast.control.timeline.Timeline`), and is clock-free: every call carries the time
-the plans run on (the controller's clock) [s].
-
-- :meth:`Planner.decide`, at every belief from the confirmation on, is given a :class:`Belief`
-  (the crossing prediction, the belief's mean, whether the arm has left home) and the throw's
-  :class:`EpisodeLog`. It commands motion by replacing the timeline's segment (a move from the
-  commanded state ``timeline.state(t_now)``, so plans stay continuous) and returns an
-  :class:`Act`: whether the arm leaves home now and the value of its choice.
-- :meth:`Planner.advance`, at every tick while the arm is out, moves on along plans made of
-  pieces (the tree edges of ``tree-rest``, the queued child edge of ``tree``).
-- :meth:`Planner.resume_edge` says what a compiled tree edge becomes after a resync (an edge
-  cannot be resumed off its compiled path).
-- :meth:`Planner.value` is the (value, goal) shown in the status and the records.
-
-Class attributes say what else the planner needs from the executor: ``gate`` (which throw gate
-confirms, :mod:`thinkfast.control.gate`), ``hedges`` (the hedge stage may run before the
-confirmation, :mod:`thinkfast.control.hedge_stage`), ``full_limits`` (it follows compiled
-edges at the robot's full limits: no ``--speed-scale``) and ``slow`` (a decision may take
-longer than an EGM cycle: the daemon runs it only in the planner process of
-``--reply-process``, never where EGM is answered). The registry
-(:mod:`thinkfast.control.planners.registry`) names the planners.
+A planner decides where the arm goes once a throw is confirmed. Built once per executor from the
+runtime tree, the robot, the runtime config and the executor's segment timeline (which it
+reads), it is clock-free: every call carries the time on the controller's clock [s].
+:meth:`Planner.decide` takes a :class:`Belief` at every belief from the confirmation on and
+returns an :class:`Act` (leave home now, the value of its choice, the :class:`Follow` to take:
+a segment from the commanded state, so plans stay continuous), which the executor applies
+(:func:`follow`); :meth:`Planner.advance` returns the next :class:`Follow` along plans made of
+pieces (tree edges). Class attributes say what else it needs from the executor (``gate``,
+``hedges``, ``full_limits``, ``slow``). The table of calls: docs/ARCHITECTURE.md, "Planners";
+the registry (:mod:`thinkfast.control.planners.registry`) names the planners.
 """
 
 from __future__ import annotations
@@ -35,7 +22,7 @@ import numpy as np
 
 from thinkfast.control.config import RunConfig
 from thinkfast.control.foresight import foresight
-from thinkfast.control.segments import EDGE, STEER
+from thinkfast.control.segments import EDGE, STEER, Segment
 from thinkfast.control.timeline import Timeline
 from thinkfast.decide import lookahead as lk
 from thinkfast.decide.tree_view import Decision, RuntimeTree
@@ -92,13 +79,47 @@ class Act(NamedTuple):
     Attributes:
         leave: the arm leaves home now (the executor starts the episode's motion at ``t_now``).
         value: the value of the choice made (None: none to record).
+        follow: the motion to follow (None: the motion in progress goes on).
     """
 
     leave: bool = False
     value: float | None = None
+    follow: Follow | None = None
 
 
 STAY = Act()
+KEEP = "keep"  # a Follow's pending edge: the one queued stays
+
+
+class Follow(NamedTuple):
+    """A planner's decision of motion, applied by the executor (:func:`follow`).
+
+    Attributes:
+        segment: the joint 1-3 segment to follow from now on (None: the one in progress stays).
+        pending: the compiled child edge queued for the end of the segment, ``(child,
+            t_switch [s])``, None for none, :data:`KEEP` to leave it as it is.
+        node: the tree node the motion leaves from (None: unchanged).
+        path: tree nodes the motion enters with it (the episode's path).
+    """
+
+    segment: Segment | None = None
+    pending: tuple[int, float] | str | None = KEEP
+    node: int | None = None
+    path: tuple[int, ...] = ()
+
+
+def follow(timeline: Timeline, ep: EpisodeLog, f: Follow | None) -> None:
+    """Apply the planner's decision ``f`` (None: nothing) to the executor's timeline and the
+    episode's path."""
+    if f is None:
+        return
+    if f.pending != KEEP:
+        timeline.pending = f.pending
+    if f.segment is not None:
+        timeline.segment = f.segment
+    if f.node is not None:
+        timeline.node = f.node
+    ep.path.extend(f.path)
 
 
 class Planner:
@@ -128,8 +149,10 @@ class Planner:
         """Plan on the belief ``b`` (module doc); returns what the executor records."""
         raise NotImplementedError
 
-    def advance(self, t: float, ep: EpisodeLog) -> None:
-        """Every tick while the arm is out, before the timeline is sampled at ``t`` [s]."""
+    def advance(self, t: float, ep: EpisodeLog) -> Follow | None:
+        """Every tick while the arm is out, before the timeline is sampled at ``t`` [s]: the
+        motion to follow on from there (None: the one in progress goes on)."""
+        return None
 
     def resume_edge(self, q: np.ndarray) -> tuple[str, np.ndarray, int]:
         """(kind, joint 1-3 target [rad] (n_arm,), ref) the compiled tree edge in progress
@@ -185,6 +208,12 @@ class Planner:
             return STAY
         goal = self.tree.nearest_goal(c.mean[:2])
         seg = self.timeline.segment
-        if not (seg.kind == STEER and seg.ref == goal):
-            self.timeline.steer_to(self.tree.goal_q[goal, : self.n_arm], goal, b.t_now)
-        return Act(leave=True)
+        if seg.kind == STEER and seg.ref == goal:
+            return Act(leave=True)
+        return Act(leave=True, follow=self.steer(goal, b.t_now))
+
+    def steer(self, goal: int, t: float) -> Follow | None:
+        """A move to rest at ``goal`` from the commanded state at ``t`` [s]; None when Ruckig
+        fails (the motion in progress goes on)."""
+        seg = self.timeline.steer_segment(self.tree.goal_q[goal, : self.n_arm], goal, t)
+        return None if seg is None else Follow(seg, None)

@@ -23,7 +23,7 @@ import numpy as np
 
 from thinkfast.control.config import RunConfig
 from thinkfast.control.pieces import K_MAX, Pieces
-from thinkfast.control.planners.base import STAY, Act, Belief, EpisodeLog, Planner
+from thinkfast.control.planners.base import STAY, Act, Belief, EpisodeLog, Follow, Planner
 from thinkfast.control.safety_brake import stop_trajectory
 from thinkfast.control.segments import STEER, Segment
 from thinkfast.control.timeline import Timeline
@@ -182,10 +182,8 @@ class SolverPlanner(Planner):
         seg = self.segment(x0, sol, goal, b.t_now)
         if isinstance(seg, str):
             return self._failed(seg)
-        self.timeline.segment = seg
-        self.timeline.pending = None
         self.stats.adopted += 1
-        return Act(leave=True)
+        return Act(leave=True, follow=Follow(seg, None))
 
     @property
     def rate(self) -> float:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from thinkfast.control.config import RunConfig
-from thinkfast.control.planners.base import STAY, Act, Belief, EpisodeLog, Planner
+from thinkfast.control.planners.base import STAY, Act, Belief, EpisodeLog, Follow, Planner
 from thinkfast.control.segments import EDGE, STEER, Segment
 from thinkfast.control.timeline import Timeline
 from thinkfast.decide.branches import BranchTable
@@ -56,8 +56,9 @@ class TreePlanner(Planner):
             goal = int(tl.segment.ref)  # continuing the move to this goal
         self.chosen = (float(best.value), int(goal))
         if best.kind == BRANCH:
-            self.take_branch(best.node, at, b.t_now, ep)
-            return Act(leave=True, value=best.value)
+            return Act(
+                leave=True, value=best.value, follow=self.take_branch(best.node, at, b.t_now)
+            )
         if best.kind != DIRECT and best.value < self.cfg.execution.min_move_value:
             # nothing reachable has value (the ball comes too fast): the paper's fallback, rush
             # to the most probable goal; a shield on its way may still catch the ball
@@ -66,21 +67,21 @@ class TreePlanner(Planner):
             return STAY  # continuing (at home: waiting) is worth the most
         n = self.n_arm
         end = np.r_[self.tree.goal_q[best.goal, :n], np.zeros(2 * n)]
-        tl.segment = Segment(STEER, b.t_now, best.traj, end, best.traj.duration, best.goal)
-        tl.pending = None
-        return Act(leave=True, value=best.value)
+        seg = Segment(STEER, b.t_now, best.traj, end, best.traj.duration, best.goal)
+        return Act(leave=True, value=best.value, follow=Follow(seg, None))
 
-    def advance(self, t: float, ep: EpisodeLog) -> None:
+    def advance(self, t: float, ep: EpisodeLog) -> Follow | None:
         """At the end of the edge in progress, start the queued child edge."""
         tl = self.timeline
         if tl.pending is None:
-            return
+            return None
         child, t_switch = tl.pending
         seg = tl.segment
         if seg.kind != EDGE or self.tree.compiled.node_parent[child] != seg.ref:
-            tl.pending = None  # the edge it was to follow was replaced
-        elif t >= t_switch:
-            self.start_edge(child, t_switch, ep)
+            return Follow(pending=None)  # the edge it was to follow was replaced
+        if t >= t_switch:
+            return self.start_edge(child, t_switch)
+        return None
 
     def pending_segment(self) -> Segment | None:
         """The queued child edge as :meth:`start_edge` will start it (pure), or None."""
@@ -126,30 +127,27 @@ class TreePlanner(Planner):
             return BranchPoint(0, t_now)
         return None
 
-    def take_branch(self, child: int, at: BranchPoint, t_now: float, ep: EpisodeLog) -> None:
+    def take_branch(self, child: int, at: BranchPoint, t_now: float) -> Follow:
         """Start the chosen child edge into ``child`` now (at home) or queue it for the end of
         the edge in progress."""
         if at.t_switch <= t_now:
-            self.start_edge(child, t_now, ep)
-        else:
-            self.timeline.pending = (child, at.t_switch)
+            return self.start_edge(child, t_now)
+        return Follow(pending=(child, at.t_switch))
 
-    def start_edge(self, child: int, t0: float, ep: EpisodeLog) -> None:
+    def start_edge(self, child: int, t0: float) -> Follow:
         """Follow the compiled edge into ``child`` from the commanded state at ``t0`` (the state
         of its parent node), steering on to its sub-goal after ``eps`` unless a child of it
-        is taken then."""
+        is taken then; nothing queued after it."""
         t = self.tree.compiled
         tl = self.timeline
         n = self.n_arm
         target = self.tree.subgoal_q[t.edge_target[child], :n]
         traj = tl.steer.to_rest(tl.state(t0), target)
-        tl.pending = None
         if traj is None:
-            return
+            return Follow(pending=None)
         end = np.r_[target, np.zeros(2 * n)]
-        tl.segment = Segment(EDGE, t0, traj, end, traj.duration, int(child))
-        tl.node = int(t.node_parent[child])
-        ep.path.append(int(child))
+        seg = Segment(EDGE, t0, traj, end, traj.duration, int(child))
+        return Follow(seg, None, int(t.node_parent[child]), (int(child),))
 
 
 def branch_table(tree: RuntimeTree, geom, per_goal: int) -> BranchTable:

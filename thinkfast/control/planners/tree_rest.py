@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from thinkfast.control.planners.base import STAY, Act, Belief, EpisodeLog, Planner
+from thinkfast.control.planners.base import STAY, Act, Belief, EpisodeLog, Follow, Planner
 from thinkfast.control.segments import EDGE, STEER, TERMINAL, Segment, hold, move
 
 
@@ -27,21 +27,24 @@ class TreeRestPlanner(Planner):
         if not b.executing:
             return self._leave_home(b.t_now, ep)
         if self.timeline.segment.kind in (STEER, TERMINAL):
-            self._fallback(b.t_now)  # committed: follow the most probable goal as beliefs improve
+            # committed: follow the most probable goal as beliefs improve
+            return Act(follow=self._fallback(b.t_now))
         return STAY
 
-    def advance(self, t: float, ep: EpisodeLog) -> None:
+    def advance(self, t: float, ep: EpisodeLog) -> Follow | None:
         """Switch segments at tree-edge boundaries up to ``t`` [s]."""
-        tl = self.timeline
-        while tl.segment.kind == EDGE and t >= tl.segment.t_end:
-            node = tl.segment.ref
-            tl.node = node
-            ep.path.append(node)
-            nxt = self._next_from(node, tl.segment.t_end, ep)
+        seg, path = self.timeline.segment, []
+        while seg.kind == EDGE and t >= seg.t_end:
+            node = seg.ref
+            path.append(node)
+            nxt = self._next_from(node, seg.t_end, ep)
             if nxt is None:  # no decision possible: stop at the node's state
-                tl.segment = hold(self.tree.compiled.node_state[node], tl.segment.t_end)
-                return
-            tl.segment = nxt
+                seg = hold(self.tree.compiled.node_state[node], seg.t_end)
+                break
+            seg = nxt
+        if not path:
+            return None
+        return Follow(seg, node=path[-1], path=tuple(path))
 
     def _leave_home(self, t_now: float, ep: EpisodeLog) -> Act:
         d = self.decision
@@ -54,13 +57,11 @@ class TreeRestPlanner(Planner):
             if b.best_goal < 0:
                 return STAY
             goal = int(b.best_goal)
-            self.timeline.steer_to(self.tree.goal_q[goal, : self.n_arm], goal, t_now)
-            return Act(leave=True, value=float(b.value[0]))
+            return Act(leave=True, value=float(b.value[0]), follow=self.steer(goal, t_now))
         first = self._next_from(0, t_now, ep)
         if first is None or (first.kind == EDGE and self._is_stay(first)):
             return STAY  # waiting at home is best: decide again at the next belief
-        self.timeline.segment = first
-        return Act(leave=True, value=float(b.value[0]))
+        return Act(leave=True, value=float(b.value[0]), follow=Follow(first))
 
     def _is_stay(self, seg: Segment) -> bool:
         state = self.tree.compiled.node_state
@@ -89,16 +90,16 @@ class TreeRestPlanner(Planner):
                 return seg
         return None
 
-    def _fallback(self, t_now: float) -> None:
+    def _fallback(self, t_now: float) -> Follow | None:
         """Tree exhausted, ball still coming: steer to the most probable goal."""
         d = self.decision
         if d is None or d.backup is None or d.backup.best_goal < 0:
-            return
+            return None
         goal = int(d.backup.best_goal)
         seg = self.timeline.segment
         current = seg.ref
         if seg.kind == TERMINAL:
             current = int(self.tree.compiled.term_goal[current])
         if current == goal:
-            return
-        self.timeline.steer_to(self.tree.goal_q[goal, : self.n_arm], goal, t_now)
+            return None
+        return self.steer(goal, t_now)
