@@ -206,7 +206,7 @@ def test_no_branch_point_off_the_tree_and_a_replaced_edge_drops_its_pending_chil
     follow(ex.timeline, ex.episode, ex.planner.take_branch(grand, at, 0.05))
     assert ex.timeline.pending is not None
     # a direct move replaces the edge: its switch is void
-    ex.timeline.steer_to(rtree.goal_q[3, :3], 3, 0.06)
+    follow(ex.timeline, ex.episode, ex.planner.steer(3, 0.06))
     assert ex.segment.kind == STEER and ex.timeline.pending is None
     assert ex.planner.branch_point(0.07) is None  # moving off the tree: no compiled edge can start
     ex.resync(np.r_[ex.segment.state(0.08)[:3], robot.home[3:]], np.zeros(6), np.zeros(6), 0.08)

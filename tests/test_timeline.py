@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from thinkfast.control.config import ExecutionConfig
+from thinkfast.control.planners.base import EpisodeLog, Follow, follow
 from thinkfast.control.segments import HOLD, RETURN, STEER, Segment
 from thinkfast.control.timeline import Timeline
 
@@ -50,12 +51,17 @@ def test_from_a_fast_state_it_still_ends_home_and_a_hold_when_nothing_plans(robo
 
 
 def test_a_move_that_cannot_be_planned_keeps_the_segment_in_progress(robot):
+    """A move Ruckig cannot plan is None and changes nothing; one it plans changes nothing
+    either until it is followed, and following it drops the queued edge."""
     tl = Timeline(robot, CFG)
     tl.pending = (3, 0.5)
     before = tl.segment
-    tl.steer_to(np.full(3, np.nan), 2, 0.0)
+    assert tl.steer_segment(np.full(3, np.nan), 2, 0.0) is None
+    follow(tl, EpisodeLog(), None)
     assert tl.segment is before and tl.pending == (3, 0.5)
-    tl.steer_to(np.asarray(robot.home[:3]) + 0.2, 2, 0.0)
+    seg = tl.steer_segment(np.asarray(robot.home[:3]) + 0.2, 2, 0.0)
+    assert tl.segment is before and tl.pending == (3, 0.5)
+    follow(tl, EpisodeLog(), Follow(seg, None))
     assert tl.segment.kind == STEER and tl.segment.ref == 2 and tl.pending is None
 
 

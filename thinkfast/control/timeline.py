@@ -70,14 +70,6 @@ class Timeline:
         at ``t``, or None when Ruckig fails (pure: the timeline is not changed)."""
         return move(self.steer, STEER, self.segment.state(t), target, t, ref)
 
-    def steer_to(self, target: np.ndarray, ref: int, t: float) -> None:
-        """Move to rest at ``target`` (n_arm,) [rad] (goal ``ref``) from the commanded state at
-        ``t``; the segment in progress stays when Ruckig fails."""
-        seg = self.steer_segment(target, ref, t)
-        if seg is not None:
-            self.segment = seg
-            self.pending = None
-
     def start_return(self, t: float) -> None:
         """Home from the commanded state at ``t`` (:meth:`home_move`); a hold when nothing
         plans."""
