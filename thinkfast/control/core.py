@@ -26,10 +26,10 @@ from typing import NamedTuple
 import numpy as np
 
 from thinkfast.control.egm_clock import ClockTick, ControllerClock
-from thinkfast.control.executor import FAULT, IDLE
 from thinkfast.control.feedback_rate import FeedbackRate, span_before
 from thinkfast.control.intake import Intake
 from thinkfast.control.link import Feedback
+from thinkfast.control.modes import FAULT, IDLE
 from thinkfast.control.motion import Motion
 from thinkfast.control.outcome import (
     CoreState,

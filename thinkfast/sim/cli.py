@@ -256,5 +256,6 @@ app.add_typer(record_app, name="record")  # thinkfast/sim/record_cli.py
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point."""
+    """Console entry point (thinkfast-sim's is this one through :mod:`thinkfast.sweep.cli`,
+    which adds ``sweep`` to :data:`app` first)."""
     sys.exit(run_app(app, "thinkfast-sim", argv))

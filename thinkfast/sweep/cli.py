@@ -10,8 +10,8 @@ from pathlib import Path
 
 import typer
 
-from thinkfast.cli_util import run_app
 from thinkfast.sim.cli import app
+from thinkfast.sim.cli import main as main  # thinkfast-sim: sim.cli main, with sweep on app
 from thinkfast.sim.cli_options import SCHEDULER_HELP
 
 
@@ -76,8 +76,3 @@ def sweep(
             + (f" (and {len(report.failures) - 1} more)" if len(report.failures) > 1 else "")
             + "; finished points are kept, rerun to retry"
         )
-
-
-def main(argv: list[str] | None = None) -> None:
-    """Console entry point of ``thinkfast-sim``."""
-    sys.exit(run_app(app, "thinkfast-sim", argv))
